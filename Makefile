@@ -1,0 +1,51 @@
+# Two commands do all the set-up on a fresh machine: `make demo` and `make test`.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+DEMO   := demo
+
+.PHONY: demo test lint bench sysdeps clean
+
+# Headless OpenGL: Mesa's EGL renders on the CPU; OSMesa is the fallback. Installed only when
+# missing and only where apt-get can run (as root); otherwise the renderer says what is missing.
+sysdeps:
+	@if ! ldconfig -p 2>/dev/null | grep -q 'libEGL_mesa.so\|libOSMesa.so'; then \
+	  if command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ]; then \
+	    echo "installing Mesa (EGL/OSMesa) for headless rendering"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
+	      libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1 libosmesa6 >/dev/null; \
+	  else \
+	    echo "warning: no Mesa EGL/OSMesa found; install libegl-mesa0 or libosmesa6" >&2; \
+	  fi; \
+	fi
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+
+$(VENV)/.installed: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install -q -e .
+	touch $@
+
+$(VENV)/.dev-installed: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install -q -e '.[dev]'
+	touch $@ $(VENV)/.installed
+
+demo: sysdeps $(VENV)/.installed
+	@mkdir -p $(DEMO)
+	$(BIN)/aslam --version
+
+test: sysdeps $(VENV)/.dev-installed
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	$(BIN)/pytest -q
+
+lint: $(VENV)/.dev-installed
+	$(BIN)/ruff check --fix .
+	$(BIN)/ruff format .
+
+bench: sysdeps $(VENV)/.installed
+	$(BIN)/python bench/run_all.py
+
+clean:
+	rm -rf $(VENV) $(DEMO) build *.egg-info .pytest_cache .ruff_cache

@@ -1,0 +1,68 @@
+"""SE(2) poses as ``(x_m, y_m, yaw_rad)`` arrays, composed without any global frame.
+
+Every function accepts a single pose of shape ``(3,)`` or a stack of shape ``(n, 3)`` and
+broadcasts, so the map code can move whole neighbourhoods at once.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+Pose2 = np.ndarray  # shape (3,) or (n, 3): x_m, y_m, yaw_rad
+
+
+def wrap_angle(angle_rad: np.ndarray | float) -> np.ndarray | float:
+    """Map any angle to [-π, π)."""
+    return (np.asarray(angle_rad) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def compose(a: Pose2, b: Pose2) -> Pose2:
+    """``a ⊕ b``: pose ``b`` (expressed in frame ``a``) expressed in ``a``'s parent frame."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    return np.stack(
+        [
+            a[..., 0] + c * b[..., 0] - s * b[..., 1],
+            a[..., 1] + s * b[..., 0] + c * b[..., 1],
+            wrap_angle(a[..., 2] + b[..., 2]),
+        ],
+        axis=-1,
+    )
+
+
+def inverse(a: Pose2) -> Pose2:
+    """``⊖a``: the parent frame seen from frame ``a``."""
+    a = np.asarray(a, dtype=float)
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    return np.stack(
+        [
+            -c * a[..., 0] - s * a[..., 1],
+            s * a[..., 0] - c * a[..., 1],
+            wrap_angle(-a[..., 2]),
+        ],
+        axis=-1,
+    )
+
+
+def between(a: Pose2, b: Pose2) -> Pose2:
+    """``⊖a ⊕ b``: pose ``b`` seen from pose ``a`` (the action that takes ``a`` to ``b``)."""
+    return compose(inverse(a), b)
+
+
+def as_matrix(a: Pose2) -> np.ndarray:
+    """Homogeneous 3×3 matrix of one pose."""
+    x, y, yaw = np.asarray(a, dtype=float)
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, x], [s, c, y], [0.0, 0.0, 1.0]])
+
+
+def from_matrix(m: np.ndarray) -> Pose2:
+    """Pose of a homogeneous 3×3 rigid-motion matrix."""
+    return np.array([m[0, 2], m[1, 2], float(np.arctan2(m[1, 0], m[0, 0]))])
+
+
+def interpolate(a: Pose2, b: Pose2, fraction: float) -> Pose2:
+    """Pose a fraction of the way from ``a`` to ``b`` (straight line, shortest turn)."""
+    delta = between(a, b)
+    return compose(a, np.asarray(delta) * float(fraction))

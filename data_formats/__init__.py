@@ -1,0 +1,1 @@
+"""Every byte on disk: recordings, estimates, graph JSON."""

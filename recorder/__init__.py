@@ -1,0 +1,1 @@
+"""Worlds, routes, noise and pyrender rendering for `aslam record`."""
