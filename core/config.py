@@ -1,0 +1,136 @@
+"""Every parameter of the estimator, with the reason for its default."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+from aslam.core.errors import ConfigError
+from aslam.core.features import HistogramConfig
+from aslam.core.motion import MotionNoise
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    """Configuration of :class:`aslam.core.estimator.Estimator`.
+
+    Defaults reproduce the paper's setting (1 m steps, 90° turns, 3 % odometry error) with the
+    project's improvements (spatial cells, graph search); ``paper_faithful()`` turns those off.
+    """
+
+    # --- keyframing -------------------------------------------------------------------------
+    step_m: float = 1.0
+    """A keyframe is taken once odometry says the robot moved this far since the last one."""
+    turn_deg: float = 90.0
+    """... or turned this much."""
+    keyframe_slack: float = 0.1
+    """Fraction of ``step_m``/``turn_deg`` forgiven: noisy odometry may measure a commanded 1 m as 0.97 m."""
+
+    # --- observations -------------------------------------------------------------------------
+    histogram_bins: int = 16
+    """Gradient-orientation bins over [-π, π)."""
+    cells_x: int = 4
+    """Columns of spatial cells per image (1 = the paper's single global histogram)."""
+    cells_y: int = 2
+    """Rows of spatial cells."""
+    beta: float = 2.0
+    """Sensitivity of ``P(z|x) = χ²^-β``."""
+    chi2_floor: float = 1e-3
+    """χ² is floored here so that two identical views give a finite likelihood."""
+    new_state_chi2: float = 0.06
+    """Reference χ² of an unseen place: ``P(z|new) = new_state_chi2^-β``. A revisit must look
+    more alike than this (calibrated on rendered recordings, see docs/estimator.md)."""
+
+    # --- transitions ----------------------------------------------------------------------------
+    odometry_noise: float = 0.03
+    """σ of odometry per metre moved and per radian turned (the paper's 3 %)."""
+    drift_deg_per_m: float = 0.5
+    """σ of heading drift while moving forward, degrees per metre."""
+    place_radius_m: float = 0.2
+    """Two visits of one place are never at exactly the same pose: σ of that, in position."""
+    place_heading_deg: float = 10.0
+    """... and in heading."""
+    visit_sigma_m: float = 0.1
+    """Extra σ of a link that starts or ends at a revisit (it was measured from the visit, not the place)."""
+    visit_sigma_deg: float = 3.0
+    """... in heading."""
+    gate_sigma: float = 4.0
+    """Candidates whose Mahalanobis distance from the predicted pose exceeds this are unreachable."""
+    revisit_prior: float = 0.5
+    """Prior probability that a keyframe revisits some place rather than finding a new one."""
+    search_sigma_m: float = 3.0
+    """The graph search stops where composed position uncertainty exceeds this σ."""
+    search_max_states: int = 400
+    """... or after this many states, so the cost per keyframe is bounded whatever the map size."""
+
+    # --- hypothesis tree ------------------------------------------------------------------------
+    prune_ratio: float = 1e-3
+    """Hypotheses whose belief is below this fraction of the best are removed."""
+    max_hypotheses: int = 50
+    """The tree never holds more leaves than this."""
+    merge_window: int = 4
+    """Leaves at the same state that agree on the last this-many keyframes are merged."""
+
+    def __post_init__(self) -> None:
+        problems = self.problems()
+        if problems:
+            raise ConfigError("; ".join(problems))
+
+    def problems(self) -> list[str]:
+        """Every invalid value at once (empty when the configuration is usable)."""
+        positive = [
+            "step_m", "turn_deg", "beta", "chi2_floor", "new_state_chi2", "place_radius_m",
+            "place_heading_deg", "gate_sigma", "search_sigma_m",
+        ]  # fmt: skip
+        problems = []
+        for name in positive:
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                problems.append(f"{name} must be a positive number, got {value!r}")
+        for name in [
+            "odometry_noise",
+            "drift_deg_per_m",
+            "visit_sigma_m",
+            "visit_sigma_deg",
+            "keyframe_slack",
+        ]:
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+                problems.append(f"{name} must be a non-negative number, got {value!r}")
+        if not 0 <= self.keyframe_slack < 1:
+            problems.append(f"keyframe_slack must be in [0, 1), got {self.keyframe_slack!r}")
+        if not 0 < self.revisit_prior < 1:
+            problems.append(f"revisit_prior must be in (0, 1), got {self.revisit_prior!r}")
+        if not 0 < self.prune_ratio < 1:
+            problems.append(f"prune_ratio must be in (0, 1), got {self.prune_ratio!r}")
+        for name in [
+            "histogram_bins",
+            "cells_x",
+            "cells_y",
+            "max_hypotheses",
+            "search_max_states",
+            "merge_window",
+        ]:
+            value = getattr(self, name)
+            if not (isinstance(value, int) and not isinstance(value, bool) and value >= 1):
+                problems.append(f"{name} must be a whole number ≥ 1, got {value!r}")
+        if isinstance(self.histogram_bins, int) and self.histogram_bins % 2:
+            problems.append(f"histogram_bins must be even, got {self.histogram_bins}")
+        return problems
+
+    @classmethod
+    def paper_faithful(cls, **overrides: object) -> EstimatorConfig:
+        """The paper's estimator: one global histogram per image."""
+        return cls(**{"cells_x": 1, "cells_y": 1, **overrides})
+
+    @classmethod
+    def field_names(cls) -> list[str]:
+        return [f.name for f in fields(cls)]
+
+    @property
+    def histogram(self) -> HistogramConfig:
+        return HistogramConfig(bins=self.histogram_bins, cells_x=self.cells_x, cells_y=self.cells_y)
+
+    @property
+    def motion_noise(self) -> MotionNoise:
+        return MotionNoise(fraction=self.odometry_noise, drift_rad_per_m=math.radians(self.drift_deg_per_m))

@@ -1,0 +1,142 @@
+"""The streaming API: odometry and images in, hypotheses and a map of places out."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from aslam.core import se2
+from aslam.core.config import EstimatorConfig
+from aslam.core.features import orientation_histogram
+from aslam.core.mapgraph import SharedMap
+from aslam.core.tree import Hypothesis, HypothesisTree, TreeStats
+
+
+class Keyframer:
+    """Decides from odometry alone when to look: after ``step_m`` metres or ``turn_deg`` of turning."""
+
+    def __init__(self, step_m: float, turn_deg: float, slack: float) -> None:
+        self._step_m = step_m * (1.0 - slack)
+        self._turn_rad = math.radians(turn_deg) * (1.0 - slack)
+        self._last: np.ndarray | None = None
+
+    def action_if_keyframe(self, odometry_pose: np.ndarray) -> np.ndarray | None:
+        """The odometry action since the last keyframe if this pose is a keyframe, else None.
+
+        The first pose is always a keyframe, with a zero action.
+        """
+        pose = np.asarray(odometry_pose, dtype=float)
+        if self._last is None:
+            self._last = pose
+            return np.zeros(3)
+        action = se2.between(self._last, pose)
+        if math.hypot(action[0], action[1]) >= self._step_m or abs(action[2]) >= self._turn_rad:
+            self._last = pose
+            return action
+        return None
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """What one keyframe did to the hypotheses; ``hypotheses[0]`` is the best."""
+
+    keyframe: int
+    stamp_ns: int
+    action: tuple[float, float, float]
+    hypotheses: tuple[Hypothesis, ...]
+
+    @property
+    def best(self) -> Hypothesis:
+        return self.hypotheses[0]
+
+
+@dataclass(frozen=True)
+class MapState:
+    id: int
+    keyframes: tuple[int, ...]
+
+
+@dataclass(frozen=True)
+class MapLink:
+    from_state: int
+    to_state: int
+    action: tuple[float, float, float]
+    covariance: tuple[tuple[float, float, float], ...]
+    count: int
+
+
+@dataclass(frozen=True)
+class EstimateResult:
+    """The best hypothesis's map of places, the final hypotheses and the tree's statistics."""
+
+    states: tuple[MapState, ...]
+    links: tuple[MapLink, ...]
+    hypotheses: tuple[Hypothesis, ...]
+    keyframe_stamps_ns: tuple[int, ...]
+    stats: TreeStats
+
+
+class Estimator:
+    """Appearance-based SLAM over a stream of (stamp, odometry pose, image)."""
+
+    def __init__(self, config: EstimatorConfig | None = None) -> None:
+        self.config = config or EstimatorConfig()
+        self._histogram = self.config.histogram
+        self._keyframer = Keyframer(self.config.step_m, self.config.turn_deg, self.config.keyframe_slack)
+        self._tree = HypothesisTree(self.config, self._histogram.length)
+        self._stamps: list[int] = []
+
+    def wants_image(self, odometry_pose: np.ndarray) -> np.ndarray | None:
+        """Keyframe test without the image (so callers decode only keyframes): the action or None."""
+        return self._keyframer.action_if_keyframe(odometry_pose)
+
+    def step(
+        self, stamp_ns: int, odometry_pose: np.ndarray, image: np.ndarray | Callable[[], np.ndarray]
+    ) -> StepResult | None:
+        """Feed one sample; returns a result when it became a keyframe, else None.
+
+        ``image`` may be a callable, called only for keyframes, so non-keyframes are never decoded.
+        """
+        action = self.wants_image(odometry_pose)
+        if action is None:
+            return None
+        pixels = image() if callable(image) else image
+        return self.add_keyframe(stamp_ns, action, orientation_histogram(pixels, self._histogram))
+
+    def add_keyframe(self, stamp_ns: int, action: np.ndarray, observation: np.ndarray) -> StepResult:
+        """The SLAM step proper, on an observation histogram: split, weigh, prune, commit."""
+        hypotheses = self._tree.add_keyframe(action, observation)
+        self._stamps.append(int(stamp_ns))
+        a = tuple(float(v) for v in action)
+        return StepResult(len(self._stamps) - 1, int(stamp_ns), a, tuple(hypotheses))  # type: ignore[arg-type]
+
+    def result(self) -> EstimateResult:
+        """The best hypothesis's map: shared history plus its own suffix."""
+        tree = self._tree
+        if not tree.leaves:
+            empty = tree.stats()
+            return EstimateResult((), (), (), (), empty)
+        best = tree.best_leaf()
+        graph: SharedMap = tree.shared.copy()
+        assignment = list(tree.committed_state_of_keyframe.view.tolist())
+        for node in tree.suffix(best):
+            if node.is_new:
+                graph.add_state(node.state)
+            graph.add_traversal(node.parent.state, node.state, node.rel)
+            assignment.append(node.state)
+        keyframes_of: dict[int, list[int]] = {}
+        for keyframe, state in enumerate(assignment):
+            keyframes_of.setdefault(state, []).append(keyframe)
+        states = tuple(MapState(s, tuple(keyframes_of.get(s, ()))) for s in sorted(graph.states))
+        links = []
+        for key in sorted(graph.links):
+            link = graph.links[key]
+            x, y, yaw, cxx, cxy, cxt, cyy, cyt, ctt = link.rel
+            covariance = ((cxx, cxy, cxt), (cxy, cyy, cyt), (cxt, cyt, ctt))
+            links.append(MapLink(link.from_state, link.to_state, (x, y, yaw), covariance, link.count))
+        return EstimateResult(
+            states, tuple(links), tuple(tree.hypotheses()), tuple(self._stamps), tree.stats()
+        )

@@ -1,0 +1,92 @@
+"""The map all hypotheses agree on: places (states) joined by links, with no global frame.
+
+A state's id is the index of the keyframe that first observed it, so every hypothesis that
+calls keyframe t a new place names it the same way. A link stores the relative pose (with
+covariance) from one state to another as measured by odometry; walking it backwards inverts it,
+traversing it again fuses the new measurement in.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from aslam.core.motion import Rel, fuse_rel, inverse_rel
+
+
+@dataclass
+class LinkRecord:
+    """A link as first traversed: ``from_state → to_state``, how often it was driven."""
+
+    from_state: int
+    to_state: int
+    rel: Rel
+    count: int
+
+
+class SharedMap:
+    """States and links committed from the history every hypothesis shares."""
+
+    def __init__(self) -> None:
+        self.states: set[int] = set()
+        self.adjacency: dict[int, dict[int, Rel]] = {}
+        self.links: dict[tuple[int, int], LinkRecord] = {}
+
+    def copy(self) -> SharedMap:
+        other = SharedMap()
+        other.states = set(self.states)
+        other.adjacency = {state: dict(neighbours) for state, neighbours in self.adjacency.items()}
+        other.links = {
+            key: LinkRecord(link.from_state, link.to_state, link.rel, link.count)
+            for key, link in self.links.items()
+        }
+        return other
+
+    def add_state(self, state: int) -> None:
+        self.states.add(state)
+        self.adjacency.setdefault(state, {})
+
+    def add_traversal(self, from_state: int, to_state: int, rel: Rel) -> None:
+        """Record that the robot drove ``rel`` from ``from_state`` to ``to_state``."""
+        if from_state == to_state:
+            return  # returning to the place it left: nothing new to link
+        key = (min(from_state, to_state), max(from_state, to_state))
+        link = self.links.get(key)
+        if link is None:
+            self.links[key] = LinkRecord(from_state, to_state, rel, 1)
+        else:
+            forward = rel if link.from_state == from_state else inverse_rel(rel)
+            link.rel = fuse_rel(link.rel, forward)
+            link.count += 1
+        link = self.links[key]
+        self.adjacency.setdefault(link.from_state, {})[link.to_state] = link.rel
+        self.adjacency.setdefault(link.to_state, {})[link.from_state] = inverse_rel(link.rel)
+
+
+class GrowableArray:
+    """An append-only numpy array with amortised O(1) growth (observations, assignments)."""
+
+    def __init__(self, row_shape: tuple[int, ...], dtype: np.dtype | type, capacity: int = 256) -> None:
+        self._data = np.zeros((capacity, *row_shape), dtype=dtype)
+        self._size = 0
+
+    def append(self, row: np.ndarray | float | int) -> int:
+        if self._size == len(self._data):
+            grown = np.zeros((2 * len(self._data), *self._data.shape[1:]), dtype=self._data.dtype)
+            grown[: self._size] = self._data[: self._size]
+            self._data = grown
+        self._data[self._size] = row
+        self._size += 1
+        return self._size - 1
+
+    def __len__(self) -> int:
+        return self._size
+
+    @property
+    def view(self) -> np.ndarray:
+        return self._data[: self._size]
+
+    @property
+    def nbytes(self) -> int:
+        return self._data.nbytes

@@ -1,0 +1,192 @@
+"""How well a run went, against ground truth (design notes, "Measuring").
+
+* A hypothesis that says "revisit of state k" at keyframe t is scored by the error between the
+  true pose at t and the true pose at k's first visit (state ids are first-visit keyframes).
+  New-state hypotheses are excluded, as in the paper.
+* Keyframe t is a ground-truth revisit when some earlier keyframe lies within ``radius_m`` and
+  ``heading_deg``; a claim by the best hypothesis is correct under the same test.
+* A relocalisation episode is a run of consecutive ground-truth revisits; its delay is the number
+  of keyframes from its start until the best hypothesis first names a correct state.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from aslam.core import se2
+from aslam.core.tree import Hypothesis
+
+
+@dataclass(frozen=True)
+class ErrorStats:
+    mean: float | None
+    median: float | None
+    max: float | None
+
+    @classmethod
+    def of(cls, values: np.ndarray) -> ErrorStats:
+        values = np.abs(values[np.isfinite(values)])
+        if values.size == 0:
+            return cls(None, None, None)
+        return cls(float(values.mean()), float(np.median(values)), float(values.max()))
+
+
+@dataclass(frozen=True)
+class Episode:
+    start: int
+    length: int
+    delay: int | None
+    """Keyframes from the start until the best hypothesis named a correct state; None if it never did."""
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    keyframes: int
+    hypothesis_counts: np.ndarray
+    claims: np.ndarray
+    """bool (n,): the best hypothesis says "revisit" at this keyframe."""
+    has_ground_truth: bool
+    true_revisit: np.ndarray
+    """bool (n,): an earlier keyframe was truly here (all False without ground truth)."""
+    correct: np.ndarray
+    """bool (n,): the best hypothesis's claim is right."""
+    best_error: np.ndarray
+    """(n, 3) signed x_m, y_m, heading_deg of the best hypothesis's claim; NaN where it claims none."""
+    weighted_error: np.ndarray
+    """(n, 3) belief-weighted mean absolute error over the revisit hypotheses; NaN where there are none."""
+    episodes: tuple[Episode, ...]
+
+    @property
+    def precision(self) -> float | None:
+        claims = int(self.claims.sum())
+        return None if not self.has_ground_truth or claims == 0 else float(self.correct.sum() / claims)
+
+    @property
+    def recall(self) -> float | None:
+        revisits = int(self.true_revisit.sum())
+        return None if not self.has_ground_truth or revisits == 0 else float(self.correct.sum() / revisits)
+
+    @property
+    def first_delay(self) -> int | None:
+        return self.episodes[0].delay if self.episodes else None
+
+    @property
+    def mean_delay(self) -> float | None:
+        delays = [e.delay for e in self.episodes if e.delay is not None]
+        return float(np.mean(delays)) if delays else None
+
+    def error_stats(self, weighted: bool) -> dict[str, ErrorStats]:
+        errors = self.weighted_error if weighted else self.best_error
+        return {name: ErrorStats.of(errors[:, i]) for i, name in enumerate(("x_m", "y_m", "heading_deg"))}
+
+
+def pose_error(true_now: np.ndarray, true_then: np.ndarray) -> np.ndarray:
+    """Signed (x_m, y_m, heading_deg) of the true pose now minus the true pose then."""
+    delta = np.asarray(true_now, float) - np.asarray(true_then, float)
+    delta[..., 2] = np.degrees(se2.wrap_angle(delta[..., 2]))
+    return delta
+
+
+def ground_truth_revisits(true_poses: np.ndarray, radius_m: float, heading_deg: float) -> np.ndarray:
+    """bool (n,): keyframe t has an earlier keyframe within ``radius_m`` and ``heading_deg``.
+
+    A spatial hash keeps this O(n · local density) rather than O(n²).
+    """
+    n = len(true_poses)
+    revisit = np.zeros(n, dtype=bool)
+    cells: dict[tuple[int, int], list[int]] = {}
+    heading_rad = math.radians(heading_deg)
+    for t in range(n):
+        x, y, yaw = true_poses[t]
+        if not np.isfinite(true_poses[t]).all():
+            continue
+        cx, cy = math.floor(x / radius_m), math.floor(y / radius_m)
+        for i in (cx - 1, cx, cx + 1):
+            for j in (cy - 1, cy, cy + 1):
+                for earlier in cells.get((i, j), ()):
+                    ex, ey, eyaw = true_poses[earlier]
+                    if (
+                        math.hypot(ex - x, ey - y) <= radius_m
+                        and abs(float(se2.wrap_angle(eyaw - yaw))) <= heading_rad
+                    ):
+                        revisit[t] = True
+                        break
+                if revisit[t]:
+                    break
+            if revisit[t]:
+                break
+        cells.setdefault((cx, cy), []).append(t)
+    return revisit
+
+
+def evaluate(
+    steps: Sequence[tuple[int, Sequence[Hypothesis]]],
+    true_poses: np.ndarray | None,
+    *,
+    radius_m: float = 0.5,
+    heading_deg: float = 45.0,
+) -> Evaluation:
+    """Score a run: ``steps`` are (keyframe, hypotheses best first); ``true_poses`` (n, 3) or None.
+
+    Rows of ``true_poses`` may be NaN where the truth is unknown for that keyframe.
+    """
+    n = len(steps)
+    counts = np.array([len(h) for _, h in steps], dtype=np.int64)
+    claims = np.array([bool(h) and not h[0].is_new_state for _, h in steps], dtype=bool)
+    best_error = np.full((n, 3), np.nan)
+    weighted_error = np.full((n, 3), np.nan)
+    correct = np.zeros(n, dtype=bool)
+    has_truth = true_poses is not None and len(true_poses) == n and bool(np.isfinite(true_poses).any())
+    if not has_truth:
+        return Evaluation(
+            n, counts, claims, False, np.zeros(n, bool), correct, best_error, weighted_error, ()
+        )
+    assert true_poses is not None
+    true_revisit = ground_truth_revisits(true_poses, radius_m, heading_deg)
+    heading_rad = math.radians(heading_deg)
+    for t, (_, hypotheses) in enumerate(steps):
+        revisits = [h for h in hypotheses if not h.is_new_state and 0 <= h.state < n]
+        if not revisits or not np.isfinite(true_poses[t]).all():
+            continue
+        errors = pose_error(true_poses[t], true_poses[[h.state for h in revisits]])
+        weights = np.array([h.belief for h in revisits])
+        finite = np.isfinite(errors).all(axis=1)
+        if finite.any() and weights[finite].sum() > 0:
+            weighted_error[t] = (np.abs(errors[finite]) * weights[finite, None]).sum(0) / weights[
+                finite
+            ].sum()
+        if claims[t] and finite[0] and hypotheses[0] is revisits[0]:
+            best_error[t] = errors[0]
+            distance = math.hypot(errors[0, 0], errors[0, 1])
+            correct[t] = distance <= radius_m and abs(math.radians(errors[0, 2])) <= heading_rad
+    return Evaluation(
+        n,
+        counts,
+        claims,
+        True,
+        true_revisit,
+        correct,
+        best_error,
+        weighted_error,
+        _episodes(true_revisit, correct),
+    )
+
+
+def _episodes(true_revisit: np.ndarray, correct: np.ndarray) -> tuple[Episode, ...]:
+    episodes = []
+    t = 0
+    n = len(true_revisit)
+    while t < n:
+        if not true_revisit[t]:
+            t += 1
+            continue
+        start = t
+        while t < n and true_revisit[t]:
+            t += 1
+        hits = np.flatnonzero(correct[start:t])
+        episodes.append(Episode(start, t - start, int(hits[0]) if hits.size else None))
+    return tuple(episodes)

@@ -1,0 +1,347 @@
+"""The tree of path hypotheses (paper section V): split, weigh, prune, commit.
+
+Each leaf is one hypothesis about the robot's whole path. At every keyframe each leaf splits
+into a child saying "a new place" and one child per earlier place reachable under the motion
+model *in that leaf's own map*. Children are weighed by ``θ = α P(z|x) P(x|x',u) θ_parent``.
+
+Memory stays O(states + hypotheses × ambiguity): the history every leaf shares (up to their
+deepest common ancestor) is committed into one :class:`SharedMap`; a leaf's own map is that map
+plus the short suffix of tree nodes below the commit point. Nodes point only at their parents,
+so a branch with no surviving leaf is freed by reference counting the moment it is pruned.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from aslam.core.config import EstimatorConfig
+from aslam.core.features import chi2_distances, log_observation_likelihood
+from aslam.core.mapgraph import GrowableArray, SharedMap
+from aslam.core.motion import (
+    IDENTITY_REL,
+    Rel,
+    action_covariance,
+    compose_rel,
+    inverse_rel,
+    rel_covariance,
+    revisit_residuals,
+    to_rel,
+)
+
+
+class Node:
+    """One tree node: keyframe t was at ``state``; ``rel`` is the link from the parent's state."""
+
+    __slots__ = ("id", "is_new", "keyframe", "log_belief", "parent", "rel", "state")
+
+    def __init__(
+        self,
+        id: int,
+        keyframe: int,
+        state: int,
+        parent: Node | None,
+        log_belief: float,
+        is_new: bool,
+        rel: Rel,
+    ) -> None:
+        self.id = id
+        self.keyframe = keyframe
+        self.state = state
+        self.parent = parent
+        self.log_belief = log_belief
+        self.is_new = is_new
+        self.rel = rel
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    """A leaf as reported to callers: which state it assigns to the latest keyframe, and how sure."""
+
+    id: int
+    parent_id: int | None
+    state: int
+    belief: float
+    is_new_state: bool
+
+
+@dataclass(frozen=True)
+class TreeStats:
+    keyframes: int
+    nodes_created: int
+    max_hypotheses: int
+    mean_hypotheses: float
+    committed_keyframes: int
+    max_uncommitted: int
+    searched_states_mean: float
+
+
+class HypothesisTree:
+    """The hypotheses and the shared map, advanced one keyframe at a time."""
+
+    def __init__(self, config: EstimatorConfig, observation_length: int) -> None:
+        self.config = config
+        self.shared = SharedMap()
+        self.observations = GrowableArray((observation_length,), np.float32)
+        self.committed_state_of_keyframe = GrowableArray((), np.int64)
+        self.leaves: list[Node] = []
+        self.commit_root: Node | None = None
+        self._next_id = 0
+        self._noise = config.motion_noise
+        self._place_cov = np.diag(
+            [config.place_radius_m**2, config.place_radius_m**2, math.radians(config.place_heading_deg) ** 2]
+        )
+        self._place_logdet = float(np.linalg.slogdet(self._place_cov)[1])
+        self._visit_cov = np.diag(
+            [config.visit_sigma_m**2, config.visit_sigma_m**2, math.radians(config.visit_sigma_deg) ** 2]
+        )
+        self._search_bound = config.search_sigma_m**2
+        self._gate = config.gate_sigma**2
+        self._log_new = math.log1p(-config.revisit_prior) + float(
+            log_observation_likelihood(config.new_state_chi2, config.beta, config.chi2_floor)
+        )
+        self._log_revisit = math.log(config.revisit_prior)
+        # statistics
+        self._count_sum = 0
+        self._count_max = 0
+        self._max_uncommitted = 0
+        self._searched_sum = 0
+
+    # ------------------------------------------------------------------ the step
+    def add_keyframe(self, action: np.ndarray, observation: np.ndarray) -> list[Hypothesis]:
+        """Advance every hypothesis by one keyframe; returns the surviving leaves, best first."""
+        keyframe = self.observations.append(observation)
+        if keyframe == 0:
+            root = self._new_node(0, 0, None, 0.0, True, IDENTITY_REL)
+            self.leaves = [root]
+            self.commit_root = root
+            self.shared.add_state(0)
+            self.committed_state_of_keyframe.append(0)
+            self._record_count(1)
+            return [Hypothesis(root.id, None, 0, 1.0, True)]
+
+        action = np.asarray(action, dtype=float)
+        action_cov = action_covariance(action, self._noise)
+        proposals = [self._propose(leaf, action, action_cov) for leaf in self.leaves]
+
+        candidate_ids = np.unique(np.concatenate([p[0] for p in proposals] + [np.zeros(0, np.int64)]))
+        log_obs_of: dict[int, float] = {}
+        if len(candidate_ids):
+            chi2 = chi2_distances(observation, self.observations.view[candidate_ids])
+            log_obs = log_observation_likelihood(chi2, self.config.beta, self.config.chi2_floor)
+            log_obs_of = dict(zip(candidate_ids.tolist(), log_obs.tolist(), strict=True))
+
+        # (log θ, parent, state, is_new) for every child; the new-state child first for each leaf.
+        children: list[tuple[float, Node, int, bool]] = []
+        for leaf, (states, log_transition) in zip(self.leaves, proposals, strict=True):
+            children.append((leaf.log_belief + self._log_new, leaf, keyframe, True))
+            for state, log_t in zip(states.tolist(), log_transition.tolist(), strict=True):
+                children.append(
+                    (leaf.log_belief + self._log_revisit + log_t + log_obs_of[state], leaf, state, False)
+                )
+
+        survivors = self._prune(children)
+        action_rel = to_rel(action, action_cov)
+        leaves = []
+        for log_belief, parent, state, is_new in survivors:
+            rel = action_rel
+            if not (is_new and parent.is_new):  # measured from or to a visit, not the place itself
+                rel = rel[:3] + tuple(np.add(rel[3:], _flat(self._visit_cov)).tolist())
+            leaves.append(self._new_node(keyframe, state, parent, log_belief, is_new, rel))
+        self.leaves = leaves
+        self._commit_shared_history()
+        self._record_count(len(leaves))
+        return self.hypotheses()
+
+    def hypotheses(self) -> list[Hypothesis]:
+        return [
+            Hypothesis(
+                leaf.id,
+                None if leaf.parent is None else leaf.parent.id,
+                leaf.state,
+                math.exp(leaf.log_belief),
+                leaf.is_new,
+            )
+            for leaf in self.leaves
+        ]
+
+    # ------------------------------------------------------------------ prediction
+    def _propose(
+        self, leaf: Node, action: np.ndarray, action_cov: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Earlier states this leaf could have reached, and ``log P(x=k | x', u)`` for each."""
+        states, rels = self._search(leaf)
+        self._searched_sum += len(states)
+        if not states:
+            return np.zeros(0, np.int64), np.zeros(0)
+        poses = np.array([r[:3] for r in rels])
+        covs = np.array([r[3:] for r in rels])[:, [0, 1, 2, 1, 3, 4, 2, 4, 5]].reshape(-1, 3, 3)
+        residual, covariance = revisit_residuals(poses, covs, action, action_cov)
+        covariance = covariance + self._place_cov
+        inverse = np.linalg.inv(covariance)
+        mahalanobis2 = np.einsum("ni,nij,nj->n", residual, inverse, residual)
+        logdet = np.linalg.slogdet(covariance)[1]
+        # Normalised so a perfectly predicted revisit with no chain uncertainty scores log 1.
+        log_transition = 0.5 * (self._place_logdet - logdet) - 0.5 * mahalanobis2
+        reachable = mahalanobis2 <= self._gate
+        return np.asarray(states, np.int64)[reachable], log_transition[reachable]
+
+    def _search(self, leaf: Node) -> tuple[list[int], list[Rel]]:
+        """Dijkstra outward from the leaf's state through its own map, bounded by uncertainty.
+
+        Returns the states reached and each one's pose (with covariance) seen from the leaf's
+        state. The bound, not the map's size, decides the cost.
+        """
+        overlay = self._suffix_overlay(leaf)
+        shared = self.shared.adjacency
+        start = leaf.state
+        best: dict[int, Rel] = {start: IDENTITY_REL}
+        heap = [(0.0, start)]
+        order: list[int] = []
+        done: set[int] = set()
+        limit = self.config.search_max_states
+        bound = self._search_bound
+        while heap and len(order) < limit:
+            _, state = heapq.heappop(heap)
+            if state in done:
+                continue
+            done.add(state)
+            order.append(state)
+            here = best[state]
+            neighbours = list(shared.get(state, {}).items())
+            neighbours.extend(overlay.get(state, ()))
+            for neighbour, edge in neighbours:
+                if neighbour in done:
+                    continue
+                rel = compose_rel(here, edge)
+                cost = rel[3] + rel[6]
+                if cost > bound:
+                    continue
+                known = best.get(neighbour)
+                if known is None or cost < known[3] + known[6]:
+                    best[neighbour] = rel
+                    heapq.heappush(heap, (cost, neighbour))
+        return order, [best[s] for s in order]
+
+    def _suffix_overlay(self, leaf: Node) -> dict[int, list[tuple[int, Rel]]]:
+        """The links this leaf has that the shared map does not (its uncommitted suffix)."""
+        overlay: dict[int, list[tuple[int, Rel]]] = {}
+        node = leaf
+        while node is not self.commit_root and node.parent is not None:
+            a, b = node.parent.state, node.state
+            if a != b:
+                overlay.setdefault(a, []).append((b, node.rel))
+                overlay.setdefault(b, []).append((a, inverse_rel(node.rel)))
+            node = node.parent
+        return overlay
+
+    # ------------------------------------------------------------------ update, prune, commit
+    def _prune(self, children: list[tuple[float, Node, int, bool]]) -> list[tuple[float, Node, int, bool]]:
+        """Merge look-alikes, normalise, drop children far below the best, cap the count.
+
+        Children that sit at the same state and agree on the states of the last
+        ``merge_window`` keyframes predict the same future: the evidence to come can never
+        separate them, so they are merged into the likelier one (their beliefs add up).
+        """
+        merged: dict[tuple[int, ...], list] = {}
+        for log_belief, parent, state, is_new in children:
+            key = (state, *_recent_states(parent, self.config.merge_window - 1))
+            entry = merged.get(key)
+            if entry is None:
+                merged[key] = [log_belief, parent, state, is_new, log_belief]
+            else:
+                total = np.logaddexp(entry[4], log_belief)
+                if (log_belief, -parent.id) > (entry[0], -entry[1].id):
+                    entry[:4] = [log_belief, parent, state, is_new]
+                entry[4] = total
+        candidates = [(entry[4], *entry[1:4]) for entry in merged.values()]
+        log_beliefs = np.array([c[0] for c in candidates])
+        best = log_beliefs.max()
+        keep = log_beliefs >= best + math.log(self.config.prune_ratio)
+        # Deterministic order: belief, then older parent, then smaller state id.
+        order = sorted(
+            (i for i in range(len(candidates)) if keep[i]),
+            key=lambda i: (-log_beliefs[i], candidates[i][1].id, candidates[i][2]),
+        )[: self.config.max_hypotheses]
+        kept = log_beliefs[order]
+        normaliser = best + math.log(np.exp(kept - best).sum())
+        return [(float(log_beliefs[i] - normaliser), *candidates[i][1:]) for i in order]
+
+    def _commit_shared_history(self) -> None:
+        """Move everything above the leaves' deepest common ancestor into the shared map."""
+        level = self.leaves
+        while len({id(n) for n in level}) > 1:
+            level = [n.parent for n in level]  # type: ignore[misc]  (all leaves share one depth)
+        ancestor = level[0]
+        path = []
+        node = ancestor
+        while node is not self.commit_root:
+            path.append(node)
+            node = node.parent
+        for node in reversed(path):
+            if node.is_new:
+                self.shared.add_state(node.state)
+            self.shared.add_traversal(node.parent.state, node.state, node.rel)
+            self.committed_state_of_keyframe.append(node.state)
+        if path:
+            ancestor.parent = None  # frees the committed nodes
+            self.commit_root = ancestor
+        uncommitted = self.leaves[0].keyframe - self.commit_root.keyframe
+        self._max_uncommitted = max(self._max_uncommitted, uncommitted)
+
+    # ------------------------------------------------------------------ bookkeeping
+    def _new_node(
+        self, keyframe: int, state: int, parent: Node | None, log_belief: float, is_new: bool, rel: Rel
+    ) -> Node:
+        node = Node(self._next_id, keyframe, state, parent, log_belief, is_new, rel)
+        self._next_id += 1
+        return node
+
+    def _record_count(self, count: int) -> None:
+        self._count_sum += count
+        self._count_max = max(self._count_max, count)
+
+    def best_leaf(self) -> Node:
+        return self.leaves[0]
+
+    def suffix(self, leaf: Node) -> list[Node]:
+        """The leaf's uncommitted nodes, oldest first."""
+        nodes = []
+        node = leaf
+        while node is not self.commit_root:
+            nodes.append(node)
+            node = node.parent
+        return nodes[::-1]
+
+    def stats(self) -> TreeStats:
+        keyframes = len(self.observations)
+        return TreeStats(
+            keyframes=keyframes,
+            nodes_created=self._next_id,
+            max_hypotheses=self._count_max,
+            mean_hypotheses=self._count_sum / max(keyframes, 1),
+            committed_keyframes=len(self.committed_state_of_keyframe),
+            max_uncommitted=self._max_uncommitted,
+            searched_states_mean=self._searched_sum / max(keyframes - 1, 1),
+        )
+
+
+def _recent_states(node: Node | None, count: int) -> tuple[int, ...]:
+    """States of ``node`` and its ancestors, newest first, at most ``count`` of them."""
+    states = []
+    while node is not None and len(states) < count:
+        states.append(node.state)
+        node = node.parent
+    return tuple(states)
+
+
+def _flat(covariance: np.ndarray) -> list[float]:
+    c = covariance
+    return [c[0, 0], c[0, 1], c[0, 2], c[1, 1], c[1, 2], c[2, 2]]
+
+
+def rel_to_pose_and_covariance(rel: Rel) -> tuple[np.ndarray, np.ndarray]:
+    return np.array(rel[:3]), rel_covariance(rel)

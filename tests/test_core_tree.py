@@ -1,0 +1,198 @@
+"""The hypothesis tree and the estimator on synthetic observations (fast, no rendering)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from aslam.core import se2
+from aslam.core.config import EstimatorConfig
+from aslam.core.errors import ConfigError
+from aslam.core.estimator import Estimator, Keyframer
+from aslam.core.motion import compose_rel, inverse_rel, rel_covariance, revisit_residuals, to_rel
+from aslam.core.tree import HypothesisTree
+
+BINS = 16
+
+
+def rectangle_actions(laps: int = 2) -> list[np.ndarray]:
+    lap = []
+    for length in (10, 5, 10, 5):
+        lap += [np.array([1.0, 0.0, 0.0])] * length + [np.array([0.0, 0.0, math.pi / 2])]
+    return lap * laps
+
+
+class SyntheticWorld:
+    """Each place (rounded true pose) has a random histogram; views of it are noisy copies."""
+
+    def __init__(self, seed: int, noise: float = 0.05, alphabet: int | None = None) -> None:
+        self.rng = np.random.default_rng(seed)
+        self.noise = noise
+        self.alphabet = alphabet
+        self.places: dict[tuple[int, int, int], np.ndarray] = {}
+        self.shared = [self.rng.dirichlet(np.ones(BINS)) for _ in range(alphabet or 0)]
+
+    def observe(self, pose: np.ndarray) -> np.ndarray:
+        key = (round(pose[0]), round(pose[1]), round(math.degrees(pose[2]) / 90) % 4)
+        if key not in self.places:
+            self.places[key] = (
+                self.shared[self.rng.integers(len(self.shared))]
+                if self.alphabet
+                else self.rng.dirichlet(np.ones(BINS))
+            )
+        view = np.abs(self.places[key] * (1 + self.noise * self.rng.standard_normal(BINS)))
+        return (view / view.sum()).astype(np.float32)
+
+
+def run(actions, world: SyntheticWorld, config: EstimatorConfig, odometry_noise: float = 0.03, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    estimator = Estimator(config)
+    truth = np.zeros(3)
+    results = [estimator.add_keyframe(0, np.zeros(3), world.observe(truth))]
+    for i, action in enumerate(actions, start=1):
+        truth = se2.compose(truth, action)
+        measured = action * (1 + odometry_noise * rng.standard_normal(3))
+        results.append(estimator.add_keyframe(i, measured, world.observe(truth)))
+    return estimator, results
+
+
+def synthetic_config(**overrides) -> EstimatorConfig:
+    return EstimatorConfig(**{"histogram_bins": BINS, "cells_x": 1, "cells_y": 1, **overrides})
+
+
+def test_relocalises_at_the_start_of_the_second_lap_and_never_claims_falsely():
+    _, results = run(rectangle_actions(), SyntheticWorld(1), synthetic_config())
+    lap = 34
+    for result in results[1:lap]:
+        assert result.best.is_new_state
+    for result in results[lap:]:
+        assert not result.best.is_new_state
+        assert result.best.state == (result.keyframe - lap) % lap  # the same place on lap 1
+
+
+def test_the_map_of_the_best_hypothesis_closes_the_loop():
+    estimator, _ = run(rectangle_actions(), SyntheticWorld(2), synthetic_config())
+    result = estimator.result()
+    assert len(result.states) == 34
+    assert len(result.links) == 34  # a cycle: every place joined to the next
+    counts = sorted(link.count for link in result.links)
+    assert counts[0] >= 1 and counts[-1] == 2
+    assert result.stats.max_uncommitted <= 6  # shared history is committed, suffixes stay short
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    seed=st.integers(0, 10_000),
+    alphabet=st.sampled_from([2, 3, 5]),
+    cap=st.integers(1, 8),
+    steps=st.lists(
+        st.sampled_from(
+            [(1.0, 0.0, 0.0), (0.0, 0.0, math.pi / 2), (0.0, 0.0, -math.pi / 2), (2.0, 0.0, 0.0)]
+        ),
+        min_size=1,
+        max_size=40,
+    ),
+)
+def test_beliefs_sum_to_one_and_the_count_respects_the_cap(seed, alphabet, cap, steps):
+    config = synthetic_config(max_hypotheses=cap, prune_ratio=1e-6)
+    estimator = Estimator(config)
+    world = SyntheticWorld(seed, alphabet=alphabet)
+    truth = np.zeros(3)
+    estimator.add_keyframe(0, np.zeros(3), world.observe(truth))
+    for i, action in enumerate(steps, start=1):
+        truth = se2.compose(truth, np.array(action))
+        result = estimator.add_keyframe(i, np.array(action), world.observe(truth))
+        beliefs = [h.belief for h in result.hypotheses]
+        assert 1 <= len(beliefs) <= cap
+        assert math.isclose(sum(beliefs), 1.0, rel_tol=1e-9)
+        assert beliefs == sorted(beliefs, reverse=True)
+        assert all(h.state <= result.keyframe for h in result.hypotheses)
+
+
+def test_identical_views_down_a_straight_corridor_never_revisit():
+    """Perfect aliasing, but every earlier place is behind: the motion model rules them out."""
+    estimator = Estimator(synthetic_config())
+    view = np.full(BINS, 1.0 / BINS, dtype=np.float32)
+    for i in range(60):
+        result = estimator.add_keyframe(i, np.array([1.0, 0.0, 0.0]) if i else np.zeros(3), view)
+        assert all(h.is_new_state for h in result.hypotheses)
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    seed=st.integers(0, 10_000),
+    turns=st.lists(st.sampled_from([0.0, 0.3, -0.3, 0.6]), min_size=3, max_size=25),  # never loops back
+    last=st.tuples(st.floats(-3, 3), st.floats(-3, 3), st.floats(-math.pi, math.pi)),
+)
+def test_candidates_are_exactly_the_states_the_motion_model_can_reach(seed, turns, last):
+    """On a chain map, the proposals equal a brute-force gate over every state."""
+    config = synthetic_config()
+    tree = HypothesisTree(config, BINS)
+    rng = np.random.default_rng(seed)
+    view = lambda: rng.dirichlet(np.ones(BINS)).astype(np.float32)  # noqa: E731
+    tree.add_keyframe(np.zeros(3), view())
+    actions = [np.array([1.0, 0.0, turn]) for turn in turns]
+    for action in actions:
+        tree.add_keyframe(action, view())
+    assert len(tree.leaves) == 1 and tree.leaves[0].is_new  # random views: a plain chain
+    leaf = tree.leaves[0]
+    action = np.array(last)
+    from aslam.core.motion import action_covariance
+
+    action_cov = action_covariance(action, config.motion_noise)
+    proposed, _ = tree._propose(leaf, action, action_cov)
+
+    # Brute force: walk the chain back from the current state, composing inverted links.
+    expected = []
+    rel = to_rel(np.zeros(3), np.zeros((3, 3)))
+    chain = [(leaf.state, rel)]
+    for state in range(leaf.state - 1, -1, -1):
+        link = tree.shared.links[(state, state + 1)]
+        rel = compose_rel(rel, inverse_rel(link.rel))
+        chain.append((state, rel))
+    place = np.diag([config.place_radius_m**2] * 2 + [math.radians(config.place_heading_deg) ** 2])
+    for state, rel in chain:
+        if rel[3] + rel[6] > config.search_sigma_m**2:
+            break
+        residual, covariance = revisit_residuals(
+            np.array([rel[:3]]), rel_covariance(rel)[None], action, action_cov
+        )
+        m2 = residual[0] @ np.linalg.inv(covariance[0] + place) @ residual[0]
+        if m2 <= config.gate_sigma**2:
+            expected.append(state)
+    assert sorted(proposed.tolist()) == sorted(expected)
+
+
+def test_keyframer_uses_the_paper_thresholds_with_slack():
+    keyframer = Keyframer(step_m=1.0, turn_deg=90.0, slack=0.1)
+    assert keyframer.action_if_keyframe(np.zeros(3)) is not None  # the first pose
+    assert keyframer.action_if_keyframe(np.array([0.5, 0.0, 0.0])) is None
+    action = keyframer.action_if_keyframe(np.array([0.97, 0.0, 0.0]))
+    assert action is not None and math.isclose(action[0], 0.97)
+    assert keyframer.action_if_keyframe(np.array([0.97, 0.0, math.radians(60)])) is None
+    turned = keyframer.action_if_keyframe(np.array([0.97, 0.0, math.radians(88)]))
+    assert turned is not None and math.isclose(turned[2], math.radians(88))
+
+
+def test_estimator_step_decodes_only_keyframes():
+    estimator = Estimator(EstimatorConfig())
+    calls = []
+
+    def image():
+        calls.append(1)
+        return np.random.default_rng(len(calls)).integers(0, 255, (24, 32)).astype(np.uint8)
+
+    for i, x in enumerate([0.0, 0.3, 0.6, 1.0, 1.2, 2.0]):
+        estimator.step(i, np.array([x, 0.0, 0.0]), image)
+    assert len(calls) == 3  # x = 0, 1.0, 2.0
+
+
+def test_config_reports_every_bad_value_at_once():
+    with pytest.raises(ConfigError) as raised:
+        EstimatorConfig(beta=-1.0, max_hypotheses=0, prune_ratio=2.0)
+    message = str(raised.value)
+    assert "beta" in message and "max_hypotheses" in message and "prune_ratio" in message
