@@ -3,11 +3,16 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 
 from aslam.core.errors import ConfigError
 from aslam.core.features import HistogramConfig
 from aslam.core.motion import MotionNoise
+
+
+def _param(default: float | int, help: str) -> float | int:
+    """A configuration field whose help text the CLI and docs read from ``metadata["help"]``."""
+    return field(default=default, metadata={"help": help})  # type: ignore[return-value]
 
 
 @dataclass(frozen=True)
@@ -19,57 +24,73 @@ class EstimatorConfig:
     """
 
     # --- keyframing -------------------------------------------------------------------------
-    step_m: float = 1.0
-    """A keyframe is taken once odometry says the robot moved this far since the last one."""
-    turn_deg: float = 90.0
-    """... or turned this much."""
-    keyframe_slack: float = 0.1
-    """Fraction of ``step_m``/``turn_deg`` forgiven: noisy odometry may measure a commanded 1 m as 0.97 m."""
+    step_m: float = _param(
+        1.0, "A keyframe is taken once odometry says the robot moved this far since the last one."
+    )
+    turn_deg: float = _param(
+        90.0, "A keyframe is taken once odometry says the robot turned this many degrees since the last one."
+    )
+    keyframe_slack: float = _param(
+        0.1,
+        "Fraction of step_m/turn_deg forgiven: noisy odometry may measure a commanded 1 m as 0.97 m.",
+    )
 
     # --- observations -------------------------------------------------------------------------
-    histogram_bins: int = 16
-    """Gradient-orientation bins over [-π, π)."""
-    cells_x: int = 4
-    """Columns of spatial cells per image (1 = the paper's single global histogram)."""
-    cells_y: int = 2
-    """Rows of spatial cells."""
-    beta: float = 2.0
-    """Sensitivity of ``P(z|x) = χ²^-β``."""
-    chi2_floor: float = 1e-3
-    """χ² is floored here so that two identical views give a finite likelihood."""
-    new_state_chi2: float = 0.06
-    """Reference χ² of an unseen place: ``P(z|new) = new_state_chi2^-β``. A revisit must look
-    more alike than this (calibrated on rendered recordings, see docs/estimator.md)."""
+    histogram_bins: int = _param(16, "Gradient-orientation bins over [-π, π).")
+    cells_x: int = _param(4, "Columns of spatial cells per image (1 = the paper's single global histogram).")
+    cells_y: int = _param(2, "Rows of spatial cells.")
+    beta: float = _param(2.0, "Sensitivity β of the observation probability P(z|x) = χ²^-β.")
+    chi2_floor: float = _param(
+        1e-3, "χ² is floored here so that two identical views give a finite likelihood."
+    )
+    new_state_chi2: float = _param(
+        0.06,
+        (
+            "Reference χ² of an unseen place: P(z|new) = new_state_chi2^-β. A revisit must look more alike"
+            " than this (calibrated on rendered recordings, see docs/estimator.md)."
+        ),
+    )
 
     # --- transitions ----------------------------------------------------------------------------
-    odometry_noise: float = 0.03
-    """σ of odometry per metre moved and per radian turned (the paper's 3 %)."""
-    drift_deg_per_m: float = 0.5
-    """σ of heading drift while moving forward, degrees per metre."""
-    place_radius_m: float = 0.2
-    """Two visits of one place are never at exactly the same pose: σ of that, in position."""
-    place_heading_deg: float = 10.0
-    """... and in heading."""
-    visit_sigma_m: float = 0.1
-    """Extra σ of a link that starts or ends at a revisit (it was measured from the visit, not the place)."""
-    visit_sigma_deg: float = 3.0
-    """... in heading."""
-    gate_sigma: float = 4.0
-    """Candidates whose Mahalanobis distance from the predicted pose exceeds this are unreachable."""
-    revisit_prior: float = 0.5
-    """Prior probability that a keyframe revisits some place rather than finding a new one."""
-    search_sigma_m: float = 3.0
-    """The graph search stops where composed position uncertainty exceeds this σ."""
-    search_max_states: int = 400
-    """... or after this many states, so the cost per keyframe is bounded whatever the map size."""
+    odometry_noise: float = _param(
+        0.03, "σ of odometry per metre moved and per radian turned (the paper's 3 %)."
+    )
+    drift_deg_per_m: float = _param(0.5, "σ of heading drift while moving forward, degrees per metre.")
+    place_radius_m: float = _param(
+        0.2, "Two visits of one place are never at exactly the same pose: σ of that, in position."
+    )
+    place_heading_deg: float = _param(
+        10.0, "Two visits of one place are never at exactly the same pose: σ of that, in heading (degrees)."
+    )
+    visit_sigma_m: float = _param(
+        0.1,
+        "Extra σ of a link that starts or ends at a revisit (it was measured from the visit, not the place).",
+    )
+    visit_sigma_deg: float = _param(
+        3.0, "Extra σ of a link that starts or ends at a revisit, in heading (degrees)."
+    )
+    gate_sigma: float = _param(
+        4.0, "Candidates whose Mahalanobis distance from the predicted pose exceeds this are unreachable."
+    )
+    revisit_prior: float = _param(
+        0.5, "Prior probability that a keyframe revisits some place rather than finding a new one."
+    )
+    search_sigma_m: float = _param(
+        3.0, "The graph search stops where composed position uncertainty exceeds this σ."
+    )
+    search_max_states: int = _param(
+        400,
+        "The graph search also stops after this many states: the cost per keyframe is bounded.",
+    )
 
     # --- hypothesis tree ------------------------------------------------------------------------
-    prune_ratio: float = 1e-3
-    """Hypotheses whose belief is below this fraction of the best are removed."""
-    max_hypotheses: int = 50
-    """The tree never holds more leaves than this."""
-    merge_window: int = 4
-    """Leaves at the same state that agree on the last this-many keyframes are merged."""
+    prune_ratio: float = _param(
+        1e-3, "Hypotheses whose belief is below this fraction of the best are removed."
+    )
+    max_hypotheses: int = _param(50, "The tree never holds more leaves than this.")
+    merge_window: int = _param(
+        4, "Leaves at the same state that agree on the last this-many keyframes are merged."
+    )
 
     def __post_init__(self) -> None:
         problems = self.problems()
@@ -124,8 +145,9 @@ class EstimatorConfig:
         return cls(**{"cells_x": 1, "cells_y": 1, **overrides})
 
     @classmethod
-    def field_names(cls) -> list[str]:
-        return [f.name for f in fields(cls)]
+    def parameters(cls) -> list[tuple[str, type, object, str]]:
+        """(name, type, default, help) of every parameter, for the CLI, config files and docs."""
+        return [(f.name, type(f.default), f.default, f.metadata["help"]) for f in fields(cls)]
 
     @property
     def histogram(self) -> HistogramConfig:
