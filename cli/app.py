@@ -57,6 +57,7 @@ def _root(
 
 
 def _register_commands() -> None:
+    import aslam.cli.info  # noqa: F401
     from aslam.cli import estimate, record, report  # noqa: F401  (registers the commands)
 
 

@@ -1,11 +1,122 @@
-"""`aslam record` (skeleton; filled in by its issue)."""
+"""`aslam record`: render an indoor walkthrough with pyrender into an MCAP recording.
+
+Thin: builds a :class:`~aslam.recorder.config.RecordConfig`, calls
+:func:`aslam.recorder.record.record` with a rich progress bar, prints a one-line summary.
+pyrender and cv2 are imported only when the command runs.
+"""
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
 from aslam.cli.app import app
+from aslam.recorder.config import (
+    DEFAULT_CAMERA_HEIGHT_M,
+    DEFAULT_FOV_DEG,
+    CameraSpec,
+    NoiseParams,
+    RecordConfig,
+    parse_size,
+)
+
+_DEFAULT_NOISE = NoiseParams()
 
 
 @app.command()
-def record() -> None:
-    """Not implemented yet."""
-    raise NotImplementedError("record")
+def record(
+    output: Annotated[Path, typer.Option("-o", "--output", help="MCAP file to write.", dir_okay=False)],
+    route: Annotated[
+        str, typer.Option(help="Preset (paper, figure8, grid) or a route JSON file.", show_default=True)
+    ] = "paper",
+    laps: Annotated[
+        int | None, typer.Option(help="Times to drive a closed route. [default: 2 for presets, 1 for files]")
+    ] = None,
+    seed: Annotated[int, typer.Option(help="Seed of the world and the noise.")] = 0,
+    noise: Annotated[
+        float, typer.Option(help="Odometry error per action (relative σ of distance and angle).")
+    ] = _DEFAULT_NOISE.noise,
+    drift_deg_per_m: Annotated[
+        float, typer.Option(help="Odometry heading drift σ per metre driven, degrees.")
+    ] = _DEFAULT_NOISE.drift_deg_per_m,
+    jitter_m: Annotated[
+        float, typer.Option(help="σ of the true x, y around the route (not accumulated), metres.")
+    ] = _DEFAULT_NOISE.jitter_m,
+    jitter_deg: Annotated[
+        float, typer.Option(help="σ of the true heading around the route (not accumulated), degrees.")
+    ] = _DEFAULT_NOISE.jitter_deg,
+    aliasing: Annotated[
+        float, typer.Option(help="Fraction (0..1) of wall panels drawing from 3 shared textures.")
+    ] = 0.0,
+    world: Annotated[
+        Path | None,
+        typer.Option(help="Scene file (.glb, .gltf, .obj; metres, +z up) instead of a generated world."),
+    ] = None,
+    fov_deg: Annotated[float, typer.Option(help="Horizontal field of view, degrees.")] = DEFAULT_FOV_DEG,
+    size: Annotated[str, typer.Option(help="Image size WIDTHxHEIGHT.")] = "320x240",
+    camera_height_m: Annotated[float, typer.Option(help="Camera height above the floor, metres.")] = (
+        DEFAULT_CAMERA_HEIGHT_M
+    ),
+    fps: Annotated[
+        float | None,
+        typer.Option(help="Render round(FPS) frames per action (1 s each). [default: one per action]"),
+    ] = None,
+    jpeg_quality: Annotated[
+        int | None, typer.Option(help="Write JPEG of this quality instead of PNG.")
+    ] = None,
+    contact_sheet: Annotated[
+        Path | None, typer.Option(help="Also write a PNG grid of sample keyframes.", dir_okay=False)
+    ] = None,
+    force: Annotated[bool, typer.Option("--force", help="Overwrite an existing output file.")] = False,
+) -> None:
+    """Render an indoor walkthrough along a route into an MCAP recording (images, odometry, truth)."""
+    width, height = parse_size(size)
+    config = RecordConfig(
+        route=route,
+        laps=laps,
+        seed=seed,
+        noise=NoiseParams(
+            noise=noise, drift_deg_per_m=drift_deg_per_m, jitter_m=jitter_m, jitter_deg=jitter_deg
+        ),
+        aliasing=aliasing,
+        world=world,
+        camera=CameraSpec(width_px=width, height_px=height, fov_deg=fov_deg, height_m=camera_height_m),
+        fps=fps,
+        jpeg_quality=jpeg_quality,
+        contact_sheet=contact_sheet,
+    )
+    config.validate()  # before the slow imports, so bad options fail instantly
+
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from aslam.recorder.record import record as run_record
+
+    console = Console(stderr=True)
+    if not console.is_terminal:  # no bar in logs and pipes: just the summary line
+        result = run_record(config, output, force=force)
+    else:
+        with Progress(
+            TextColumn("rendering"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeRemainingColumn(),
+            console=console,
+            transient=True,
+        ) as bar:
+            task = bar.add_task("render", total=None)
+
+            def on_progress(done: int, total: int) -> None:
+                bar.update(task, completed=done, total=total)
+
+            result = run_record(config, output, force=force, progress=on_progress)
+    rate = result.frames / result.seconds if result.seconds > 0 else float("inf")
+    console.print(
+        f"wrote {result.output} ({result.frames} frames, {result.keyframes} keyframes, "
+        f"{result.seconds:.1f} s, {rate:.0f} frames/s)"
+        + (f"; contact sheet {result.contact_sheet}" if result.contact_sheet else ""),
+        highlight=False,
+        soft_wrap=True,
+    )

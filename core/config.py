@@ -6,8 +6,23 @@ import math
 from dataclasses import dataclass, field, fields
 
 from aslam.core.errors import ConfigError
-from aslam.core.features import HistogramConfig
 from aslam.core.motion import MotionNoise
+
+
+@dataclass(frozen=True)
+class HistogramConfig:
+    """How an image becomes an observation vector."""
+
+    bins: int = 16
+    """Orientation bins over [-π, π)."""
+    cells_x: int = 1
+    """Columns of spatial cells (1 = the paper's single global histogram)."""
+    cells_y: int = 1
+    """Rows of spatial cells."""
+
+    @property
+    def length(self) -> int:
+        return self.bins * self.cells_x * self.cells_y
 
 
 def _param(default: float | int, help: str) -> float | int:
@@ -76,10 +91,14 @@ class EstimatorConfig:
         0.5, "Prior probability that a keyframe revisits some place rather than finding a new one."
     )
     search_sigma_m: float = _param(
-        3.0, "The graph search stops where composed position uncertainty exceeds this σ."
+        3.0,
+        (
+            "The graph search stops where the summed link uncertainty (position variance"
+            " + (5 m)² × heading variance) exceeds this σ squared."
+        ),
     )
     search_max_states: int = _param(
-        400,
+        200,
         "The graph search also stops after this many states: the cost per keyframe is bounded.",
     )
 

@@ -8,26 +8,10 @@ some of *where* the edges are, which separates places the single global histogra
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import cv2
 import numpy as np
 
-
-@dataclass(frozen=True)
-class HistogramConfig:
-    """How an image becomes an observation vector."""
-
-    bins: int = 16
-    """Orientation bins over [-π, π)."""
-    cells_x: int = 1
-    """Columns of spatial cells (1 = the paper's single global histogram)."""
-    cells_y: int = 1
-    """Rows of spatial cells."""
-
-    @property
-    def length(self) -> int:
-        return self.bins * self.cells_x * self.cells_y
+from aslam.core.config import HistogramConfig
 
 
 def orientation_histogram(image: np.ndarray, config: HistogramConfig = HistogramConfig()) -> np.ndarray:

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from aslam.core.motion import Rel, fuse_rel, inverse_rel
+from aslam.core.motion import Rel, fuse_rel, inverse_rel, link_weight
 
 
 @dataclass
@@ -26,11 +26,15 @@ class LinkRecord:
 
 
 class SharedMap:
-    """States and links committed from the history every hypothesis shares."""
+    """States and links committed from the history every hypothesis shares.
+
+    ``adjacency[a][b]`` is ``(rel, weight)``: b seen from a, and the link's scalar uncertainty
+    that the graph search sums (see :func:`aslam.core.motion.link_weight`).
+    """
 
     def __init__(self) -> None:
         self.states: set[int] = set()
-        self.adjacency: dict[int, dict[int, Rel]] = {}
+        self.adjacency: dict[int, dict[int, tuple[Rel, float]]] = {}
         self.links: dict[tuple[int, int], LinkRecord] = {}
 
     def copy(self) -> SharedMap:
@@ -60,8 +64,9 @@ class SharedMap:
             link.rel = fuse_rel(link.rel, forward)
             link.count += 1
         link = self.links[key]
-        self.adjacency.setdefault(link.from_state, {})[link.to_state] = link.rel
-        self.adjacency.setdefault(link.to_state, {})[link.from_state] = inverse_rel(link.rel)
+        weight = link_weight(link.rel)
+        self.adjacency.setdefault(link.from_state, {})[link.to_state] = (link.rel, weight)
+        self.adjacency.setdefault(link.to_state, {})[link.from_state] = (inverse_rel(link.rel), weight)
 
 
 class GrowableArray:

@@ -115,9 +115,17 @@ def fuse_rel(a: Rel, b: Rel) -> Rel:
     return to_rel(pose, covariance)
 
 
-def rel_position_variance(rel: Rel) -> float:
-    """Trace of the position block: the search's measure of how uncertain a chain has become."""
-    return rel[3] + rel[6]
+LEVER_ARM_M = 5.0
+"""Distance over which a link's heading error is assumed to act on position, for :func:`link_weight`."""
+
+
+def link_weight(rel: Rel) -> float:
+    """A link's uncertainty as one number (m²): position variance plus heading variance × lever².
+
+    The graph search orders and bounds itself by the sum of these along a path, which costs one
+    addition per edge; full covariances are then composed only along the chosen paths.
+    """
+    return rel[3] + rel[6] + LEVER_ARM_M * LEVER_ARM_M * rel[8]
 
 
 def revisit_residuals(

@@ -27,6 +27,7 @@ from aslam.core.motion import (
     action_covariance,
     compose_rel,
     inverse_rel,
+    link_weight,
     rel_covariance,
     revisit_residuals,
     to_rel,
@@ -193,48 +194,51 @@ class HypothesisTree:
         """Dijkstra outward from the leaf's state through its own map, bounded by uncertainty.
 
         Returns the states reached and each one's pose (with covariance) seen from the leaf's
-        state. The bound, not the map's size, decides the cost.
+        state, composed along the least uncertain path. The bound and the cap on states, not
+        the map's size, decide the cost.
         """
         overlay = self._suffix_overlay(leaf)
         shared = self.shared.adjacency
         start = leaf.state
-        best: dict[int, Rel] = {start: IDENTITY_REL}
+        distance: dict[int, float] = {start: 0.0}
+        via: dict[int, tuple[int, Rel]] = {}
         heap = [(0.0, start)]
         order: list[int] = []
         done: set[int] = set()
         limit = self.config.search_max_states
         bound = self._search_bound
+        empty: dict[int, tuple[Rel, float]] = {}
         while heap and len(order) < limit:
-            _, state = heapq.heappop(heap)
+            cost, state = heapq.heappop(heap)
             if state in done:
                 continue
             done.add(state)
             order.append(state)
-            here = best[state]
-            neighbours = list(shared.get(state, {}).items())
-            neighbours.extend(overlay.get(state, ()))
-            for neighbour, edge in neighbours:
-                if neighbour in done:
-                    continue
-                rel = compose_rel(here, edge)
-                cost = rel[3] + rel[6]
-                if cost > bound:
-                    continue
-                known = best.get(neighbour)
-                if known is None or cost < known[3] + known[6]:
-                    best[neighbour] = rel
-                    heapq.heappush(heap, (cost, neighbour))
-        return order, [best[s] for s in order]
+            for edges in (shared.get(state, empty).items(), overlay.get(state, ())):
+                for neighbour, (edge, weight) in edges:
+                    total = cost + weight
+                    if total > bound or neighbour in done:
+                        continue
+                    if total < distance.get(neighbour, math.inf):
+                        distance[neighbour] = total
+                        via[neighbour] = (state, edge)
+                        heapq.heappush(heap, (total, neighbour))
+        rels: dict[int, Rel] = {start: IDENTITY_REL}
+        for state in order[1:]:  # a state's predecessor is always finished before it
+            previous, edge = via[state]
+            rels[state] = compose_rel(rels[previous], edge)
+        return order, [rels[s] for s in order]
 
-    def _suffix_overlay(self, leaf: Node) -> dict[int, list[tuple[int, Rel]]]:
+    def _suffix_overlay(self, leaf: Node) -> dict[int, list[tuple[int, tuple[Rel, float]]]]:
         """The links this leaf has that the shared map does not (its uncommitted suffix)."""
-        overlay: dict[int, list[tuple[int, Rel]]] = {}
+        overlay: dict[int, list[tuple[int, tuple[Rel, float]]]] = {}
         node = leaf
         while node is not self.commit_root and node.parent is not None:
             a, b = node.parent.state, node.state
             if a != b:
-                overlay.setdefault(a, []).append((b, node.rel))
-                overlay.setdefault(b, []).append((a, inverse_rel(node.rel)))
+                weight = link_weight(node.rel)
+                overlay.setdefault(a, []).append((b, (node.rel, weight)))
+                overlay.setdefault(b, []).append((a, (inverse_rel(node.rel), weight)))
             node = node.parent
         return overlay
 

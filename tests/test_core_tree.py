@@ -13,7 +13,7 @@ from aslam.core import se2
 from aslam.core.config import EstimatorConfig
 from aslam.core.errors import ConfigError
 from aslam.core.estimator import Estimator, Keyframer
-from aslam.core.motion import compose_rel, inverse_rel, rel_covariance, revisit_residuals, to_rel
+from aslam.core.motion import compose_rel, inverse_rel, link_weight, rel_covariance, revisit_residuals, to_rel
 from aslam.core.tree import HypothesisTree
 
 BINS = 16
@@ -149,14 +149,16 @@ def test_candidates_are_exactly_the_states_the_motion_model_can_reach(seed, turn
     # Brute force: walk the chain back from the current state, composing inverted links.
     expected = []
     rel = to_rel(np.zeros(3), np.zeros((3, 3)))
-    chain = [(leaf.state, rel)]
+    uncertainty = 0.0
+    chain = [(leaf.state, rel, uncertainty)]
     for state in range(leaf.state - 1, -1, -1):
         link = tree.shared.links[(state, state + 1)]
         rel = compose_rel(rel, inverse_rel(link.rel))
-        chain.append((state, rel))
+        uncertainty += link_weight(link.rel)
+        chain.append((state, rel, uncertainty))
     place = np.diag([config.place_radius_m**2] * 2 + [math.radians(config.place_heading_deg) ** 2])
-    for state, rel in chain:
-        if rel[3] + rel[6] > config.search_sigma_m**2:
+    for state, rel, uncertainty in chain:
+        if uncertainty > config.search_sigma_m**2:
             break
         residual, covariance = revisit_residuals(
             np.array([rel[:3]]), rel_covariance(rel)[None], action, action_cov

@@ -1,0 +1,83 @@
+"""Recording speed: keyframes/s of `aslam record` at 320×240 on the paper route, against a bare
+pyrender render loop of the same scene measured in the same run.
+
+    python bench/record_bench.py [--laps 4] [--repeats 3] [--size 320x240]
+
+Three figures per run (best of ``--repeats``, alternating the two loops to share CPU contention):
+* ``record end-to-end``: :func:`aslam.recorder.record.record` from config to a finished MCAP file
+  (world generation, GL start-up, shader compilation, rendering, PNG encoding, writing);
+* ``record loop``: its render → encode → write loop only (reported by ``record``);
+* ``bare loop``: the same scene and poses, only ``scene.set_pose(camera)`` + ``renderer.render``.
+The ratio ``record loop / bare loop`` is the recorder's overhead per frame (target ≤ 1.3).
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def bare_loop_seconds(p, camera) -> float:
+    """Seconds to render every keyframe of plan ``p`` with nothing but pyrender calls."""
+    from aslam.recorder.render import _add, build_generated_scene, camera_matrix, select_platform
+
+    select_platform()
+    import pyrender
+
+    scene, lights_xy = build_generated_scene(p.world, pyrender)
+    cam = pyrender.PerspectiveCamera(
+        yfov=camera.yfov_rad, aspectRatio=camera.width_px / camera.height_px, znear=0.05
+    )
+    cam_node = _add(scene, pyrender, camera=cam)
+    for xy in lights_xy[:4]:
+        m = np.eye(4)
+        m[:3, 3] = (*xy, p.world.height_m - 0.25)
+        _add(scene, pyrender, light=pyrender.PointLight(intensity=4.5), pose=m)
+    renderer = pyrender.OffscreenRenderer(camera.width_px, camera.height_px)
+    try:
+        start = time.perf_counter()
+        for pose in p.truth:
+            scene.set_pose(cam_node, camera_matrix(pose, camera.height_m))
+            renderer.render(scene)
+        return time.perf_counter() - start
+    finally:
+        renderer.delete()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--laps", type=int, default=4, help="laps of the paper route (4 → 137 keyframes)")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--size", default="320x240")
+    args = parser.parse_args()
+
+    from aslam.recorder.config import CameraSpec, RecordConfig, parse_size
+    from aslam.recorder.record import plan, record
+
+    width, height = parse_size(args.size)
+    config = RecordConfig(
+        route="paper", laps=args.laps, seed=0, camera=CameraSpec(width_px=width, height_px=height)
+    )
+    p = plan(config)
+    n = len(p.truth)
+    best = {"end": float("inf"), "loop": float("inf"), "bare": float("inf")}
+    with tempfile.TemporaryDirectory() as tmp:
+        for _ in range(args.repeats):
+            best["bare"] = min(best["bare"], bare_loop_seconds(p, config.camera))
+            result = record(config, Path(tmp) / "bench.mcap", force=True)
+            best["end"] = min(best["end"], result.seconds)
+            best["loop"] = min(best["loop"], result.render_seconds)
+    print(f"paper route, {args.laps} laps, {n} keyframes at {width}x{height}, best of {args.repeats}")
+    print(f"  record end-to-end : {n / best['end']:6.1f} keyframes/s  ({best['end']:.2f} s)")
+    print(f"  record loop       : {n / best['loop']:6.1f} keyframes/s  ({best['loop']:.2f} s)")
+    print(f"  bare pyrender loop: {n / best['bare']:6.1f} keyframes/s  ({best['bare']:.2f} s)")
+    print(f"  ratio record loop / bare loop      : {best['loop'] / best['bare']:.2f}")
+    print(f"  ratio record end-to-end / bare loop: {best['end'] / best['bare']:.2f}")
+
+
+if __name__ == "__main__":
+    main()

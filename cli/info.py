@@ -1,0 +1,98 @@
+"""`aslam info RECORDING.mcap [--json]`: inspect and validate a recording by reading all of it."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
+
+import typer
+
+from aslam.cli.app import app
+
+if TYPE_CHECKING:
+    from aslam.data_formats.recording_info import RecordingInfo
+
+
+def _warning_line(message: str) -> None:
+    sys.stderr.write(f"aslam: warning: {' '.join(message.split())}\n")
+    sys.stderr.flush()
+
+
+@app.command()
+def info(
+    recording: Annotated[Path, typer.Argument(help="The recording (.mcap) to read.", show_default=False)],
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object to stdout.")] = False,
+    image_topic: Annotated[
+        str | None,
+        typer.Option(help="Image topic (CompressedImage or Image). [default: /camera/image/compressed]"),
+    ] = None,
+    odometry_topic: Annotated[str | None, typer.Option(help="Odometry topic. [default: /odom]")] = None,
+    ground_truth_topic: Annotated[
+        str | None, typer.Option(help="Ground-truth pose topic. [default: /ground_truth/pose]")
+    ] = None,
+) -> None:
+    """Read a recording, decoding every image, and print its topics, counts, duration and metadata.
+
+    Exit code 0 when the whole recording reads (warnings, e.g. a truncated file, go to stderr),
+    2 when it cannot be used.
+    """
+    from aslam.data_formats.recording import RecordingTopics
+    from aslam.data_formats.recording_info import describe_recording
+
+    defaults = RecordingTopics()
+    topics = RecordingTopics(
+        image=image_topic or defaults.image,
+        odometry=odometry_topic or defaults.odometry,
+        ground_truth=ground_truth_topic or defaults.ground_truth,
+    )
+    result = describe_recording(recording, topics, on_warning=_warning_line)
+    if as_json:
+        sys.stdout.write(json.dumps(result.as_dict(), indent=2, sort_keys=False) + "\n")
+        return
+    _print_tables(result)
+
+
+def _print_tables(result: RecordingInfo) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    console = Console()
+    topics = Table(title=f"{result.path} ({result.size_bytes:,} bytes)", title_justify="left")
+    topics.add_column("topic")
+    topics.add_column("type")
+    topics.add_column("messages", justify="right")
+    for t in result.topics:
+        topics.add_row(t.topic, t.datatype, str(t.messages))
+    console.print(topics)
+
+    summary = Table(show_header=False, box=None, pad_edge=False)
+    summary.add_column(style="bold")
+    summary.add_column()
+    summary.add_row("samples", f"{result.samples} ({result.samples_with_ground_truth} with ground truth)")
+    summary.add_row("duration", f"{result.duration_s:.3f} s")
+    if result.first_stamp_ns is not None:
+        summary.add_row("stamps", f"{result.first_stamp_ns} … {result.last_stamp_ns} ns")
+    sizes = ", ".join(f"{n} × {size}" for size, n in result.image_sizes.items())
+    encodings = ", ".join(f"{n} × {enc}" for enc, n in result.image_encodings.items())
+    summary.add_row("images", sizes or "none")
+    summary.add_row("encodings", encodings or "none")
+    if result.camera is not None:
+        c = result.camera
+        summary.add_row(
+            "camera",
+            f"{c.width_px}x{c.height_px}, horizontal FOV {c.fov_deg:.2f}°, "
+            f"fx={c.fx:.2f} cx={c.cx:.1f} cy={c.cy:.1f}",
+        )
+    summary.add_row("odometry path", f"{result.odometry_distance_m:.2f} m")
+    summary.add_row("truncated", "yes" if result.truncated else "no")
+    console.print(summary)
+
+    if result.metadata:
+        meta = Table(title="metadata", title_justify="left")
+        meta.add_column("key")
+        meta.add_column("value", overflow="fold")
+        for key, value in result.metadata.items():
+            meta.add_row(key, value)
+        console.print(meta)

@@ -1,0 +1,292 @@
+"""Reading the records of an MCAP file we do not trust: indexed when we can, linear up to damage.
+
+An intact file (trailing magic, a footer, a summary with chunk indexes) is read through
+``mcap.reader.SeekingReader`` in log-time order: it seeks from chunk to chunk, holding only the
+chunks that overlap in time. Anything else (no summary, a file cut short, a file still being
+written) is read front to back with ``mcap.stream_reader.StreamReader`` through a wrapper that
+refuses to read past the end of the file, so the read stops cleanly at the first damaged record and
+everything intact before it is kept. Every exception from the mcap libraries becomes a
+``RecordingError`` naming the file; nothing else escapes.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO
+
+from mcap.exceptions import EndOfFile, RecordLengthLimitExceeded
+from mcap.reader import SeekingReader
+from mcap.records import Channel, Chunk, Footer, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.summary import Summary
+
+from aslam.data_formats.recording import RecordingError
+
+MAGIC = b"\x89MCAP0\r\n"
+_FOOTER_RECORD_SIZE = 1 + 8 + 8 + 8 + 4  # opcode, length, summary_start, summary_offset_start, crc
+
+
+class _PastEnd(Exception):
+    """A record runs past the end of the file (raised inside mcap's stream reader, caught here)."""
+
+
+class _BoundedFile:
+    """A read-only view of a file that raises ``_PastEnd`` instead of reading short.
+
+    mcap's ``ReadDataStream`` accepts short reads silently (and a bad length would make it try to
+    allocate that much); with this wrapper a cut-off record stops the read at its first byte.
+    """
+
+    def __init__(self, stream: IO[bytes], size: int) -> None:
+        self._stream = stream
+        self._size = size
+        self._pos = stream.tell()
+
+    def read(self, n: int = -1) -> bytes:
+        if n < 0:
+            n = self._size - self._pos
+        if n > self._size - self._pos:
+            raise _PastEnd
+        data = self._stream.read(n)
+        self._pos += len(data)
+        if len(data) < n:
+            raise _PastEnd
+        return data
+
+    def tell(self) -> int:
+        return self._pos
+
+
+@dataclass(frozen=True)
+class Truncation:
+    """Where a linear read stopped: the intact data ends at ``at_byte`` of a ``size``-byte file."""
+
+    at_byte: int
+    size: int
+
+
+def check_recording_path(path: Path) -> int:
+    """The size of ``path`` after checking it is a readable, non-empty file that starts like MCAP."""
+    if not path.exists():
+        raise RecordingError("no such file", path=path)
+    if path.is_dir():
+        raise RecordingError("is a directory, not an MCAP file", path=path)
+    try:
+        size = path.stat().st_size
+        with path.open("rb") as f:
+            head = f.read(len(MAGIC))
+    except OSError as err:
+        raise RecordingError(f"cannot read: {err.strerror or err}", path=path) from err
+    if size == 0:
+        raise RecordingError("empty file (0 bytes), not an MCAP recording", path=path)
+    if head != MAGIC:
+        raise RecordingError("not an MCAP file (bad magic bytes at the start)", path=path)
+    return size
+
+
+class McapSource:
+    """The messages of one MCAP file in time order, and what is known about its channels.
+
+    ``channels`` maps topic → schema name. With a usable summary it is complete from the start
+    (``complete_channels`` is True); on a linear read it grows as channel records are met.
+    ``truncation`` is set once a linear read has stopped at damage.
+    """
+
+    def __init__(self, path: Path, *, on_warning: Callable[[str], None] | None = None) -> None:
+        self.path = Path(path)
+        self.size = check_recording_path(self.path)
+        self._warn = on_warning or (lambda _message: None)
+        self.truncation: Truncation | None = None
+        self.channels: dict[str, str] = {}
+        self.message_counts: dict[str, int] | None = None
+        self._summary = self._read_summary()
+        self.complete_channels = self._summary is not None
+        if self._summary is not None:
+            schemas = self._summary.schemas
+            for channel in self._summary.channels.values():
+                schema = schemas.get(channel.schema_id)
+                self.channels[channel.topic] = schema.name if schema is not None else ""
+            stats = self._summary.statistics
+            if stats is not None:
+                counts: dict[str, int] = {}
+                for channel_id, count in stats.channel_message_counts.items():
+                    channel = self._summary.channels.get(channel_id)
+                    if channel is not None:
+                        counts[channel.topic] = counts.get(channel.topic, 0) + count
+                self.message_counts = counts
+
+    def _error(self, problem: str, err: BaseException | None = None) -> RecordingError:
+        detail = f": {type(err).__name__}: {err}" if err is not None else ""
+        return RecordingError(f"{problem}{detail}", path=self.path)
+
+    # --- summary ------------------------------------------------------------------------------
+
+    def _read_summary(self) -> Summary | None:
+        """The summary if the file ends intact and has a consistent chunk index, else None."""
+        if self.size < 2 * len(MAGIC) + _FOOTER_RECORD_SIZE:
+            return None
+        try:
+            with self.path.open("rb") as f:
+                f.seek(self.size - len(MAGIC))
+                if f.read(len(MAGIC)) != MAGIC:
+                    return None  # cut short or still being written: read linearly
+                f.seek(0)
+                reader = SeekingReader(f, record_size_limit=self.size)
+                summary = reader.get_summary()
+        except OSError as err:
+            raise self._error("cannot read", err) from err
+        except Exception as err:  # mcap raises many types on a damaged summary
+            self._warn(f"{self.path}: unreadable summary section ({err}); reading the file linearly")
+            return None
+        if summary is None or not summary.chunk_indexes:
+            return None
+        for index in summary.chunk_indexes:
+            if index.chunk_start_offset + index.chunk_length > self.size:
+                self._warn(f"{self.path}: chunk index points past the end of the file; reading linearly")
+                return None
+        for channel in summary.channels.values():
+            if channel.schema_id != 0 and channel.schema_id not in summary.schemas:
+                self._warn(f"{self.path}: summary names a missing schema; reading the file linearly")
+                return None
+        return summary
+
+    # --- messages -----------------------------------------------------------------------------
+
+    def messages(self, topics: Iterable[str] | None) -> Iterator[tuple[Schema | None, Channel, Message]]:
+        """The messages on ``topics`` (None: all) in log-time order.
+
+        On a linear read the order is log-time order within each chunk and file order between
+        chunks (MCAP writers write chunks in time order; sorting across chunks would need the index).
+        """
+        wanted = None if topics is None else set(topics)
+        if self._summary is not None:
+            yield from self._indexed_messages(wanted)
+        else:
+            yield from self._linear_messages(wanted)
+
+    def count_messages(self) -> dict[str, int]:
+        """Messages per topic: from the summary's statistics, else by reading the file (up to damage)."""
+        if self.message_counts is not None:
+            return dict(self.message_counts)
+        counts: dict[str, int] = {}
+        for _schema, channel, _message in self.messages(None):
+            counts[channel.topic] = counts.get(channel.topic, 0) + 1
+        return counts
+
+    def _indexed_messages(self, wanted: set[str] | None) -> Iterator[tuple[Schema | None, Channel, Message]]:
+        with self.path.open("rb") as f:
+            reader = SeekingReader(f, record_size_limit=self.size)
+            topics = None if wanted is None else sorted(wanted)
+            iterator = reader.iter_messages(topics=topics, log_time_order=True)
+            while True:
+                try:
+                    item = next(iterator)
+                except StopIteration:
+                    return
+                except Exception as err:  # zstd, struct, McapError, ... on a damaged chunk
+                    raise self._error("corrupt MCAP data", err) from err
+                yield item
+
+    def _linear_records(self, f: IO[bytes]) -> Iterator[object]:
+        """Top-level records (chunks not opened) up to the footer or the first damaged record."""
+        bounded = _BoundedFile(f, self.size)
+        records = StreamReader(bounded, emit_chunks=True, record_size_limit=self.size).records  # type: ignore[arg-type]
+        intact_end = len(MAGIC)
+        while True:
+            try:
+                record = next(records)
+            except StopIteration:
+                return
+            except (_PastEnd, EndOfFile, RecordLengthLimitExceeded):
+                # A record runs past the end of the file (or claims to be longer than the file).
+                self.truncation = Truncation(at_byte=intact_end, size=self.size)
+                return
+            except Exception as err:
+                raise self._error(f"corrupt MCAP record after byte {intact_end}", err) from err
+            intact_end = bounded.tell()
+            yield record
+            if isinstance(record, Footer):
+                # The trailing magic comes next; StreamReader reads it after yielding the footer.
+                try:
+                    next(records, None)
+                except Exception:  # the trailing magic is cut or wrong; every record was read
+                    self.truncation = Truncation(at_byte=intact_end, size=self.size)
+                return
+
+    def _linear_messages(self, wanted: set[str] | None) -> Iterator[tuple[Schema | None, Channel, Message]]:
+        schemas: dict[int, Schema] = {}
+        channels: dict[int, Channel] = {}
+
+        def add_channel(channel: Channel) -> None:
+            channels[channel.id] = channel
+            schema = schemas.get(channel.schema_id)
+            self.channels.setdefault(channel.topic, schema.name if schema is not None else "")
+
+        def pick(message: Message) -> tuple[Schema | None, Channel, Message] | None:
+            channel = channels.get(message.channel_id)
+            if channel is None:
+                raise self._error(f"message at log time {message.log_time} names unknown channel")
+            if wanted is not None and channel.topic not in wanted:
+                return None
+            return schemas.get(channel.schema_id), channel, message
+
+        with self.path.open("rb") as f:
+            for record in self._linear_records(f):
+                if isinstance(record, Schema):
+                    schemas[record.id] = record
+                elif isinstance(record, Channel):
+                    add_channel(record)
+                elif isinstance(record, Message):
+                    item = pick(record)
+                    if item is not None:
+                        yield item
+                elif isinstance(record, Chunk):
+                    try:
+                        inner = breakup_chunk(record)
+                    except Exception as err:
+                        raise self._error("corrupt MCAP chunk", err) from err
+                    messages = []
+                    for rec in inner:  # every channel of the chunk is known before its messages
+                        if isinstance(rec, Schema):
+                            schemas[rec.id] = rec
+                        elif isinstance(rec, Channel):
+                            add_channel(rec)
+                        elif isinstance(rec, Message):
+                            messages.append(rec)
+                    messages.sort(key=lambda m: m.log_time)  # one chunk, bounded
+                    for message in messages:
+                        item = pick(message)
+                        if item is not None:
+                            yield item
+
+    # --- metadata -----------------------------------------------------------------------------
+
+    def metadata(self, name: str) -> dict[str, str] | None:
+        """The first metadata record called ``name``, or None."""
+        try:
+            if self._summary is not None:
+                if not any(index.name == name for index in self._summary.metadata_indexes):
+                    return None
+                with self.path.open("rb") as f:
+                    reader = SeekingReader(f, record_size_limit=self.size)
+                    for record in reader.iter_metadata():
+                        if record.name == name:
+                            return dict(record.metadata)
+                return None
+            with self.path.open("rb") as f:
+                for record in self._linear_records(f):
+                    if isinstance(record, Metadata) and record.name == name:
+                        return dict(record.metadata)
+            return None
+        except RecordingError:
+            raise
+        except Exception as err:
+            raise self._error("corrupt metadata record", err) from err
+
+
+def partial_name(path: Path) -> Path:
+    """Where a writer puts ``path`` until it is complete: a hidden name in the same folder."""
+    return path.with_name(f".{path.name}.partial-{os.getpid()}")

@@ -1,0 +1,161 @@
+"""What a recording holds, found by reading all of it (every image decoded): ``aslam info``'s data."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from aslam.data_formats.recording import (
+    METADATA_NAME,
+    CameraIntrinsics,
+    RecordingTopics,
+    iter_samples,
+    read_camera_intrinsics,
+)
+
+
+@dataclass(frozen=True)
+class TopicInfo:
+    topic: str
+    datatype: str
+    messages: int
+
+
+@dataclass(frozen=True)
+class RecordingInfo:
+    """A recording's contents; ``warnings`` holds every warning met while reading it."""
+
+    path: str
+    size_bytes: int
+    topics: tuple[TopicInfo, ...]
+    samples: int
+    first_stamp_ns: int | None
+    last_stamp_ns: int | None
+    image_encodings: dict[str, int]
+    image_sizes: dict[str, int]  # "WxH" → images of that size
+    samples_with_ground_truth: int
+    odometry_distance_m: float
+    camera: CameraIntrinsics | None
+    metadata: dict[str, str]
+    truncated: bool
+    warnings: tuple[str, ...] = field(default=())
+
+    @property
+    def duration_s(self) -> float:
+        if self.first_stamp_ns is None or self.last_stamp_ns is None:
+            return 0.0
+        return (self.last_stamp_ns - self.first_stamp_ns) / 1e9
+
+    def as_dict(self) -> dict[str, Any]:
+        camera = None
+        if self.camera is not None:
+            c = self.camera
+            camera = {
+                "width_px": c.width_px,
+                "height_px": c.height_px,
+                "fov_deg": c.fov_deg,
+                "fx": c.fx,
+                "fy": c.fy,
+                "cx": c.cx,
+                "cy": c.cy,
+            }
+        return {
+            "path": self.path,
+            "size_bytes": self.size_bytes,
+            "topics": [{"topic": t.topic, "type": t.datatype, "messages": t.messages} for t in self.topics],
+            "samples": self.samples,
+            "samples_with_ground_truth": self.samples_with_ground_truth,
+            "first_stamp_ns": self.first_stamp_ns,
+            "last_stamp_ns": self.last_stamp_ns,
+            "duration_s": self.duration_s,
+            "image_encodings": dict(self.image_encodings),
+            "image_sizes": dict(self.image_sizes),
+            "odometry_distance_m": self.odometry_distance_m,
+            "camera": camera,
+            "metadata": {"name": METADATA_NAME, "entries": dict(self.metadata)},
+            "truncated": self.truncated,
+            "warnings": list(self.warnings),
+        }
+
+
+def describe_recording(
+    path: Path,
+    topics: RecordingTopics = RecordingTopics(),
+    *,
+    on_warning: Callable[[str], None] | None = None,
+    on_sample: Callable[[int], None] | None = None,
+) -> RecordingInfo:
+    """Read the whole recording, decoding every image, and say what it holds.
+
+    Any problem iter_samples would meet raises here too (RecordingError); warnings are passed to
+    ``on_warning`` as they come and also collected in the result. ``on_sample(n)`` is called after
+    each sample (for a progress display).
+    """
+    from aslam.data_formats.mcap_io import McapSource
+
+    path = Path(path)
+    warnings: list[str] = []
+
+    def warn(message: str) -> None:
+        warnings.append(message)
+        if on_warning is not None:
+            on_warning(message)
+
+    source = McapSource(path, on_warning=warn)
+    counts = source.count_messages()
+    metadata = source.metadata(METADATA_NAME) or {}
+    camera = read_camera_intrinsics(path, topics)
+
+    samples = with_truth = 0
+    first = last = None
+    encodings: dict[str, int] = {}
+    sizes: dict[str, int] = {}
+    distance = 0.0
+    previous_xy = None
+    for sample in iter_samples(path, topics, on_warning=warn):
+        gray = sample.image.decode_gray()
+        size = f"{gray.shape[1]}x{gray.shape[0]}"
+        sizes[size] = sizes.get(size, 0) + 1
+        encodings[sample.image.encoding] = encodings.get(sample.image.encoding, 0) + 1
+        if first is None:
+            first = sample.stamp_ns
+        last = sample.stamp_ns
+        if sample.ground_truth_pose is not None:
+            with_truth += 1
+        xy = sample.odometry_pose[:2]
+        if previous_xy is not None:
+            distance += math.hypot(float(xy[0] - previous_xy[0]), float(xy[1] - previous_xy[1]))
+        previous_xy = xy
+        samples += 1
+        if on_sample is not None:
+            on_sample(samples)
+
+    if camera is not None and sizes:
+        expected = f"{camera.width_px}x{camera.height_px}"
+        if set(sizes) != {expected}:
+            warn(f"{path}: camera info says {expected} but the images are {', '.join(sorted(sizes))}")
+
+    # The channels a linear read met (every channel of an indexed file) with their counts.
+    topic_infos = tuple(
+        TopicInfo(topic, datatype, counts.get(topic, 0))
+        for topic, datatype in sorted(source.channels.items())
+    )
+    return RecordingInfo(
+        path=str(path),
+        size_bytes=source.size,
+        topics=topic_infos,
+        samples=samples,
+        first_stamp_ns=first,
+        last_stamp_ns=last,
+        image_encodings=encodings,
+        image_sizes=sizes,
+        samples_with_ground_truth=with_truth,
+        odometry_distance_m=distance,
+        camera=camera,
+        metadata=metadata,
+        truncated=source.truncation is not None,
+        warnings=tuple(warnings),
+    )

@@ -1,0 +1,118 @@
+"""The recorder's configuration: one frozen dataclass, validated in one place.
+
+Kept free of heavy imports (no numpy, pyrender, cv2) so the CLI can build it while ``aslam --help``
+stays instant.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from aslam.core.errors import ConfigError
+
+DEFAULT_FOV_DEG = 60.0
+DEFAULT_SIZE = (320, 240)
+DEFAULT_CAMERA_HEIGHT_M = 1.2
+MAX_SIZE_PX = 4096
+MAX_FPS = 120.0
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """Pinhole camera: image size, horizontal field of view, lens height above the floor."""
+
+    width_px: int = DEFAULT_SIZE[0]
+    height_px: int = DEFAULT_SIZE[1]
+    fov_deg: float = DEFAULT_FOV_DEG
+    height_m: float = DEFAULT_CAMERA_HEIGHT_M
+
+    @property
+    def yfov_rad(self) -> float:
+        """Vertical field of view of the same pinhole (square pixels)."""
+        return 2.0 * math.atan(math.tan(math.radians(self.fov_deg) / 2.0) * self.height_px / self.width_px)
+
+
+@dataclass(frozen=True)
+class NoiseParams:
+    """Parameters of :mod:`aslam.recorder.noise` (see its docstring for why the model is split)."""
+
+    noise: float = 0.03  # relative σ of each action's distance and turn angle (the paper's 3 %)
+    drift_deg_per_m: float = 0.5  # σ of the heading drift per metre driven
+    jitter_m: float = 0.05  # σ of the true x and y around the commanded pose (not accumulated)
+    jitter_deg: float = 1.5  # σ of the true yaw around the commanded yaw (not accumulated)
+
+
+@dataclass(frozen=True)
+class RecordConfig:
+    """Everything that decides a recording's content; the same config gives byte-identical files.
+
+    ``laps=None`` means the default: 2 for a preset route (a first visit, then revisits), 1 for a
+    route file.  ``fps=None`` renders one image per action (plus the initial one); ``fps=F``
+    renders ``round(F)`` images per action (each action takes 1 s).  ``jpeg_quality=None`` writes PNG.
+    """
+
+    route: str = "paper"
+    laps: int | None = None
+    seed: int = 0
+    noise: NoiseParams = field(default_factory=NoiseParams)
+    aliasing: float = 0.0
+    world: Path | None = None
+    camera: CameraSpec = field(default_factory=CameraSpec)
+    fps: float | None = None
+    jpeg_quality: int | None = None
+    contact_sheet: Path | None = None
+
+    @property
+    def frames_per_action(self) -> int:
+        return 1 if self.fps is None else max(1, round(self.fps))
+
+    def problems(self) -> list[str]:
+        """Every unusable value, each as a message naming its option (empty when all is well)."""
+        out = []
+        if self.laps is not None and self.laps < 1:
+            out.append(f"--laps must be at least 1, got {self.laps}")
+        if self.seed < 0:
+            out.append(f"--seed must be ≥ 0, got {self.seed}")
+        for name, value in vars(self.noise).items():
+            if not math.isfinite(value) or value < 0:
+                out.append(f"--{name.replace('_', '-')} must be a finite number ≥ 0, got {value}")
+        if math.isfinite(self.noise.noise) and self.noise.noise >= 1:
+            out.append(f"--noise is a relative error and must be < 1, got {self.noise.noise}")
+        if not (math.isfinite(self.aliasing) and 0.0 <= self.aliasing <= 1.0):
+            out.append(f"--aliasing must be between 0 and 1, got {self.aliasing}")
+        cam = self.camera
+        if not (math.isfinite(cam.fov_deg) and 1.0 <= cam.fov_deg <= 170.0):
+            out.append(f"--fov-deg must be between 1 and 170 degrees, got {cam.fov_deg}")
+        if not (8 <= cam.width_px <= MAX_SIZE_PX and 8 <= cam.height_px <= MAX_SIZE_PX):
+            out.append(
+                f"--size must be between 8x8 and {MAX_SIZE_PX}x{MAX_SIZE_PX}, "
+                f"got {cam.width_px}x{cam.height_px}"
+            )
+        if not (math.isfinite(cam.height_m) and cam.height_m > 0):
+            out.append(f"--camera-height-m must be a positive number of metres, got {cam.height_m}")
+        if self.fps is not None and not (math.isfinite(self.fps) and 1.0 <= self.fps <= MAX_FPS):
+            out.append(f"--fps must be between 1 and {MAX_FPS:g} frames per second, got {self.fps}")
+        if self.jpeg_quality is not None and not 1 <= self.jpeg_quality <= 100:
+            out.append(f"--jpeg-quality must be between 1 and 100, got {self.jpeg_quality}")
+        return out
+
+    def validate(self) -> None:
+        """Raise :class:`ConfigError` with the first problem (and how many more there are)."""
+        problems = self.problems()
+        if problems:
+            more = f" (and {len(problems) - 1} more problem(s))" if len(problems) > 1 else ""
+            raise ConfigError(problems[0] + more)
+
+
+_SIZE = re.compile(r"^\s*(\d{1,5})\s*[xX×]\s*(\d{1,5})\s*$")
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """``"320x240"`` → ``(320, 240)``; :class:`ConfigError` for anything else."""
+    match = _SIZE.match(text)
+    if not match:
+        raise ConfigError(f"--size must look like WIDTHxHEIGHT (e.g. 320x240), got {text!r}")
+    return int(match.group(1)), int(match.group(2))

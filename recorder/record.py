@@ -1,0 +1,238 @@
+"""The recorder's entry point: config → route → world → noisy poses → rendered frames → MCAP.
+
+:func:`record` is a plain function; the CLI only builds the :class:`RecordConfig`, drives the
+progress callback with rich, and maps errors to exit codes.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections import deque
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import asdict, dataclass
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from aslam.core import se2
+from aslam.core.errors import ConfigError, InputError
+from aslam.recorder import noise, routes
+from aslam.recorder.config import RecordConfig
+from aslam.recorder.world import GridWorld, SceneWorld, check_route_in_scene, generate_world, load_scene_world
+
+#: Stamps start at a fixed epoch (2020-09-13T12:26:40Z), not at 0 (which ROS tools treat as unset),
+#: and not at the wall clock (which would break byte-identical output).
+START_STAMP_NS = 1_600_000_000_000_000_000
+ACTION_DURATION_NS = 1_000_000_000
+#: Frames rendered ahead of the encoder/writer thread (bounds memory, keeps both busy).
+MAX_IN_FLIGHT = 4
+CONTACT_SHEET_FRAMES = 24
+
+Progress = Callable[[int, int], None]  # (frames done, frames total)
+
+
+class Frame(NamedTuple):
+    """One image to render: when, where it really is, where odometry says, and its keyframe."""
+
+    stamp_ns: int
+    truth_pose: np.ndarray
+    odometry_pose: np.ndarray
+    keyframe: int | None  # index of the keyframe, None for intermediate (--fps) frames
+
+
+@dataclass(frozen=True)
+class Plan:
+    """Everything decided before rendering: route, world, poses."""
+
+    route: routes.Route
+    world: GridWorld | SceneWorld
+    truth: np.ndarray  # keyframe poses, (n, 3)
+    odometry: np.ndarray  # keyframe poses, (n, 3)
+    frames_per_action: int
+
+    @property
+    def n_frames(self) -> int:
+        return (len(self.truth) - 1) * self.frames_per_action + 1
+
+    def frames(self) -> Iterator[Frame]:
+        n = self.frames_per_action
+        for k in range(len(self.truth) - 1):
+            for j in range(n):
+                stamp = START_STAMP_NS + k * ACTION_DURATION_NS + j * ACTION_DURATION_NS // n
+                if j == 0:
+                    yield Frame(stamp, self.truth[k], self.odometry[k], k)
+                else:
+                    f = j / n
+                    truth = se2.interpolate(self.truth[k], self.truth[k + 1], f)
+                    odom = se2.interpolate(self.odometry[k], self.odometry[k + 1], f)
+                    yield Frame(stamp, truth, odom, None)
+        k = len(self.truth) - 1
+        yield Frame(START_STAMP_NS + k * ACTION_DURATION_NS, self.truth[k], self.odometry[k], k)
+
+
+@dataclass(frozen=True)
+class RecordResult:
+    output: Path
+    frames: int
+    keyframes: int
+    seconds: float
+    render_seconds: float  # the render/encode/write loop only (excludes world building, GL start-up)
+    contact_sheet: Path | None
+
+
+def tool_version() -> str:
+    try:
+        return version("aslam")
+    except PackageNotFoundError:
+        return "0+unknown"
+
+
+def plan(config: RecordConfig) -> Plan:
+    """Validate the config, resolve the route, build or load the world, simulate the poses."""
+    config.validate()
+    route = routes.resolve_route(config.route)
+    laps = config.laps
+    if laps is None:
+        laps = routes.DEFAULT_PRESET_LAPS if config.route in routes.PRESETS else 1
+    route = route.repeated(laps)
+    commanded = route.poses()
+    if config.world is None:
+        from aslam.recorder.world import HEIGHT_M
+
+        if config.camera.height_m >= HEIGHT_M - 0.1:
+            raise ConfigError(
+                f"--camera-height-m must be below {HEIGHT_M - 0.1:g} m in a generated world "
+                f"(ceilings are {HEIGHT_M:g} m), got {config.camera.height_m}"
+            )
+        world: GridWorld | SceneWorld = generate_world(commanded, config.seed, aliasing=config.aliasing)
+    else:
+        world = load_scene_world(config.world)
+        check_route_in_scene(world, commanded, [a.to_json() for a in route.actions], config.camera.height_m)
+    truth, odometry = noise.simulate(commanded, config.noise, config.seed)
+    return Plan(route, world, truth, odometry, config.frames_per_action)
+
+
+def metadata(config: RecordConfig, p: Plan) -> dict[str, str]:
+    camera = {**asdict(config.camera), "frames_per_action": p.frames_per_action}
+    return {
+        "world": p.world.describe(),
+        "seed": str(config.seed),
+        "route": p.route.to_json(),
+        "noise": noise.noise_json(config.noise),
+        "camera": json.dumps(camera, separators=(",", ":")),
+        "tool_version": tool_version(),
+    }
+
+
+def record(
+    config: RecordConfig, output: Path, *, force: bool = False, progress: Progress | None = None
+) -> RecordResult:
+    """Render the recording described by ``config`` into ``output`` (an MCAP file).
+
+    The writer writes to a temporary name and renames it when complete, so an error or Ctrl-C
+    leaves nothing under ``output``.  Rendering runs in this thread; PNG/JPEG encoding and writing
+    run in one helper thread, in frame order, so the output is deterministic.
+    """
+    from aslam.data_formats.recording import CameraIntrinsics, ImageFormat, RecordingWriter, encode_image
+    from aslam.recorder.render import PyrenderRenderer
+
+    started = time.perf_counter()
+    output = Path(output)
+    if output.exists() and not force:  # the writer checks too; failing here skips the slow set-up
+        raise InputError("already exists; refusing to overwrite it (use --force)", path=output)
+    p = plan(config)
+    cam = config.camera
+    intrinsics = CameraIntrinsics(width_px=cam.width_px, height_px=cam.height_px, fov_deg=cam.fov_deg)
+    fmt = ImageFormat.PNG if config.jpeg_quality is None else ImageFormat.JPEG
+    quality = 90 if config.jpeg_quality is None else config.jpeg_quality
+    total = p.n_frames
+    sheet_keys = set(_sheet_keyframes(len(p.truth)))
+    sheet: list[tuple[int, np.ndarray]] = []
+
+    with PyrenderRenderer(p.world, cam) as renderer:
+        loop_start = time.perf_counter()
+        with (
+            RecordingWriter(output, camera=intrinsics, metadata=metadata(config, p), force=force) as writer,
+            ThreadPoolExecutor(max_workers=1, thread_name_prefix="aslam-encode") as pool,
+        ):
+
+            def encode_and_write(frame: Frame, rgb: np.ndarray) -> None:
+                writer.write(
+                    frame.stamp_ns, encode_image(rgb, fmt, quality), frame.odometry_pose, frame.truth_pose
+                )
+
+            pending: deque[Future] = deque()
+            done = 0
+            try:
+                for frame in p.frames():
+                    rgb = renderer.render(frame.truth_pose)
+                    if frame.keyframe in sheet_keys:
+                        sheet.append((frame.keyframe, rgb))
+                    pending.append(pool.submit(encode_and_write, frame, rgb))
+                    while len(pending) > MAX_IN_FLIGHT or (pending and pending[0].done()):
+                        pending.popleft().result()
+                        done += 1
+                        if progress is not None:
+                            progress(done, total)
+                while pending:
+                    pending.popleft().result()
+                    done += 1
+                    if progress is not None:
+                        progress(done, total)
+            except BaseException:
+                for future in pending:
+                    future.cancel()
+                raise
+        loop_seconds = time.perf_counter() - loop_start
+
+    sheet_path = None
+    if config.contact_sheet is not None:
+        sheet_path = write_contact_sheet(config.contact_sheet, sheet)
+    return RecordResult(
+        output=output,
+        frames=total,
+        keyframes=len(p.truth),
+        seconds=time.perf_counter() - started,
+        render_seconds=loop_seconds,
+        contact_sheet=sheet_path,
+    )
+
+
+def _sheet_keyframes(n: int) -> list[int]:
+    count = min(n, CONTACT_SHEET_FRAMES)
+    return sorted({round(i * (n - 1) / max(1, count - 1)) for i in range(count)})
+
+
+def write_contact_sheet(path: Path, frames: list[tuple[int, np.ndarray]], columns: int = 6) -> Path:
+    """A grid of sample frames, each labelled with its keyframe index, as a PNG."""
+    import cv2
+
+    if not frames:
+        raise InputError("no frames for the contact sheet", path=path)
+    h, w = frames[0][1].shape[:2]
+    rows = -(-len(frames) // columns)
+    sheet = np.full((rows * (h + 2), columns * (w + 2), 3), 24, np.uint8)
+    scale = max(0.35, w / 640)
+    for n, (index, rgb) in enumerate(frames):
+        r, c = divmod(n, columns)
+        tile = np.array(rgb, copy=True)
+        label = f"#{index}"
+        (tw, th), base = cv2.getTextSize(label, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)
+        cv2.rectangle(tile, (0, 0), (tw + 6, th + base + 6), (0, 0, 0), -1)
+        cv2.putText(
+            tile, label, (3, th + 3), cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), 1, cv2.LINE_AA
+        )
+        sheet[r * (h + 2) : r * (h + 2) + h, c * (w + 2) : c * (w + 2) + w] = tile
+    ok, buf = cv2.imencode(".png", cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise InputError("OpenCV could not encode the contact sheet", path=path)
+    path = Path(path)
+    try:
+        path.write_bytes(buf.tobytes())
+    except OSError as err:
+        raise InputError(f"cannot write contact sheet: {err.strerror or err}", path=path) from err
+    return path

@@ -1,0 +1,403 @@
+"""Rendering a world with pyrender, headless.
+
+Platform: when ``PYOPENGL_PLATFORM`` is not set and there is no ``DISPLAY``, EGL is used (Mesa
+renders on the CPU); when EGL's library is missing or its context cannot be created, OSMesa is
+tried instead (it needs ``libosmesa6``; ``make sysdeps`` installs it when EGL is missing).  The
+platform must be chosen before PyOpenGL is first imported, so :func:`select_platform` runs first.
+
+The scene is kept light for speed: all wall panels share one texture atlas and one draw call, the
+floor is one draw call per floor texture, the ceiling, light panels and door frames one each.  Four
+point lights (pyrender's per-pass cap per light type) follow the camera: each frame they sit at the
+four ceiling light panels nearest the camera, so a place is lit the same way on every visit.
+"""
+
+from __future__ import annotations
+
+import ctypes.util
+import math
+import os
+
+import numpy as np
+
+from aslam.recorder.config import CameraSpec
+from aslam.recorder.errors import RenderError
+
+ATLAS_WIDTH = 2048
+ATLAS_PAD = 2
+N_POINT_LIGHTS = 4
+AMBIENT = 0.28
+LIGHT_INTENSITY = 4.5
+
+
+EGL_PLATFORM_SURFACELESS_MESA = 0x31DD
+
+
+def _egl_works() -> bool:
+    """Whether an EGL display initialises (Mesa's surfaceless platform, or the default display).
+
+    A cheap probe with ctypes (~10 ms, no context): PyOpenGL's platform cannot be changed after it
+    is imported, so the fallback to OSMesa must be decided before pyrender is imported.
+    """
+    name = ctypes.util.find_library("EGL")
+    if not name:
+        return False
+    try:
+        egl = ctypes.CDLL(name)
+        egl.eglInitialize.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p]
+        egl.eglTerminate.argtypes = [ctypes.c_void_p]
+        displays = []
+        if hasattr(egl, "eglGetPlatformDisplay"):
+            egl.eglGetPlatformDisplay.restype = ctypes.c_void_p
+            egl.eglGetPlatformDisplay.argtypes = [ctypes.c_uint, ctypes.c_void_p, ctypes.c_void_p]
+            displays.append(lambda: egl.eglGetPlatformDisplay(EGL_PLATFORM_SURFACELESS_MESA, None, None))
+        egl.eglGetDisplay.restype = ctypes.c_void_p
+        egl.eglGetDisplay.argtypes = [ctypes.c_void_p]
+        displays.append(lambda: egl.eglGetDisplay(None))
+        for get_display in displays:
+            display = get_display()
+            major, minor = ctypes.c_int(), ctypes.c_int()
+            if display and egl.eglInitialize(display, ctypes.byref(major), ctypes.byref(minor)):
+                egl.eglTerminate(display)
+                return True
+    except (OSError, AttributeError):
+        return False
+    return False
+
+
+def select_platform() -> str:
+    """Choose PyOpenGL's platform before it is imported; returns the platform in use ('' = default).
+
+    An explicit ``PYOPENGL_PLATFORM`` wins; with a ``DISPLAY`` the default (GLX) is kept; otherwise
+    EGL when it initialises, else OSMesa when its library is installed, else EGL (whose failure then
+    produces an error that says what to install).
+    """
+    if "PYOPENGL_PLATFORM" in os.environ:
+        return os.environ["PYOPENGL_PLATFORM"]
+    if os.environ.get("DISPLAY"):
+        return ""
+    platform = "egl"
+    if not _egl_works() and ctypes.util.find_library("OSMesa"):
+        platform = "osmesa"
+    os.environ["PYOPENGL_PLATFORM"] = platform
+    return platform
+
+
+def camera_matrix(pose: np.ndarray, height_m: float) -> np.ndarray:
+    """4×4 camera-to-world pose for pyrender (camera looks down its −z, y up) at an SE(2) pose."""
+    x, y, yaw = (float(v) for v in pose)
+    c, s = math.cos(yaw), math.sin(yaw)
+    m = np.eye(4)
+    m[:3, 0] = (s, -c, 0.0)  # camera x: to the robot's right
+    m[:3, 1] = (0.0, 0.0, 1.0)  # camera y: up
+    m[:3, 2] = (-c, -s, 0.0)  # camera z: backwards
+    m[:3, 3] = (x, y, height_m)
+    return m
+
+
+# ----------------------------------------------------------------------------- generated worlds
+
+
+def _atlas(textures: list[np.ndarray]) -> tuple[np.ndarray, list[tuple[float, float, float, float]]]:
+    """Shelf-pack equal-height textures into one image; returns it and each one's (u0, v0, u1, v1)."""
+    th = max(t.shape[0] for t in textures)
+    row_h = th + 2 * ATLAS_PAD
+    places = []
+    x = y = 0
+    for t in textures:
+        w = t.shape[1] + 2 * ATLAS_PAD
+        if x + w > ATLAS_WIDTH:
+            x, y = 0, y + row_h
+        places.append((x, y))
+        x += w
+    height = y + row_h
+    atlas = np.zeros((height, ATLAS_WIDTH, 3), np.uint8)
+    rects = []
+    for t, (x, y) in zip(textures, places, strict=True):
+        padded = np.pad(
+            t, ((ATLAS_PAD, row_h - t.shape[0] - ATLAS_PAD), (ATLAS_PAD, ATLAS_PAD), (0, 0)), mode="edge"
+        )
+        atlas[y : y + row_h, x : x + padded.shape[1]] = padded
+        x0, y0 = x + ATLAS_PAD, y + ATLAS_PAD
+        # pyrender flips images on upload: v = 1 is the image's top row
+        rects.append(
+            (
+                x0 / ATLAS_WIDTH,
+                1.0 - (y0 + t.shape[0]) / height,
+                (x0 + t.shape[1]) / ATLAS_WIDTH,
+                1.0 - y0 / height,
+            )
+        )
+    return atlas, rects
+
+
+def _quads(corners: np.ndarray, normals: np.ndarray, uvs: np.ndarray):
+    """Arrays for a primitive of quads: corners (n, 4, 3) counter-clockwise seen from the front."""
+    n = len(corners)
+    positions = corners.reshape(-1, 3).astype(np.float32)
+    normal = np.repeat(normals.astype(np.float32), 4, axis=0)
+    uv = uvs.reshape(-1, 2).astype(np.float32)
+    base = (np.arange(n) * 4)[:, None]
+    faces = (
+        np.concatenate([base + np.array([0, 1, 2]), base + np.array([0, 2, 3])], axis=1)
+        .reshape(-1, 3)
+        .astype(np.uint32)
+    )
+    return positions, normal, uv, faces
+
+
+def _cell_quads(world, mask: np.ndarray, z: float, up: bool):
+    j, i = np.nonzero(mask)
+    x0 = world.origin_xy[0] + i * world.cell_m
+    y0 = world.origin_xy[1] + j * world.cell_m
+    x1, y1 = x0 + world.cell_m, y0 + world.cell_m
+    zz = np.full_like(x0, z)
+    corners = np.stack(
+        [
+            np.stack([x0, y0, zz], -1),
+            np.stack([x1, y0, zz], -1),
+            np.stack([x1, y1, zz], -1),
+            np.stack([x0, y1, zz], -1),
+        ],
+        axis=1,
+    )
+    if not up:
+        corners = corners[:, ::-1]
+    normals = np.tile([0.0, 0.0, 1.0 if up else -1.0], (len(x0), 1))
+    uvs = corners[..., :2] / 2.0  # textures repeat every 2 m
+    return _quads(corners, normals, uvs)
+
+
+def _primitive(pyrender, arrays, material):
+    positions, normals, uvs, faces = arrays
+    return pyrender.Primitive(
+        positions=positions, normals=normals, texcoord_0=uvs, indices=faces, material=material
+    )
+
+
+def _textured(pyrender, image: np.ndarray, *, emissive: float = 0.0):
+    texture = pyrender.Texture(source=image, source_channels="RGB")
+    return pyrender.MetallicRoughnessMaterial(
+        baseColorTexture=texture,
+        metallicFactor=0.0,
+        roughnessFactor=0.9,
+        emissiveFactor=(emissive, emissive, emissive),
+    )
+
+
+_NODE_CLASS = None
+
+
+def _add(scene, pyrender, *, pose=None, **what):
+    """Add a node whose hash is its creation number, not its memory address.
+
+    pyrender keeps nodes in sets and sums the lights in set order; with address-based hashes that
+    order (and so the last bit of some pixels) changes from run to run.  Sequential hashes make the
+    order, and the images, the same on every run.
+    """
+    global _NODE_CLASS
+    if _NODE_CLASS is None:
+
+        class SequencedNode(pyrender.Node):
+            _next = 0
+
+            def __init__(self, **kwargs):
+                super().__init__(**kwargs)
+                self._sequence = SequencedNode._next
+                SequencedNode._next += 1
+
+            def __hash__(self) -> int:
+                return self._sequence
+
+        _NODE_CLASS = SequencedNode
+    node = _NODE_CLASS(matrix=np.eye(4) if pose is None else pose, **what)
+    scene.add_node(node)
+    return node
+
+
+def build_generated_scene(world, pyrender):
+    """pyrender.Scene of a :class:`~aslam.recorder.world.GridWorld`; returns (scene, light positions)."""
+    scene = pyrender.Scene(ambient_light=(AMBIENT, AMBIENT, AMBIENT), bg_color=(0, 0, 0))
+    atlas, rects = _atlas(world.wall_textures)
+    corners, normals, uvs = [], [], []
+    h = world.height_m
+    for p in world.panels:
+        (x0, y0), (x1, y1) = p.p0, p.p1
+        corners.append([[x0, y0, 0.0], [x1, y1, 0.0], [x1, y1, h], [x0, y0, h]])
+        normals.append([p.normal[0], p.normal[1], 0.0])
+        u0, v0, u1, v1 = rects[p.texture]
+        ue = u0 + (u1 - u0) * p.u1
+        uvs.append([[u0, v0], [ue, v0], [ue, v1], [u0, v1]])
+    walls = _primitive(
+        pyrender, _quads(np.array(corners), np.array(normals), np.array(uvs)), _textured(pyrender, atlas)
+    )
+    primitives = [walls]
+    for k, image in enumerate(world.floor_textures):
+        mask = world.free & (world.floor_zone == k)
+        if mask.any():
+            primitives.append(
+                _primitive(pyrender, _cell_quads(world, mask, 0.0, True), _textured(pyrender, image))
+            )
+    primitives.append(
+        _primitive(
+            pyrender, _cell_quads(world, world.free, h, False), _textured(pyrender, world.ceiling_texture)
+        )
+    )
+    if len(world.lights_xy):
+        half = 0.5 * 0.6
+        lx, ly = world.lights_xy[:, 0], world.lights_xy[:, 1]
+        z = np.full_like(lx, h - 0.01)
+        c = np.stack(
+            [
+                np.stack([lx - half, ly - half, z], -1),
+                np.stack([lx - half, ly + half, z], -1),
+                np.stack([lx + half, ly + half, z], -1),
+                np.stack([lx + half, ly - half, z], -1),
+            ],
+            axis=1,
+        )
+        glow = np.full((8, 8, 3), 255, np.uint8)
+        glow[0, :] = glow[-1, :] = glow[:, 0] = glow[:, -1] = 170  # a darker rim
+        uv = np.tile([[0.0, 0.0], [0.0, 1.0], [1.0, 1.0], [1.0, 0.0]], (len(lx), 1, 1))
+        primitives.append(
+            _primitive(
+                pyrender,
+                _quads(c, np.tile([0.0, 0.0, -1.0], (len(lx), 1)), uv),
+                _textured(pyrender, glow, emissive=1.0),
+            )
+        )
+    _add(scene, pyrender, mesh=pyrender.Mesh(primitives=primitives))
+    if world.door_frames:
+        _add(scene, pyrender, mesh=_door_frames_mesh(world.door_frames, pyrender))
+    return scene, world.lights_xy
+
+
+def _door_frames_mesh(doors, pyrender):
+    """One mesh of door frames (two jambs and a lintel per door) standing 4 cm off the wall."""
+    import trimesh
+
+    from aslam.recorder.world import DOOR_HEIGHT_M
+
+    boxes = []
+    t, depth = 0.07, 0.04
+    for a, b, n in doors:
+        a, b, n = np.array(a), np.array(b), np.array(n)
+        d = (b - a) / np.linalg.norm(b - a)
+        yaw = math.atan2(d[1], d[0])
+        for centre, length, height, z0 in (
+            (a - d * t / 2, t, DOOR_HEIGHT_M + t, 0.0),
+            (b + d * t / 2, t, DOOR_HEIGHT_M + t, 0.0),
+            ((a + b) / 2, np.linalg.norm(b - a) + 2 * t, t, DOOR_HEIGHT_M),
+        ):
+            box = trimesh.creation.box((length, depth, height))
+            m = np.eye(4)
+            c, s = math.cos(yaw), math.sin(yaw)
+            m[:2, :2] = [[c, -s], [s, c]]
+            m[:3, 3] = (*(centre + n * depth / 2), z0 + height / 2)
+            box.apply_transform(m)
+            boxes.append(box)
+    merged = trimesh.util.concatenate(boxes)
+    material = pyrender.MetallicRoughnessMaterial(
+        baseColorFactor=(0.93, 0.91, 0.86, 1.0), metallicFactor=0.0, roughnessFactor=0.8
+    )
+    return pyrender.Mesh.from_trimesh(merged, material=material, smooth=False)
+
+
+def build_file_scene(world, pyrender):
+    """pyrender.Scene of a loaded scene file, with ambient light; the point lights follow the camera."""
+    scene = pyrender.Scene(ambient_light=(0.35, 0.35, 0.35), bg_color=(0, 0, 0))
+    graph = world.scene.graph
+    for name in sorted(graph.nodes_geometry):
+        transform, geometry = graph[name]
+        mesh = world.scene.geometry[geometry]
+        if hasattr(mesh, "faces") and len(mesh.faces):
+            _add(
+                scene,
+                pyrender,
+                mesh=pyrender.Mesh.from_trimesh(mesh, smooth=False),
+                pose=np.asarray(transform),
+            )
+    return scene, None
+
+
+# ------------------------------------------------------------------------------------- renderer
+
+
+class PyrenderRenderer:
+    """Renders SE(2) camera poses of one world into RGB images, in this process."""
+
+    def __init__(self, world, camera: CameraSpec) -> None:
+        select_platform()
+        try:
+            import pyrender
+        except Exception as err:  # PyOpenGL raises ImportError/AttributeError for missing libraries
+            raise RenderError(
+                f"cannot load pyrender with PYOPENGL_PLATFORM={os.environ.get('PYOPENGL_PLATFORM', '')!r}: "
+                f"{err}"
+            ) from err
+        self._pyrender = pyrender
+        self.camera = camera
+        if getattr(world, "kind", "") == "generated":
+            self.scene, self._lights_xy = build_generated_scene(world, pyrender)
+            self._light_z = world.height_m - 0.25
+        else:
+            self.scene, self._lights_xy = build_file_scene(world, pyrender)
+            self._light_z = camera.height_m + 0.8
+        cam = pyrender.PerspectiveCamera(
+            yfov=camera.yfov_rad, aspectRatio=camera.width_px / camera.height_px, znear=0.05, zfar=80.0
+        )
+        self._camera_node = _add(self.scene, pyrender, camera=cam)
+        n_lights = N_POINT_LIGHTS if self._lights_xy is not None else 1
+        if self._lights_xy is not None:
+            n_lights = min(N_POINT_LIGHTS, max(1, len(self._lights_xy)))
+        self._light_nodes = [
+            _add(
+                self.scene,
+                pyrender,
+                light=pyrender.PointLight(color=(1.0, 0.97, 0.9), intensity=LIGHT_INTENSITY),
+            )
+            for _ in range(n_lights)
+        ]
+        try:
+            self._renderer = pyrender.OffscreenRenderer(camera.width_px, camera.height_px)
+        except Exception as err:
+            platform = os.environ.get("PYOPENGL_PLATFORM", "")
+            hint = (
+                " (try PYOPENGL_PLATFORM=osmesa with libosmesa6 installed)"
+                if platform == "egl"
+                else " (install libegl-mesa0 or libosmesa6; `make sysdeps` does it)"
+            )
+            raise RenderError(
+                f"cannot create an OpenGL context with platform {platform!r}: {err}{hint}"
+            ) from err
+        self._flags = pyrender.RenderFlags.NONE
+
+    def _place_lights(self, pose: np.ndarray) -> None:
+        if self._lights_xy is None or not len(self._lights_xy):
+            m = np.eye(4)
+            m[:3, 3] = (pose[0], pose[1], self._light_z)
+            for node in self._light_nodes:
+                self.scene.set_pose(node, m)
+            return
+        d2 = np.sum((self._lights_xy - pose[:2]) ** 2, axis=1)
+        nearest = np.argsort(d2, kind="stable")[: len(self._light_nodes)]
+        for node, k in zip(self._light_nodes, nearest, strict=False):
+            m = np.eye(4)
+            m[:3, 3] = (*self._lights_xy[k], self._light_z)
+            self.scene.set_pose(node, m)
+
+    def render(self, pose: np.ndarray) -> np.ndarray:
+        """RGB uint8 image ``(height_px, width_px, 3)`` seen from SE(2) pose ``(x_m, y_m, yaw_rad)``."""
+        pose = np.asarray(pose, dtype=float)
+        self.scene.set_pose(self._camera_node, camera_matrix(pose, self.camera.height_m))
+        self._place_lights(pose)
+        color, _ = self._renderer.render(self.scene, flags=self._flags)
+        return color
+
+    def close(self) -> None:
+        self._renderer.delete()
+
+    def __enter__(self) -> PyrenderRenderer:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,249 @@
+"""Bad recordings through `aslam info`: exit code 2, one line on stderr naming the file, no traceback.
+
+Plus a property test: a valid recording cut at any byte reads as a prefix of itself (with a
+warning) or fails with a RecordingError, never anything else.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import math
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from mcap.writer import Writer as McapWriter
+from test_recording_format import (
+    FRAME_NS,
+    T0_NS,
+    ForeignRecording,
+    random_frames,
+    write_recording,
+    write_with_corrupt_image,
+)
+
+from aslam.cli.app import main
+from aslam.data_formats import ros_msgs
+from aslam.data_formats.recording import ImageFormat, RecordingError, encode_image, iter_samples
+
+PNG = encode_image(np.zeros((24, 32, 3), dtype=np.uint8)).data
+
+
+def run_info(path: Path, capfd) -> tuple[int, list[str]]:
+    code = main(["info", str(path)])
+    err = capfd.readouterr().err
+    return code, err.splitlines()
+
+
+def assert_one_error_line(path: Path, capfd, *needles: str) -> str:
+    code, lines = run_info(path, capfd)
+    assert code == 2, lines
+    assert len(lines) == 1, lines
+    line = lines[0]
+    assert line.startswith(f"aslam: error: {path}: "), line
+    assert "Traceback" not in line
+    for needle in needles:
+        assert needle in line, line
+    return line
+
+
+# --- builders of bad files ----------------------------------------------------------------------
+
+
+def not_mcap(path: Path) -> None:
+    path.write_text("stamp,x,y\n1,2,3\n")
+
+
+def empty(path: Path) -> None:
+    path.write_bytes(b"")
+
+
+def no_image_topic(path: Path) -> None:
+    with ForeignRecording(path) as rec:
+        for k in range(3):
+            rec.odometry("/odom", T0_NS + k * FRAME_NS, float(k), 0.0, 0.0)
+
+
+def no_odometry(path: Path) -> None:
+    with ForeignRecording(path) as rec:
+        for k in range(3):
+            rec.compressed_image("/camera/image/compressed", T0_NS + k * FRAME_NS, PNG, "png")
+
+
+def unknown_raw_encoding(path: Path) -> None:
+    with ForeignRecording(path) as rec:
+        rec.odometry("/odom", T0_NS, 0.0, 0.0, 0.0)
+        rec.raw_image("/camera/image/compressed", T0_NS, np.zeros((24, 32, 3), np.uint8), "yuv422")
+
+
+def unknown_compressed_format(path: Path) -> None:
+    with ForeignRecording(path) as rec:
+        rec.odometry("/odom", T0_NS, 0.0, 0.0, 0.0)
+        rec.compressed_image("/camera/image/compressed", T0_NS, PNG, "webp")
+
+
+def corrupt_png(path: Path) -> None:
+    write_with_corrupt_image(path, ImageFormat.PNG)
+
+
+def corrupt_jpeg(path: Path) -> None:
+    write_with_corrupt_image(path, ImageFormat.JPEG)
+
+
+def odometry_value(value: float, field: str) -> Callable[[Path], None]:
+    def build(path: Path) -> None:
+        with ForeignRecording(path) as rec:
+            for k in range(4):
+                t = T0_NS + k * FRAME_NS
+                pose = {"x": float(k), "y": 0.0, "yaw": 0.0}
+                if k == 2:
+                    pose[field] = value
+                rec.compressed_image("/camera/image/compressed", t, PNG, "png")
+                rec.odometry("/odom", t, pose["x"], pose["y"], pose["yaw"])
+
+    return build
+
+
+def image_stamps_backwards(path: Path) -> None:
+    """Header stamps run backwards while the log times run forwards (a camera clock jump)."""
+    with ForeignRecording(path) as rec:
+        for k, stamp_k in enumerate([0, 1, 2, 1, 3]):
+            log = T0_NS + k * FRAME_NS + 1
+            rec.odometry("/odom", T0_NS + k * FRAME_NS, float(k), 0.0, 0.0)
+            rec.compressed_image(
+                "/camera/image/compressed", T0_NS + stamp_k * FRAME_NS, PNG, "png", log_time=log
+            )
+
+
+def odometry_stamps_backwards(path: Path) -> None:
+    with ForeignRecording(path) as rec:
+        for k, stamp_k in enumerate([0, 1, 2, 1, 3]):
+            log = T0_NS + k * FRAME_NS
+            rec.compressed_image("/camera/image/compressed", log, PNG, "png")
+            rec.odometry("/odom", T0_NS + stamp_k * FRAME_NS, float(k), 0.0, 0.0, log_time=log)
+
+
+def undecodable_cdr(path: Path) -> None:
+    with path.open("wb") as f:
+        writer = McapWriter(f)
+        writer.start(profile="ros2", library="test")
+        image_schema = writer.register_schema(
+            ros_msgs.COMPRESSED_IMAGE,
+            "ros2msg",
+            ros_msgs.message_definition(ros_msgs.COMPRESSED_IMAGE).encode(),
+        )
+        odom_schema = writer.register_schema(
+            ros_msgs.ODOMETRY, "ros2msg", ros_msgs.message_definition(ros_msgs.ODOMETRY).encode()
+        )
+        image = writer.register_channel("/camera/image/compressed", "cdr", image_schema)
+        odom = writer.register_channel("/odom", "cdr", odom_schema)
+        writer.add_message(image, log_time=T0_NS, data=b"\x00\x01\x00\x00\xff\xff", publish_time=T0_NS)
+        writer.add_message(odom, log_time=T0_NS, data=b"\x00\x01\x00\x00garbage", publish_time=T0_NS)
+        writer.finish()
+
+
+def wrong_image_type(path: Path) -> None:
+    with ForeignRecording(path) as rec:
+        rec.odometry("/odom", T0_NS, 0.0, 0.0, 0.0)
+        rec.odometry("/camera/image/compressed", T0_NS, 0.0, 0.0, 0.0)
+
+
+BAD_FILES = {
+    "not an MCAP file": (not_mcap, ["not an MCAP file"]),
+    "empty file": (empty, ["empty file"]),
+    "no image topic": (no_image_topic, ["no image topic '/camera/image/compressed'", "/odom"]),
+    "no odometry": (no_odometry, ["no odometry topic '/odom'", "/camera/image/compressed"]),
+    "unknown raw encoding": (unknown_raw_encoding, ["unknown image encoding 'yuv422'"]),
+    "unknown compressed format": (unknown_compressed_format, ["unknown image encoding 'webp'"]),
+    "corrupt PNG": (corrupt_png, ["corrupt PNG", f"stamp {T0_NS + FRAME_NS} ns"]),
+    "corrupt JPEG": (corrupt_jpeg, ["corrupt JPEG", f"stamp {T0_NS + FRAME_NS} ns"]),
+    "NaN odometry": (odometry_value(math.nan, "x"), ["not finite", f"stamp {T0_NS + 2 * FRAME_NS} ns"]),
+    "infinite odometry": (
+        odometry_value(math.inf, "yaw"),
+        ["not finite", f"stamp {T0_NS + 2 * FRAME_NS} ns"],
+    ),
+    "image stamps backwards": (image_stamps_backwards, ["image stamps go backwards"]),
+    "odometry stamps backwards": (odometry_stamps_backwards, ["odometry stamps go backwards"]),
+    "undecodable CDR": (undecodable_cdr, ["undecodable CDR message"]),
+    "wrong image type": (wrong_image_type, ["has type 'nav_msgs/msg/Odometry'"]),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_FILES))
+def test_bad_recording_is_one_line_exit_2(tmp_path, capfd, case):
+    build, needles = BAD_FILES[case]
+    path = tmp_path / "bad.mcap"
+    build(path)
+    assert_one_error_line(path, capfd, *needles)
+    with pytest.raises(RecordingError):  # the library raises the same, never another exception
+        for sample in iter_samples(path):
+            sample.image.decode_gray()
+
+
+def test_missing_path(tmp_path, capfd):
+    assert_one_error_line(tmp_path / "nowhere.mcap", capfd, "no such file")
+
+
+def test_directory(tmp_path, capfd):
+    folder = tmp_path / "rec.mcap"
+    folder.mkdir()
+    assert_one_error_line(folder, capfd, "is a directory")
+
+
+def test_truncated_file_is_read_up_to_the_damage(tmp_path, capfd):
+    frames = random_frames(12)
+    path = write_recording(tmp_path / "r.mcap", frames, chunk_size_bytes=4096)
+    data = path.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: int(len(data) * 0.7)])
+    warnings: list[str] = []
+    samples = list(iter_samples(cut, on_warning=warnings.append))
+    assert 0 < len(samples) < 12
+    assert [s.stamp_ns for s in samples] == [f[0] for f in frames[: len(samples)]]
+    assert warnings[0].startswith(f"{cut}: truncated at byte ")
+    assert f"of {len(data) * 7 // 10}; read {len(samples)} images, the rest is lost" in warnings[0]
+    assert main(["info", str(cut)]) == 0
+    err = capfd.readouterr().err
+    assert "truncated at byte" in err and "Traceback" not in err
+
+
+# --- truncation at any byte ---------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def small_recording(tmp_path_factory) -> tuple[bytes, list[int]]:
+    path = write_recording(
+        tmp_path_factory.mktemp("trunc") / "r.mcap", random_frames(6, seed=5), chunk_size_bytes=3000
+    )
+    return path.read_bytes(), [s.stamp_ns for s in iter_samples(path)]
+
+
+@settings(max_examples=50, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(fraction=st.floats(min_value=0.0, max_value=1.0, exclude_max=True))
+def test_any_cut_reads_a_prefix_or_fails_cleanly(small_recording, fraction):
+    data, stamps = small_recording
+    cut_at = int(len(data) * fraction)
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "cut.mcap"
+        path.write_bytes(data[:cut_at])
+        warnings: list[str] = []
+        try:
+            got = []
+            for sample in iter_samples(path, on_warning=warnings.append):
+                sample.image.decode_gray()
+                got.append(sample.stamp_ns)
+        except RecordingError as err:
+            assert str(err).startswith(f"{path}: ")
+        else:
+            assert got == stamps[: len(got)]
+            assert any(": truncated at byte " in w for w in warnings)
+        out, err = io.StringIO(), io.StringIO()
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            code = main(["info", str(path), "--json"])
+        assert code in (0, 2), err.getvalue()
+        assert "Traceback" not in err.getvalue() and "internal error" not in err.getvalue()

@@ -1,0 +1,506 @@
+"""The recording format: what RecordingWriter writes, what iter_samples gives back, and that other
+tools (plain mcap + mcap_ros2, none of our code) read the same thing.
+
+Also holds the small recording builders that tests/test_recording_bad_input.py imports.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from mcap_ros2.writer import Writer as Ros2Writer
+
+from aslam.cli.app import main
+from aslam.data_formats import ros_msgs
+from aslam.data_formats.recording import (
+    CameraIntrinsics,
+    EncodedImage,
+    ImageFormat,
+    RecordingError,
+    RecordingTopics,
+    RecordingWriter,
+    encode_image,
+    iter_ground_truth,
+    iter_samples,
+    read_camera_intrinsics,
+    read_metadata,
+)
+
+CAMERA = CameraIntrinsics(width_px=32, height_px=24, fov_deg=70.0)
+T0_NS = 1_700_000_000_000_000_000
+FRAME_NS = 100_000_000
+
+
+def random_frames(n: int, seed: int = 0) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
+    """``(stamp_ns, rgb, odometry_pose, ground_truth_pose)`` rows with random images and poses."""
+    rng = np.random.default_rng(seed)
+    frames = []
+    for i in range(n):
+        rgb = rng.integers(0, 256, size=(CAMERA.height_px, CAMERA.width_px, 3), dtype=np.uint8)
+        odometry = np.array([rng.uniform(-50, 50), rng.uniform(-50, 50), rng.uniform(-math.pi, math.pi)])
+        truth = np.array([rng.uniform(-50, 50), rng.uniform(-50, 50), rng.uniform(-math.pi, math.pi)])
+        frames.append((T0_NS + i * FRAME_NS, rgb, odometry, truth))
+    return frames
+
+
+def write_recording(
+    path: Path,
+    frames: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]],
+    *,
+    fmt: ImageFormat = ImageFormat.PNG,
+    metadata: dict[str, str] | None = None,
+    with_ground_truth: bool = True,
+    chunk_size_bytes: int = 1024 * 1024,
+) -> Path:
+    with RecordingWriter(
+        path,
+        camera=CAMERA,
+        metadata=metadata if metadata is not None else {"seed": "7"},
+        chunk_size_bytes=chunk_size_bytes,
+    ) as writer:
+        for stamp_ns, rgb, odometry, truth in frames:
+            writer.write(stamp_ns, encode_image(rgb, fmt), odometry, truth if with_ground_truth else None)
+    return path
+
+
+def write_with_corrupt_image(path: Path, fmt: ImageFormat) -> Path:
+    frames = random_frames(3)
+    with RecordingWriter(path, camera=CAMERA, metadata={}) as writer:
+        for i, (stamp_ns, rgb, odometry, truth) in enumerate(frames):
+            image = encode_image(rgb, fmt)
+            if i == 1:  # keep the signature, break the body
+                image = EncodedImage(fmt, image.data[:20] + bytes(len(image.data) - 20))
+            writer.write(stamp_ns, image, odometry, truth)
+    return path
+
+
+# A raw-image definition written the way ROS 2 ships it (comments and all), not ours.
+IMAGE_MSGDEF = """# This message contains an uncompressed image
+# (0, 0) is at top-left corner of image
+
+std_msgs/Header header # Header timestamp should be acquisition time of image
+
+uint32 height                # image height, that is, number of rows
+uint32 width                 # image width, that is, number of columns
+
+string encoding       # Encoding of pixels -- channel meaning, ordering, size
+
+uint8 is_bigendian    # is this data bigendian?
+uint32 step           # Full row length in bytes
+uint8[] data          # actual matrix data, size is (step * rows)
+
+================================================================================
+MSG: std_msgs/Header
+# Standard metadata for higher-level stamped data types.
+builtin_interfaces/Time stamp
+string frame_id
+
+================================================================================
+MSG: builtin_interfaces/Time
+int32 sec
+uint32 nanosec
+"""
+
+
+class ForeignRecording:
+    """A recording written message by message with mcap_ros2, for inputs our writer never makes."""
+
+    def __init__(self, path: Path) -> None:
+        self._file = path.open("wb")
+        self.writer = Ros2Writer(self._file)
+        self.schemas: dict[str, Any] = {}
+
+    def schema(self, datatype: str, msgdef: str | None = None) -> Any:
+        if datatype not in self.schemas:
+            text = msgdef if msgdef is not None else ros_msgs.message_definition(datatype)
+            self.schemas[datatype] = self.writer.register_msgdef(datatype, text)
+        return self.schemas[datatype]
+
+    def raw_image(
+        self, topic: str, stamp_ns: int, pixels: np.ndarray, encoding: str, log_time: int | None = None
+    ) -> None:
+        height, width = pixels.shape[:2]
+        channels = 1 if pixels.ndim == 2 else pixels.shape[2]
+        message = {
+            "header": ros_msgs.header_msg(stamp_ns, "camera"),
+            "height": height,
+            "width": width,
+            "encoding": encoding,
+            "is_bigendian": 0,
+            "step": width * channels,
+            "data": np.ascontiguousarray(pixels).tobytes(),
+        }
+        self.writer.write_message(
+            topic, self.schema(ros_msgs.RAW_IMAGE, IMAGE_MSGDEF), message, log_time=log_time or stamp_ns
+        )
+
+    def compressed_image(
+        self, topic: str, stamp_ns: int, data: bytes, fmt: str, log_time: int | None = None
+    ) -> None:
+        message = {"header": ros_msgs.header_msg(stamp_ns, "camera"), "format": fmt, "data": data}
+        self.writer.write_message(
+            topic, self.schema(ros_msgs.COMPRESSED_IMAGE), message, log_time=log_time or stamp_ns
+        )
+
+    def odometry(
+        self, topic: str, stamp_ns: int, x: float, y: float, yaw: float, log_time: int | None = None
+    ) -> None:
+        if math.isfinite(yaw):
+            quaternion = {"x": 0.0, "y": 0.0, "z": math.sin(yaw / 2), "w": math.cos(yaw / 2)}
+        else:  # a broken quaternion, the way a bad driver would write it
+            quaternion = {"x": 0.0, "y": 0.0, "z": yaw, "w": 1.0}
+        message = {
+            "header": ros_msgs.header_msg(stamp_ns, "odom"),
+            "child_frame_id": "base_link",
+            "pose": {"pose": {"position": {"x": x, "y": y, "z": 0.0}, "orientation": quaternion}},
+        }
+        self.writer.write_message(
+            topic, self.schema(ros_msgs.ODOMETRY), message, log_time=log_time or stamp_ns
+        )
+
+    def close(self) -> None:
+        self.writer.finish()
+        self._file.close()
+
+    def __enter__(self) -> ForeignRecording:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def angle_diff(a: float, b: float) -> float:
+    return abs((a - b + math.pi) % (2 * math.pi) - math.pi)
+
+
+def assert_pose(actual: np.ndarray, expected: np.ndarray, tol: float = 1e-12) -> None:
+    assert actual.shape == (3,)
+    assert abs(actual[0] - expected[0]) <= tol and abs(actual[1] - expected[1]) <= tol
+    assert angle_diff(actual[2], expected[2]) <= tol  # yaw comes back wrapped to (-π, π]
+
+
+# --- round trip ---------------------------------------------------------------------------------
+
+
+def test_png_round_trip_gives_back_every_field(tmp_path):
+    frames = random_frames(4)
+    metadata = {"world": "maze-3", "seed": "42", "route": "loop", "noise": "3%", "tool_version": "0.1.0"}
+    path = write_recording(tmp_path / "r.mcap", frames, metadata=metadata)
+    warnings: list[str] = []
+    samples = list(iter_samples(path, on_warning=warnings.append))
+    assert warnings == []
+    assert [s.stamp_ns for s in samples] == [f[0] for f in frames]
+    for sample, (_stamp, rgb, odometry, truth) in zip(samples, frames, strict=True):
+        assert sample.image.encoding == "png"
+        assert np.array_equal(sample.image.decode_bgr()[:, :, ::-1], rgb)  # lossless
+        gray = sample.image.decode_gray()
+        assert gray.dtype == np.uint8 and gray.shape == (CAMERA.height_px, CAMERA.width_px)
+        assert_pose(sample.odometry_pose, odometry)
+        assert_pose(sample.ground_truth_pose, truth)
+    assert read_metadata(path) == metadata
+    assert list(read_metadata(path)) == list(metadata)  # order kept
+    camera = read_camera_intrinsics(path)
+    assert camera is not None and (camera.width_px, camera.height_px) == (32, 24)
+    assert camera.fov_deg == pytest.approx(CAMERA.fov_deg)
+    assert list(iter_ground_truth(path)) and all(
+        stamp == f[0] and np.allclose(pose[:2], f[3][:2])
+        for (stamp, pose), f in zip(iter_ground_truth(path), frames, strict=True)
+    )
+
+
+def test_jpeg_round_trip_decodes_to_the_right_shape(tmp_path):
+    frames = random_frames(3)
+    path = write_recording(tmp_path / "r.mcap", frames, fmt=ImageFormat.JPEG)
+    samples = list(iter_samples(path))
+    assert len(samples) == 3
+    for sample in samples:
+        assert sample.image.encoding == "jpeg"
+        assert sample.image.decode_bgr().shape == (24, 32, 3)
+        assert sample.image.decode_gray().shape == (24, 32)
+
+
+def test_without_ground_truth_the_pose_is_none(tmp_path):
+    path = write_recording(tmp_path / "r.mcap", random_frames(2), with_ground_truth=False)
+    assert [s.ground_truth_pose for s in iter_samples(path)] == [None, None]
+    assert read_metadata(path) == {"seed": "7"}
+
+
+def test_camera_intrinsics():
+    camera = CameraIntrinsics(640, 480, 90.0)
+    assert camera.fx == pytest.approx(320.0) and camera.fy == camera.fx
+    assert (camera.cx, camera.cy) == (319.5, 239.5)
+    matrix = camera.K
+    assert matrix == (camera.fx, 0.0, 319.5, 0.0, camera.fy, 239.5, 0.0, 0.0, 1.0)
+
+
+def test_encode_image_is_deterministic():
+    rgb = random_frames(1)[0][1]
+    for fmt in ImageFormat:
+        assert encode_image(rgb, fmt) == encode_image(rgb.copy(), fmt)
+
+
+# --- read by other tools ------------------------------------------------------------------------
+
+
+def test_an_independent_reader_sees_ros2_messages(tmp_path):
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    frames = random_frames(3)
+    path = write_recording(tmp_path / "r.mcap", frames, metadata={"world": "w1"})
+    images = {f[0]: encode_image(f[1]).data for f in frames}
+    seen: dict[str, list[int]] = {}
+    with path.open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        header = reader.get_header()
+        assert header.profile == "ros2"
+        assert [(m.name, m.metadata) for m in reader.iter_metadata()] == [
+            ("aslam.recording", {"world": "w1"})
+        ]
+        by_stamp = {f[0]: f for f in frames}
+        for schema, channel, message, decoded in reader.iter_decoded_messages():
+            assert schema is not None and schema.encoding == "ros2msg" and channel.message_encoding == "cdr"
+            stamp = decoded.header.stamp.sec * 1_000_000_000 + decoded.header.stamp.nanosec
+            assert stamp == message.log_time == message.publish_time
+            seen.setdefault(channel.topic, []).append(stamp)
+            if channel.topic == "/camera/image/compressed":
+                assert schema.name == "sensor_msgs/msg/CompressedImage"
+                assert decoded.format == "png" and decoded.data == images[stamp]
+                assert decoded.header.frame_id == "camera"
+            elif channel.topic == "/odom":
+                assert schema.name == "nav_msgs/msg/Odometry"
+                assert (decoded.header.frame_id, decoded.child_frame_id) == ("odom", "base_link")
+                p, q = decoded.pose.pose.position, decoded.pose.pose.orientation
+                yaw = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y**2 + q.z**2))
+                expected = by_stamp[stamp][2]
+                assert (p.x, p.y, p.z) == (expected[0], expected[1], 0.0)
+                assert angle_diff(yaw, expected[2]) < 1e-12 and q.x == q.y == 0.0
+            elif channel.topic == "/ground_truth/pose":
+                assert schema.name == "geometry_msgs/msg/PoseStamped"
+                assert decoded.header.frame_id == "world"
+                p, q = decoded.pose.position, decoded.pose.orientation
+                expected = by_stamp[stamp][3]
+                assert (p.x, p.y) == (expected[0], expected[1])
+                assert angle_diff(2 * math.atan2(q.z, q.w), expected[2]) < 1e-12
+            else:
+                assert channel.topic == "/camera/camera_info"
+                assert schema.name == "sensor_msgs/msg/CameraInfo"
+                assert (decoded.width, decoded.height) == (32, 24)
+                assert list(decoded.k) == pytest.approx(list(CAMERA.K))
+                assert list(decoded.p) == pytest.approx(
+                    [CAMERA.fx, 0, CAMERA.cx, 0, 0, CAMERA.fy, CAMERA.cy, 0, 0, 0, 1, 0]
+                )
+                assert list(decoded.r) == [1, 0, 0, 0, 1, 0, 0, 0, 1]
+                assert decoded.distortion_model == "plumb_bob" and list(decoded.d) == [0.0] * 5
+    stamps = [f[0] for f in frames]
+    assert seen == {
+        "/camera/camera_info": stamps[:1],
+        "/camera/image/compressed": stamps,
+        "/odom": stamps,
+        "/ground_truth/pose": stamps,
+    }
+
+
+def test_schemas_are_full_concatenated_ros2_definitions(tmp_path):
+    from mcap.reader import make_reader
+
+    path = write_recording(tmp_path / "r.mcap", random_frames(1))
+    with path.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    texts = {s.name: s.data.decode() for s in summary.schemas.values()}
+    sep = "=" * 80
+    odometry = texts["nav_msgs/msg/Odometry"]
+    assert odometry.startswith("std_msgs/Header header\nstring child_frame_id\n")
+    for dep in (
+        "std_msgs/Header",
+        "builtin_interfaces/Time",
+        "geometry_msgs/PoseWithCovariance",
+        "geometry_msgs/Pose",
+        "geometry_msgs/Point",
+        "geometry_msgs/Quaternion",
+        "geometry_msgs/TwistWithCovariance",
+        "geometry_msgs/Twist",
+        "geometry_msgs/Vector3",
+    ):
+        assert f"\n{sep}\nMSG: {dep}\n" in odometry
+    assert f"{sep}\nMSG: sensor_msgs/RegionOfInterest\n" in texts["sensor_msgs/msg/CameraInfo"]
+    assert "float64[9] k\nfloat64[9] r\nfloat64[12] p\n" in texts["sensor_msgs/msg/CameraInfo"]
+    assert texts["sensor_msgs/msg/CompressedImage"].startswith(
+        "std_msgs/Header header\nstring format\nuint8[] data\n"
+    )
+    assert texts["geometry_msgs/msg/PoseStamped"].startswith("std_msgs/Header header\nPose pose\n")
+
+
+# --- foreign recordings: raw images, odometry at another rate -----------------------------------
+
+
+@pytest.mark.parametrize("encoding", ["mono8", "rgb8", "bgr8"])
+def test_raw_images_with_odometry_at_three_times_the_camera_rate(tmp_path, encoding):
+    rng = np.random.default_rng(3)
+    path = tmp_path / "raw.mcap"
+    odom_dt = 10_000_000  # 100 Hz odometry, ~33 Hz camera
+
+    def true_pose(t_ns: int) -> tuple[float, float, float]:
+        s = (t_ns - T0_NS) / 1e9
+        return 1.0 + 2.0 * s, -0.5 * s, 3.0 + 4.0 * s  # yaw crosses +π → −π
+
+    pixels_by_stamp = {}
+    with ForeignRecording(path) as rec:
+        for k in range(31):
+            t = T0_NS + k * odom_dt
+            if k % 3 == 1 and k < 28:  # image halfway between two odometry messages
+                t_image = t + odom_dt // 2
+                shape = (24, 32) if encoding == "mono8" else (24, 32, 3)
+                pixels = rng.integers(0, 256, size=shape, dtype=np.uint8)
+                pixels_by_stamp[t_image] = pixels
+                rec.odometry("/odom", t, *true_pose(t))
+                rec.raw_image("/cam/raw", t_image, pixels, encoding)
+            else:
+                rec.odometry("/odom", t, *true_pose(t))
+    topics = RecordingTopics(image="/cam/raw")
+    warnings: list[str] = []
+    samples = list(iter_samples(path, topics, on_warning=warnings.append))
+    assert warnings == []
+    assert [s.stamp_ns for s in samples] == sorted(pixels_by_stamp)
+    for sample in samples:
+        x, y, yaw = true_pose(sample.stamp_ns)
+        assert sample.odometry_pose[:2] == pytest.approx([x, y], abs=1e-9)
+        assert angle_diff(sample.odometry_pose[2], yaw) < 1e-9
+        assert sample.ground_truth_pose is None
+        pixels = pixels_by_stamp[sample.stamp_ns]
+        assert sample.image.encoding == encoding
+        if encoding == "mono8":
+            assert np.array_equal(sample.image.decode_gray(), pixels)
+        else:
+            bgr = pixels if encoding == "bgr8" else pixels[:, :, ::-1]
+            assert np.array_equal(sample.image.decode_bgr(), bgr)
+            assert sample.image.decode_gray().shape == (24, 32)
+
+
+def test_images_outside_the_odometry_are_dropped_with_one_warning_each(tmp_path):
+    path = tmp_path / "edges.mcap"
+    png = encode_image(random_frames(1)[0][1]).data
+    with ForeignRecording(path) as rec:
+        for k in range(10):
+            t = T0_NS + k * FRAME_NS
+            if k < 2 or k > 7:
+                rec.compressed_image("/camera/image/compressed", t + 1, png, "png")  # outside odometry
+            else:
+                rec.compressed_image("/camera/image/compressed", t, png, "png")
+                rec.odometry("/odom", t, float(k), 0.0, 0.0)
+    warnings: list[str] = []
+    samples = list(iter_samples(path, on_warning=warnings.append))
+    assert [s.odometry_pose[0] for s in samples] == [2.0, 3.0, 4.0, 5.0, 6.0, 7.0]
+    assert len(warnings) == 2
+    assert "dropped 2 image(s) stamped before the first odometry" in warnings[0]
+    assert "dropped 2 image(s) stamped after the last odometry" in warnings[1]
+    assert all(w.startswith(str(path)) for w in warnings)
+
+
+def test_late_images_are_interpolated_from_the_odometry_history(tmp_path):
+    """Camera latency: an image logged after odometry messages stamped later than the image."""
+    path = tmp_path / "late.mcap"
+    png = encode_image(random_frames(1)[0][1]).data
+    with ForeignRecording(path) as rec:
+        for k in range(20):
+            t = T0_NS + k * 10_000_000
+            rec.odometry("/odom", t, float(k), 0.0, 0.0)
+            if k % 5 == 4:  # stamped 35 ms earlier than it was logged
+                rec.compressed_image("/camera/image/compressed", t - 35_000_000, png, "png", log_time=t + 1)
+    samples = list(iter_samples(path))
+    assert [s.odometry_pose[0] for s in samples] == pytest.approx([0.5, 5.5, 10.5, 15.5])
+
+
+def test_equal_stamps_are_not_going_backwards_and_take_the_exact_pose(tmp_path):
+    frames = random_frames(2)
+    path = write_recording(tmp_path / "r.mcap", frames)
+    for sample, frame in zip(iter_samples(path), frames, strict=True):
+        assert sample.odometry_pose[0] == frame[2][0] and sample.odometry_pose[1] == frame[2][1]
+
+
+# --- writer -------------------------------------------------------------------------------------
+
+
+def test_same_writes_give_identical_bytes(tmp_path):
+    frames = random_frames(5)
+    a = write_recording(tmp_path / "a.mcap", frames, fmt=ImageFormat.JPEG)
+    b = write_recording(tmp_path / "b.mcap", frames, fmt=ImageFormat.JPEG)
+    assert a.read_bytes() == b.read_bytes()
+
+
+def test_writer_uses_a_temporary_name_then_renames(tmp_path):
+    path = tmp_path / "r.mcap"
+    frame = random_frames(1)[0]
+    with RecordingWriter(path, camera=CAMERA, metadata={}) as writer:
+        writer.write(frame[0], encode_image(frame[1]), frame[2], frame[3])
+        assert not path.exists()
+        assert writer.partial_path.exists() and writer.partial_path.parent == tmp_path
+        assert writer.partial_path.name.startswith(".r.mcap.partial-")
+    assert path.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["r.mcap"]
+
+
+@pytest.mark.parametrize("exception", [RuntimeError, KeyboardInterrupt])
+def test_writer_leaves_nothing_after_an_exception(tmp_path, exception):
+    path = tmp_path / "r.mcap"
+    frame = random_frames(1)[0]
+    with pytest.raises(exception), RecordingWriter(path, camera=CAMERA, metadata={}) as writer:
+        writer.write(frame[0], encode_image(frame[1]), frame[2], frame[3])
+        raise exception("stop")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_writer_refuses_to_overwrite_without_force(tmp_path):
+    path = tmp_path / "r.mcap"
+    path.write_bytes(b"precious")
+    with pytest.raises(RecordingError, match=r"r\.mcap: already exists"):
+        RecordingWriter(path, camera=CAMERA, metadata={})
+    assert path.read_bytes() == b"precious" and len(list(tmp_path.iterdir())) == 1
+    write_recording_forced = RecordingWriter(path, camera=CAMERA, metadata={}, force=True)
+    with write_recording_forced as writer:
+        frame = random_frames(1)[0]
+        writer.write(frame[0], encode_image(frame[1]), frame[2], frame[3])
+    assert len(list(iter_samples(path))) == 1
+
+
+def test_writer_refuses_stamps_that_do_not_increase(tmp_path):
+    frame = random_frames(1)[0]
+    with pytest.raises(RecordingError, match="not after the previous"):  # noqa: SIM117
+        with RecordingWriter(tmp_path / "r.mcap", camera=CAMERA, metadata={}) as writer:
+            writer.write(frame[0], encode_image(frame[1]), frame[2], frame[3])
+            writer.write(frame[0], encode_image(frame[1]), frame[2], frame[3])
+    assert list(tmp_path.iterdir()) == []
+
+
+# --- aslam info -----------------------------------------------------------------------------------
+
+
+def test_info_json_describes_the_recording(tmp_path, capsys):
+    frames = random_frames(3)
+    path = write_recording(tmp_path / "r.mcap", frames, metadata={"world": "w"})
+    assert main(["info", str(path), "--json"]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == ""
+    report = json.loads(captured.out)
+    assert report["samples"] == 3 and report["samples_with_ground_truth"] == 3
+    assert report["duration_s"] == pytest.approx(0.2)
+    assert report["image_sizes"] == {"32x24": 3} and report["image_encodings"] == {"png": 3}
+    assert report["metadata"]["entries"] == {"world": "w"}
+    assert {t["topic"]: t["messages"] for t in report["topics"]} == {
+        "/camera/camera_info": 1,
+        "/camera/image/compressed": 3,
+        "/odom": 3,
+        "/ground_truth/pose": 3,
+    }
+    assert report["truncated"] is False and report["warnings"] == []
+
+
+def test_info_prints_tables(tmp_path, capsys):
+    path = write_recording(tmp_path / "r.mcap", random_frames(2))
+    assert main(["info", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "/camera/image/compressed" in out and "nav_msgs/msg/Odometry" in out and "seed" in out
