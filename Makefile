@@ -33,7 +33,9 @@ $(VENV)/.dev-installed: pyproject.toml | $(BIN)/python
 
 demo: sysdeps $(VENV)/.installed
 	@mkdir -p $(DEMO)
-	$(BIN)/aslam --version
+	$(BIN)/aslam record --route paper -o $(DEMO)/paper.mcap --force --contact-sheet $(DEMO)/contact-sheet.png
+	$(BIN)/aslam estimate $(DEMO)/paper.mcap -o $(DEMO)/estimate.mcap --force
+	$(BIN)/aslam report $(DEMO)/estimate.mcap --graph $(DEMO)/graph.json --plots $(DEMO)/plots --json $(DEMO)/summary.json
 
 test: sysdeps $(VENV)/.dev-installed
 	$(BIN)/ruff check .

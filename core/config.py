@@ -46,20 +46,20 @@ class EstimatorConfig:
         90.0, "A keyframe is taken once odometry says the robot turned this many degrees since the last one."
     )
     keyframe_slack: float = _param(
-        0.1,
-        "Fraction of step_m/turn_deg forgiven: noisy odometry may measure a commanded 1 m as 0.97 m.",
+        0.3,
+        "Fraction of step_m/turn_deg forgiven: noisy odometry may measure a commanded 1 m as 0.9 m.",
     )
 
     # --- observations -------------------------------------------------------------------------
     histogram_bins: int = _param(16, "Gradient-orientation bins over [-π, π).")
-    cells_x: int = _param(4, "Columns of spatial cells per image (1 = the paper's single global histogram).")
-    cells_y: int = _param(2, "Rows of spatial cells.")
-    beta: float = _param(2.0, "Sensitivity β of the observation probability P(z|x) = χ²^-β.")
+    cells_x: int = _param(2, "Columns of spatial cells per image (1 = the paper's single global histogram).")
+    cells_y: int = _param(1, "Rows of spatial cells.")
+    beta: float = _param(3.0, "Sensitivity β of the observation probability P(z|x) = χ²^-β.")
     chi2_floor: float = _param(
         1e-3, "χ² is floored here so that two identical views give a finite likelihood."
     )
     new_state_chi2: float = _param(
-        0.06,
+        0.08,
         (
             "Reference χ² of an unseen place: P(z|new) = new_state_chi2^-β. A revisit must look more alike"
             " than this (calibrated on rendered recordings, see docs/estimator.md)."
@@ -104,11 +104,11 @@ class EstimatorConfig:
 
     # --- hypothesis tree ------------------------------------------------------------------------
     prune_ratio: float = _param(
-        1e-3, "Hypotheses whose belief is below this fraction of the best are removed."
+        0.005, "Hypotheses whose belief is below this fraction of the best are removed."
     )
     max_hypotheses: int = _param(50, "The tree never holds more leaves than this.")
     merge_window: int = _param(
-        4, "Leaves at the same state that agree on the last this-many keyframes are merged."
+        3, "Leaves at the same state that agree on the last this-many keyframes are merged."
     )
 
     def __post_init__(self) -> None:

@@ -8,6 +8,8 @@ some of *where* the edges are, which separates places the single global histogra
 
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
 
@@ -26,7 +28,9 @@ def orientation_histogram(image: np.ndarray, config: HistogramConfig = Histogram
     gray = gray.astype(np.float32, copy=False)
     dx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3)
     dy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=3)
-    magnitude = cv2.magnitude(dx, dy)
+    # Not cv2.magnitude: in OpenCV 5 its result depends on buffer alignment (last-ulp differences
+    # between calls), which made estimates differ run to run. IEEE sqrt of exact squares does not.
+    magnitude = np.sqrt(dx * dx + dy * dy)
     angle = np.arctan2(dy, dx)  # [-π, π]
     # Linear (soft) binning: each vote is shared between the two nearest bin centres, so the
     # histogram changes continuously with edge direction instead of jumping at bin edges.
@@ -37,17 +41,37 @@ def orientation_histogram(image: np.ndarray, config: HistogramConfig = Histogram
     lower_bin = lower.astype(np.int32) % bins
     upper_bin = (lower_bin + 1) % bins
     height, width = gray.shape
-    cell_row = (np.arange(height) * config.cells_y // height).astype(np.int32)
-    cell_col = (np.arange(width) * config.cells_x // width).astype(np.int32)
-    cell_offset = (cell_row[:, None] * config.cells_x + cell_col[None, :]) * bins
+    # Per column (and row band) first; columns are then shared between the two nearest cell
+    # centres (bilinear), so a small pan of the camera moves weight smoothly between cells.
+    row_band = (np.arange(height) * config.cells_y // height).astype(np.int32)
+    column_offset = (row_band[:, None] * width + np.arange(width, dtype=np.int32)[None, :]) * bins
     upper_weight = magnitude * upper_share
-    histogram = np.bincount(
-        (cell_offset + lower_bin).ravel(), weights=(magnitude - upper_weight).ravel(), minlength=config.length
-    ) + np.bincount((cell_offset + upper_bin).ravel(), weights=upper_weight.ravel(), minlength=config.length)
+    size = config.cells_y * width * bins
+    per_column = np.bincount(
+        (column_offset + lower_bin).ravel(), weights=(magnitude - upper_weight).ravel(), minlength=size
+    ) + np.bincount((column_offset + upper_bin).ravel(), weights=upper_weight.ravel(), minlength=size)
+    per_column = per_column.reshape(config.cells_y, width, bins)
+    histogram = np.einsum("cw,rwb->rcb", _column_to_cell_weights(width, config.cells_x), per_column).ravel()
     total = histogram.sum()
     if not np.isfinite(total) or total <= 0.0:
         return np.full(config.length, 1.0 / config.length, dtype=np.float32)
     return (histogram / total).astype(np.float32)
+
+
+@functools.lru_cache(maxsize=16)
+def _column_to_cell_weights(width: int, cells: int) -> np.ndarray:
+    """(cells, width) bilinear weights of each image column for each cell; columns sum to 1."""
+    weights = np.zeros((cells, width))
+    position = (np.arange(width) + 0.5) * cells / width - 0.5  # in cell-centre units
+    left = np.floor(position).astype(int)
+    share = position - left
+    columns = np.arange(width)
+    inside_left = left >= 0
+    inside_right = left + 1 < cells
+    weights[left[inside_left], columns[inside_left]] += (1.0 - share)[inside_left]
+    weights[left[inside_right] + 1, columns[inside_right]] += share[inside_right]
+    weights /= weights.sum(axis=0, keepdims=True)  # the outer half-cells belong wholly to the edge cell
+    return weights
 
 
 def chi2_distances(histogram: np.ndarray, stored: np.ndarray, eps: float = 1e-10) -> np.ndarray:

@@ -93,13 +93,34 @@ def compose_rel(a: Rel, b: Rel) -> Rel:
 
 
 def inverse_rel(a: Rel) -> Rel:
-    """``⊖a`` with its covariance: what a link looks like when walked backwards."""
-    pose = rel_pose(a)
-    x, y, yaw = pose
+    """``⊖a`` with its covariance ``J Σ Jᵀ``: what a link looks like when walked backwards."""
+    x, y, yaw, a11, a12, a13, a22, a23, a33 = a
     c, s = math.cos(yaw), math.sin(yaw)
-    inverse = se2.inverse(pose)
-    jacobian = np.array([[-c, -s, s * x - c * y], [s, -c, c * x + s * y], [0.0, 0.0, -1.0]])
-    return to_rel(inverse, jacobian @ rel_covariance(a) @ jacobian.T)
+    # J = [[-c, -s, j13], [s, -c, j23], [0, 0, -1]]
+    j13 = s * x - c * y
+    j23 = c * x + s * y
+    # rows of J Σ
+    r11, r12, r13 = (
+        -c * a11 - s * a12 + j13 * a13,
+        -c * a12 - s * a22 + j13 * a23,
+        -c * a13 - s * a23 + j13 * a33,
+    )
+    r21, r22, r23 = (
+        s * a11 - c * a12 + j23 * a13,
+        s * a12 - c * a22 + j23 * a23,
+        s * a13 - c * a23 + j23 * a33,
+    )
+    return (
+        -c * x - s * y,
+        s * x - c * y,
+        -yaw if yaw != -math.pi else yaw,
+        -c * r11 - s * r12 + j13 * r13,
+        s * r11 - c * r12 + j23 * r13,
+        -r13,
+        s * r21 - c * r22 + j23 * r23,
+        -r23,
+        a33,
+    )
 
 
 def fuse_rel(a: Rel, b: Rel) -> Rel:

@@ -37,7 +37,7 @@ from aslam.core.motion import (
 class Node:
     """One tree node: keyframe t was at ``state``; ``rel`` is the link from the parent's state."""
 
-    __slots__ = ("id", "is_new", "keyframe", "log_belief", "parent", "rel", "state")
+    __slots__ = ("id", "inverse_rel", "is_new", "keyframe", "log_belief", "parent", "rel", "state", "weight")
 
     def __init__(
         self,
@@ -56,6 +56,8 @@ class Node:
         self.log_belief = log_belief
         self.is_new = is_new
         self.rel = rel
+        self.inverse_rel = inverse_rel(rel)
+        self.weight = link_weight(rel)
 
 
 @dataclass(frozen=True)
@@ -126,7 +128,7 @@ class HypothesisTree:
 
         action = np.asarray(action, dtype=float)
         action_cov = action_covariance(action, self._noise)
-        proposals = [self._propose(leaf, action, action_cov) for leaf in self.leaves]
+        proposals = self._propose(self.leaves, action, action_cov)
 
         candidate_ids = np.unique(np.concatenate([p[0] for p in proposals] + [np.zeros(0, np.int64)]))
         log_obs_of: dict[int, float] = {}
@@ -171,24 +173,36 @@ class HypothesisTree:
 
     # ------------------------------------------------------------------ prediction
     def _propose(
-        self, leaf: Node, action: np.ndarray, action_cov: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Earlier states this leaf could have reached, and ``log P(x=k | x', u)`` for each."""
-        states, rels = self._search(leaf)
-        self._searched_sum += len(states)
-        if not states:
-            return np.zeros(0, np.int64), np.zeros(0)
-        poses = np.array([r[:3] for r in rels])
-        covs = np.array([r[3:] for r in rels])[:, [0, 1, 2, 1, 3, 4, 2, 4, 5]].reshape(-1, 3, 3)
+        self, leaves: list[Node], action: np.ndarray, action_cov: np.ndarray
+    ) -> list[tuple[np.ndarray, np.ndarray]]:
+        """For each leaf, the earlier states it could have reached and ``log P(x=k | x', u)``.
+
+        The searches are per leaf (each in its own map); the Gaussian algebra runs once over
+        all their candidates together.
+        """
+        searches = [self._search(leaf) for leaf in leaves]
+        sizes = [len(states) for states, _ in searches]
+        self._searched_sum += sum(sizes)
+        if not any(sizes):
+            return [(np.zeros(0, np.int64), np.zeros(0)) for _ in leaves]
+        table = np.array([rel for _, found in searches for rel in found])
+        poses = table[:, :3]
+        covs = table[:, [3, 4, 5, 4, 6, 7, 5, 7, 8]].reshape(-1, 3, 3)
         residual, covariance = revisit_residuals(poses, covs, action, action_cov)
-        covariance = covariance + self._place_cov
+        covariance += self._place_cov
         inverse = np.linalg.inv(covariance)
         mahalanobis2 = np.einsum("ni,nij,nj->n", residual, inverse, residual)
         logdet = np.linalg.slogdet(covariance)[1]
         # Normalised so a perfectly predicted revisit with no chain uncertainty scores log 1.
         log_transition = 0.5 * (self._place_logdet - logdet) - 0.5 * mahalanobis2
         reachable = mahalanobis2 <= self._gate
-        return np.asarray(states, np.int64)[reachable], log_transition[reachable]
+        proposals = []
+        start = 0
+        for (states, _), size in zip(searches, sizes, strict=True):
+            keep = reachable[start : start + size]
+            proposals.append((np.asarray(states, np.int64)[keep], log_transition[start : start + size][keep]))
+            start += size
+        return proposals
 
     def _search(self, leaf: Node) -> tuple[list[int], list[Rel]]:
         """Dijkstra outward from the leaf's state through its own map, bounded by uncertainty.
@@ -236,9 +250,8 @@ class HypothesisTree:
         while node is not self.commit_root and node.parent is not None:
             a, b = node.parent.state, node.state
             if a != b:
-                weight = link_weight(node.rel)
-                overlay.setdefault(a, []).append((b, (node.rel, weight)))
-                overlay.setdefault(b, []).append((a, (inverse_rel(node.rel), weight)))
+                overlay.setdefault(a, []).append((b, (node.rel, node.weight)))
+                overlay.setdefault(b, []).append((a, (node.inverse_rel, node.weight)))
             node = node.parent
         return overlay
 

@@ -144,7 +144,7 @@ def test_candidates_are_exactly_the_states_the_motion_model_can_reach(seed, turn
     from aslam.core.motion import action_covariance
 
     action_cov = action_covariance(action, config.motion_noise)
-    proposed, _ = tree._propose(leaf, action, action_cov)
+    [(proposed, _)] = tree._propose([leaf], action, action_cov)
 
     # Brute force: walk the chain back from the current state, composing inverted links.
     expected = []

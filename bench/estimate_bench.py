@@ -1,0 +1,96 @@
+"""Estimate wall time against its floor, measured in one run.
+
+floor    = the same pipeline without SLAM: read the MCAP, keyframe test, decode keyframe images,
+           compute histograms (``aslam.cli.pipeline.run_floor``);
+estimate = ``aslam estimate`` in-process (pipeline + SLAM + writing the estimate file + hashing).
+
+Target: estimate ≤ 1.25 × floor. Runs alternate (floor, estimate, floor, ...) and the best of
+each is kept, so page cache and CPU frequency treat both alike.
+
+    python bench/estimate_bench.py [--recording R.mcap] [--laps 4] [--fps 3] [--repeats 3]
+
+Without --recording it renders (once, cached in bench/.cache/) a paper-route recording.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from aslam.cli.app import main
+from aslam.cli.estimate import run_estimate_command
+from aslam.cli.pipeline import DEFAULT_WORKERS, run_floor
+from aslam.core.config import EstimatorConfig
+from aslam.core.estimator import Estimator
+from aslam.data_formats.recording import iter_samples
+
+CACHE = Path(__file__).resolve().parent / ".cache"
+
+
+def recording_for(laps: int, fps: float) -> Path:
+    path = CACHE / f"paper-laps{laps}-fps{fps:g}.mcap"
+    if not path.exists():
+        CACHE.mkdir(exist_ok=True)
+        print(f"rendering {path.name} (once) ...", file=sys.stderr)
+        code = main(["record", "--route", "paper", "--laps", str(laps), "--fps", str(fps), "-o", str(path)])
+        if code != 0:
+            raise SystemExit(f"aslam record failed with exit code {code}")
+    return path
+
+
+def time_floor(recording: Path, config: EstimatorConfig) -> tuple[float, int]:
+    start = time.perf_counter()
+    keyframes = run_floor(iter_samples(recording), Estimator(config))
+    return time.perf_counter() - start, keyframes
+
+
+def time_estimate(recording: Path, output: Path, config: EstimatorConfig) -> float:
+    """The estimate command's whole body (open, stream, SLAM, hash, write, rename), without the
+    command-line parsing and interpreter start-up that the in-process floor does not pay either."""
+    start = time.perf_counter()
+    run_estimate_command(
+        recording,
+        output,
+        config,
+        topics_given={"image": None, "odometry": None, "ground_truth": None},
+        force=True,
+        timing=False,
+        workers=DEFAULT_WORKERS,
+    )
+    return time.perf_counter() - start
+
+
+def main_bench() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--recording", type=Path)
+    parser.add_argument("--laps", type=int, default=4)
+    parser.add_argument("--fps", type=float, default=3)
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+    recording = args.recording or recording_for(args.laps, args.fps)
+    config = EstimatorConfig()
+    floors, estimates = [], []
+    keyframes = 0
+    with tempfile.TemporaryDirectory() as folder:
+        output = Path(folder) / "estimate.mcap"
+        time_floor(recording, config)  # warm the page cache and imports
+        for _ in range(args.repeats):
+            floor, keyframes = time_floor(recording, config)
+            floors.append(floor)
+            estimates.append(time_estimate(recording, output, config))
+    floor, estimate = min(floors), min(estimates)
+    size_mb = recording.stat().st_size / 1e6
+    print(f"recording   {recording} ({size_mb:.1f} MB, {keyframes} keyframes)")
+    print(f"floor       {floor:.3f} s  (read + keyframe test + decode + histograms; best of {args.repeats})")
+    print(f"estimate    {estimate:.3f} s  (the estimate command's body in-process; best of {args.repeats})")
+    print(f"ratio       {estimate / floor:.3f}  (target ≤ 1.25)")
+    print(f"keyframes/s {keyframes / estimate:.1f}")
+
+
+if __name__ == "__main__":
+    main_bench()

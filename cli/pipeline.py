@@ -1,0 +1,240 @@
+"""The estimate pipeline, shared by ``aslam estimate`` and ``bench/estimate_bench.py``.
+
+The floor of an estimate is reading the recording, decoding the keyframe images and computing
+their histograms. The pipeline keeps the SLAM step off that critical path:
+
+* a producer iterates the samples (MCAP read, CDR decode) and runs the keyframe test, which
+  needs odometry only, so non-keyframe images are never decoded;
+* keyframe images go to a small thread pool that decodes them and computes the histogram
+  (OpenCV and numpy release the GIL);
+* the futures wait in a bounded FIFO, so memory stays bounded and order is kept;
+* where the platform can fork, the producer runs in a child process and sends the keyframes
+  (stamp, action, histogram: a few hundred bytes each) through a pipe, so the SLAM step, which
+  holds the GIL, runs on the other core instead of stalling the decoders.
+
+``run_floor`` is the same pipeline with a keyframe test and no SLAM: the benchmark's reference.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import signal
+import time
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from aslam.core.estimator import Estimator, Keyframer, StepResult
+from aslam.core.features import HistogramConfig, orientation_histogram
+from aslam.data_formats.recording import LazyImage, Sample
+
+DEFAULT_WORKERS = 2
+DEFAULT_DEPTH = 8
+
+
+class Keyframe(NamedTuple):
+    stamp_ns: int
+    action: np.ndarray
+    histogram: np.ndarray
+    ground_truth_pose: np.ndarray | None
+
+
+@dataclass
+class PipelineCounts:
+    """Running counts, readable while the pipeline runs (for a progress display)."""
+
+    samples: int = 0
+    keyframes: int = 0
+    slam_s: float = 0.0
+
+
+def _histogram(image: LazyImage, config: HistogramConfig) -> np.ndarray:
+    return orientation_histogram(image.decode_gray(), config)
+
+
+def keyframe_histograms(
+    samples: Iterable[Sample],
+    wants_image: Callable[[np.ndarray], np.ndarray | None],
+    histogram: HistogramConfig,
+    *,
+    counts: PipelineCounts | None = None,
+    on_sample: Callable[[], None] | None = None,
+    workers: int = DEFAULT_WORKERS,
+    depth: int = DEFAULT_DEPTH,
+) -> Iterator[Keyframe]:
+    """The keyframes of ``samples`` with their histograms, in order, computed ``workers`` at a time.
+
+    ``wants_image(odometry_pose)`` is the keyframe test (the action, or None). At most ``depth``
+    images are decoded or waiting at once. Stopping early (an exception, KeyboardInterrupt, the
+    consumer closing the generator) cancels the queued work and joins the pool.
+    """
+    counts = counts if counts is not None else PipelineCounts()
+    pending: deque[tuple[int, np.ndarray, np.ndarray | None, Future[np.ndarray]]] = deque()
+    pool = ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="aslam-histogram")
+    try:
+        for sample in samples:
+            counts.samples += 1
+            action = wants_image(sample.odometry_pose)
+            if action is not None:
+                future = pool.submit(_histogram, sample.image, histogram)
+                pending.append((sample.stamp_ns, action, sample.ground_truth_pose, future))
+                if len(pending) >= depth:
+                    yield _take(pending)
+                    counts.keyframes += 1
+                while pending and pending[0][3].done():
+                    yield _take(pending)
+                    counts.keyframes += 1
+            if on_sample is not None:
+                on_sample()
+        while pending:
+            yield _take(pending)
+            counts.keyframes += 1
+    finally:
+        for *_, future in pending:
+            future.cancel()
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _take(pending: deque[tuple[int, np.ndarray, np.ndarray | None, Future[np.ndarray]]]) -> Keyframe:
+    stamp_ns, action, truth, future = pending.popleft()
+    return Keyframe(stamp_ns, action, future.result(), truth)
+
+
+SEND_BATCH = 4
+
+
+def keyframes_from_child_process(
+    samples: Iterable[Sample],
+    wants_image: Callable[[np.ndarray], np.ndarray | None],
+    histogram: HistogramConfig,
+    *,
+    counts: PipelineCounts,
+    workers: int = DEFAULT_WORKERS,
+    depth: int = DEFAULT_DEPTH,
+) -> Iterator[Keyframe]:
+    """:func:`keyframe_histograms` run in a forked child; the keyframes arrive here in order.
+
+    ``samples`` must not have been started: the child opens and reads the recording. Errors
+    raised in the child (a bad recording) are raised here; closing this generator, or an
+    interrupt, stops the child.
+    """
+    context = multiprocessing.get_context("fork")
+    receiver, sender = context.Pipe(duplex=False)
+
+    def produce() -> None:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops us
+        receiver.close()
+        child_counts = PipelineCounts()
+        try:
+            batch: list[Keyframe] = []
+            for keyframe in keyframe_histograms(
+                samples, wants_image, histogram, counts=child_counts, workers=workers, depth=depth
+            ):
+                batch.append(keyframe)
+                if len(batch) >= SEND_BATCH:
+                    sender.send(("keyframes", batch, child_counts.samples))
+                    batch = []
+            sender.send(("keyframes", batch, child_counts.samples))
+            sender.send(("done", None, child_counts.samples))
+        except BaseException as err:  # handed to the parent, which raises it
+            try:
+                sender.send(("error", err, child_counts.samples))
+            except Exception:  # the error itself does not pickle: keep its words
+                sender.send(("error", RuntimeError(f"{type(err).__name__}: {err}"), child_counts.samples))
+        finally:
+            sender.close()
+            os._exit(0)
+
+    process = context.Process(target=produce, name="aslam-reader", daemon=True)
+    process.start()
+    sender.close()
+    try:
+        while True:
+            try:
+                kind, payload, samples_read = receiver.recv()
+            except EOFError:
+                raise RuntimeError("the recording reader process stopped unexpectedly") from None
+            counts.samples = samples_read
+            if kind == "keyframes":
+                for keyframe in payload:
+                    counts.keyframes += 1
+                    yield keyframe
+            elif kind == "error":
+                raise payload
+            else:
+                return
+    finally:
+        receiver.close()
+        if process.is_alive():
+            process.terminate()
+        process.join()
+
+
+def can_fork() -> bool:
+    return "fork" in multiprocessing.get_all_start_methods()
+
+
+def run_estimate(
+    samples: Iterable[Sample],
+    estimator: Estimator,
+    *,
+    counts: PipelineCounts | None = None,
+    on_sample: Callable[[], None] | None = None,
+    workers: int = DEFAULT_WORKERS,
+    depth: int = DEFAULT_DEPTH,
+) -> Iterator[StepResult]:
+    """Feed ``samples`` through ``estimator``; one ``StepResult`` per keyframe, in order."""
+    counts = counts if counts is not None else PipelineCounts()
+    if can_fork() and on_sample is None:
+        keyframes = keyframes_from_child_process(
+            samples,
+            estimator.wants_image,
+            estimator.config.histogram,
+            counts=counts,
+            workers=workers,
+            depth=depth,
+        )
+    else:
+        keyframes = keyframe_histograms(
+            samples,
+            estimator.wants_image,
+            estimator.config.histogram,
+            counts=counts,
+            on_sample=on_sample,
+            workers=workers,
+            depth=depth,
+        )
+    try:
+        for keyframe in keyframes:
+            start = time.perf_counter()
+            step = estimator.add_keyframe(keyframe.stamp_ns, keyframe.action, keyframe.histogram)
+            counts.slam_s += time.perf_counter() - start
+            yield step
+    finally:
+        keyframes.close()
+
+
+def run_floor(
+    samples: Iterable[Sample],
+    estimator: Estimator,
+    *,
+    workers: int = DEFAULT_WORKERS,
+    depth: int = DEFAULT_DEPTH,
+) -> int:
+    """The pipeline without SLAM (read, keyframe test, decode, histogram); returns the keyframe count.
+
+    ``estimator`` only lends its configuration: its state is not touched.
+    """
+    config = estimator.config
+    keyframer = Keyframer(config.step_m, config.turn_deg, config.keyframe_slack)
+    count = 0
+    for _ in keyframe_histograms(
+        samples, keyframer.action_if_keyframe, config.histogram, workers=workers, depth=depth
+    ):
+        count += 1
+    return count

@@ -1,0 +1,185 @@
+"""`aslam report --plots DIR`: PNG figures (matplotlib, Agg), each written atomically.
+
+* ``hypotheses.png``: hypothesis count per keyframe (the paper's figure 8);
+* ``errors.png``: x, y and heading error per keyframe, best and belief-weighted (figures 9-11);
+* ``map.png``: the map of places at their first-visit true positions (dead-reckoned odometry
+  without ground truth), loop-closure links highlighted, the odometry path for comparison.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from aslam.core.metrics import Evaluation
+from aslam.data_formats.report import dead_reckoning, is_loop_closure_link, write_atomically
+
+DPI = 120
+
+
+def _save(fig: Any, path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    def write(temporary: Path) -> None:
+        fig.savefig(temporary, format="png", dpi=DPI)
+
+    try:
+        write_atomically(path, write)
+    finally:
+        plt.close(fig)
+
+
+def write_plots(
+    folder: Path,
+    evaluation: Evaluation,
+    graph: dict[str, Any],
+    actions: np.ndarray,
+    true_poses: np.ndarray | None,
+    *,
+    title: str,
+) -> list[Path]:
+    """Write the figures into ``folder`` (created if missing); returns their paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = [folder / "hypotheses.png", folder / "errors.png", folder / "map.png"]
+    _save(_hypotheses_figure(evaluation, title), paths[0])
+    _save(_errors_figure(evaluation, title), paths[1])
+    _save(_map_figure(graph, actions, true_poses, title), paths[2])
+    return paths
+
+
+def _revisit_spans(ax: Any, evaluation: Evaluation) -> None:
+    """Shade the keyframes that truly revisit a place (light grey)."""
+    revisit = evaluation.true_revisit
+    t = 0
+    labelled = False
+    while t < len(revisit):
+        if revisit[t]:
+            start = t
+            while t < len(revisit) and revisit[t]:
+                t += 1
+            ax.axvspan(
+                start - 0.5,
+                t - 0.5,
+                color="0.88",
+                zorder=0,
+                label=None if labelled else "true revisit",
+            )
+            labelled = True
+        else:
+            t += 1
+
+
+def _hypotheses_figure(evaluation: Evaluation, title: str) -> Any:
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9, 3.6), layout="constrained")
+    counts = evaluation.hypothesis_counts
+    keyframes = np.arange(len(counts))
+    _revisit_spans(ax, evaluation)
+    ax.step(keyframes, counts, where="mid", color="tab:blue", linewidth=1.5, label="hypotheses")
+    claims = np.flatnonzero(evaluation.claims)
+    if claims.size:
+        ax.plot(claims, counts[claims], "|", color="tab:orange", markersize=10, label="best says revisit")
+    ax.set_xlabel("keyframe")
+    ax.set_ylabel("hypotheses")
+    ax.set_ylim(0, max(int(counts.max()) if counts.size else 1, 1) * 1.15)
+    ax.set_xlim(-0.5, max(len(counts) - 0.5, 0.5))
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper left", fontsize="small")
+    ax.set_title(f"Hypotheses per keyframe — {title}")
+    return fig
+
+
+def _errors_figure(evaluation: Evaluation, title: str) -> Any:
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(3, 1, figsize=(9, 7.5), sharex=True, layout="constrained")
+    keyframes = np.arange(evaluation.keyframes)
+    names = [("x error (m)", 0), ("y error (m)", 1), ("heading error (°)", 2)]
+    for ax, (label, column) in zip(axes, names, strict=True):
+        _revisit_spans(ax, evaluation)
+        best = np.abs(evaluation.best_error[:, column])
+        weighted = evaluation.weighted_error[:, column]
+        ax.plot(keyframes, best, "o", color="tab:red", markersize=3.5, label="best hypothesis")
+        ax.plot(keyframes, weighted, "-", color="tab:blue", linewidth=1.0, alpha=0.8, label="belief-weighted")
+        ax.set_ylabel(label)
+        ax.grid(True, alpha=0.3)
+        ax.set_ylim(bottom=0)
+    if not evaluation.has_ground_truth:
+        axes[0].text(
+            0.5, 0.5, "no ground truth", transform=axes[0].transAxes, ha="center", va="center", color="0.4"
+        )
+    axes[-1].set_xlabel("keyframe")
+    axes[-1].set_xlim(-0.5, max(evaluation.keyframes - 0.5, 0.5))
+    axes[0].legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=3, fontsize="small", frameon=False)
+    fig.suptitle(f"Revisit errors (absolute; new-state hypotheses excluded) — {title}")
+    return fig
+
+
+def _map_figure(graph: dict[str, Any], actions: np.ndarray, true_poses: np.ndarray | None, title: str) -> Any:
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
+
+    fig, ax = plt.subplots(figsize=(7.5, 7.5), layout="constrained")
+    has_truth = true_poses is not None and bool(np.isfinite(true_poses).all(axis=1).any())
+    start = np.zeros(3)
+    if has_truth:
+        assert true_poses is not None
+        start = true_poses[np.flatnonzero(np.isfinite(true_poses).all(axis=1))[0]]
+    # Odometry, drawn from the first true pose: the keyframe actions composed.
+    odometry = dead_reckoning(actions, start)
+    where = true_poses if has_truth else odometry
+    assert where is not None
+    position = {}
+    for state in graph["states"]:
+        pose = where[int(state["id"])] if int(state["id"]) < len(where) else None
+        if pose is not None and np.isfinite(pose[:2]).all():
+            position[int(state["id"])] = pose[:2]
+    if has_truth:
+        assert true_poses is not None
+        ok = np.isfinite(true_poses).all(axis=1)
+        ax.plot(true_poses[ok, 0], true_poses[ok, 1], "-", color="0.75", linewidth=1, label="true path")
+    ax.plot(
+        odometry[:, 0], odometry[:, 1], "--", color="tab:gray", linewidth=1, label="odometry (dead reckoning)"
+    )
+    normal, closing = [], []
+    for link in graph["links"]:
+        a, b = int(link["from"]), int(link["to"])
+        if a in position and b in position and a != b:
+            (closing if is_loop_closure_link(a, b) else normal).append([position[a], position[b]])
+    if normal:
+        ax.add_collection(LineCollection(normal, colors="tab:blue", linewidths=1.5, label="link"))
+    if closing:
+        ax.add_collection(
+            LineCollection(closing, colors="tab:red", linewidths=2.5, label="loop-closure link")
+        )
+    if position:
+        xy = np.array(list(position.values()))
+        visits = {int(s["id"]): len(s["keyframes"]) for s in graph["states"]}
+        revisited = np.array([visits.get(s, 1) > 1 for s in position])
+        ax.plot(xy[~revisited, 0], xy[~revisited, 1], "o", color="tab:blue", markersize=5, label="place")
+        if revisited.any():
+            ax.plot(
+                xy[revisited, 0],
+                xy[revisited, 1],
+                "o",
+                markerfacecolor="white",
+                markeredgecolor="tab:red",
+                markeredgewidth=2,
+                markersize=8,
+                label="place visited again",
+            )
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.autoscale_view()
+    ax.grid(True, alpha=0.3)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    frame = "at first-visit true positions" if has_truth else "at dead-reckoned odometry positions"
+    ax.set_title(f"Map of places {frame}\n{title}")
+    ax.legend(loc="best", fontsize="small")
+    return fig

@@ -1,0 +1,482 @@
+"""Estimate files: what ``aslam estimate`` found, as MCAP with JSON messages (``docs/formats.md``).
+
+* metadata ``aslam.estimate``: tool version, the estimator configuration, the recording's identity
+  (absolute path, size, SHA-256) and the topics read;
+* metadata ``aslam.timing`` (optional): wall-clock figures, the only non-deterministic part;
+* ``/aslam/keyframe``: one message per keyframe, the hypotheses after it (best first);
+* ``/aslam/graph``: one message at the end, the best hypothesis's map and the final hypotheses.
+
+Every channel has a JSON Schema, so Foxglove and ``mcap cat --json`` can read the file without
+this package. ``EstimateWriter`` writes under a temporary name and renames when complete;
+``iter_keyframes`` streams the keyframes back and ``read_estimate`` returns the rest.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterator, Mapping
+from contextlib import closing
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import IO, Any, NamedTuple
+
+from aslam.core.errors import InputError
+from aslam.core.estimator import EstimateResult, StepResult
+from aslam.core.tree import Hypothesis
+
+ESTIMATE_METADATA = "aslam.estimate"
+TIMING_METADATA = "aslam.timing"
+KEYFRAME_TOPIC = "/aslam/keyframe"
+GRAPH_TOPIC = "/aslam/graph"
+KEYFRAME_SCHEMA_NAME = "aslam.Keyframe"
+GRAPH_SCHEMA_NAME = "aslam.Graph"
+FORMAT_VERSION = "1"
+CHUNK_SIZE_BYTES = 256 * 1024
+MAGIC = b"\x89MCAP0\r\n"
+
+
+class EstimateError(InputError):
+    """An estimate file that cannot be read or written; the message is ``PATH: problem`` (exit 2)."""
+
+
+# --- schemas ---------------------------------------------------------------------------------------
+
+_NUMBER = {"type": "number"}
+_INTEGER = {"type": "integer"}
+_ACTION = {
+    "type": "object",
+    "description": "Relative SE(2) motion from the previous keyframe, from odometry (REP 103).",
+    "properties": {"x_m": _NUMBER, "y_m": _NUMBER, "yaw_rad": _NUMBER},
+    "required": ["x_m", "y_m", "yaw_rad"],
+}
+_HYPOTHESIS = {
+    "type": "object",
+    "properties": {
+        "id": {**_INTEGER, "description": "Tree node id (unique over the run)."},
+        "parent": {"type": ["integer", "null"], "description": "Tree node id of the parent."},
+        "state": {**_INTEGER, "description": "State assigned to this keyframe (first-visit keyframe)."},
+        "belief": {**_NUMBER, "description": "Normalised belief; beliefs of one keyframe sum to 1."},
+        "new_state": {"type": "boolean", "description": "True when the hypothesis says 'a new place'."},
+    },
+    "required": ["id", "parent", "state", "belief", "new_state"],
+}
+KEYFRAME_SCHEMA: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "title": KEYFRAME_SCHEMA_NAME,
+    "type": "object",
+    "properties": {
+        "index": {**_INTEGER, "description": "Keyframe index, from 0."},
+        "stamp_ns": {**_INTEGER, "description": "Stamp of the keyframe's image, ns."},
+        "action": _ACTION,
+        "hypotheses": {"type": "array", "items": _HYPOTHESIS, "description": "Best first."},
+    },
+    "required": ["index", "stamp_ns", "action", "hypotheses"],
+}
+GRAPH_SCHEMA: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "title": GRAPH_SCHEMA_NAME,
+    "type": "object",
+    "properties": {
+        "keyframes": {**_INTEGER, "description": "Keyframes in the run."},
+        "states": {
+            "type": "array",
+            "items": {
+                "type": "object",
+                "properties": {
+                    "id": _INTEGER,
+                    "keyframes": {"type": "array", "items": _INTEGER},
+                },
+                "required": ["id", "keyframes"],
+            },
+        },
+        "links": {
+            "type": "array",
+            "items": {
+                "type": "object",
+                "properties": {
+                    "from": _INTEGER,
+                    "to": _INTEGER,
+                    "action": _ACTION,
+                    "covariance": {
+                        "type": "array",
+                        "description": "3×3 row-major covariance of (x_m, y_m, yaw_rad).",
+                        "items": {"type": "array", "items": _NUMBER},
+                    },
+                    "count": {**_INTEGER, "description": "Traversals of this link."},
+                },
+                "required": ["from", "to", "action", "covariance", "count"],
+            },
+        },
+        "hypotheses": {"type": "array", "items": _HYPOTHESIS},
+        "tree": {"type": "object", "description": "Hypothesis-tree statistics."},
+    },
+    "required": ["keyframes", "states", "links", "hypotheses", "tree"],
+}
+
+
+# --- records -------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RecordingIdentity:
+    """Which recording an estimate was made from."""
+
+    path: str
+    """Absolute path at estimate time."""
+    size_bytes: int
+    sha256: str
+    """SHA-256 of the whole file, hex."""
+
+
+@dataclass(frozen=True)
+class EstimateMetadata:
+    tool_version: str
+    config: dict[str, Any]
+    recording: RecordingIdentity
+    topics: dict[str, str]
+
+    def as_record(self) -> dict[str, str]:
+        """The MCAP metadata map (strings only; structured values as JSON)."""
+        return {
+            "format_version": FORMAT_VERSION,
+            "tool_version": self.tool_version,
+            "config": _dumps(self.config),
+            "recording_path": self.recording.path,
+            "recording_size_bytes": str(self.recording.size_bytes),
+            "recording_sha256": self.recording.sha256,
+            "topics": _dumps(self.topics),
+        }
+
+    @classmethod
+    def from_record(cls, record: Mapping[str, str], path: Path) -> EstimateMetadata:
+        try:
+            return cls(
+                tool_version=record["tool_version"],
+                config=json.loads(record["config"]),
+                recording=RecordingIdentity(
+                    record["recording_path"],
+                    int(record["recording_size_bytes"]),
+                    record["recording_sha256"],
+                ),
+                topics=json.loads(record["topics"]),
+            )
+        except (KeyError, ValueError, TypeError) as err:
+            raise EstimateError(f"unreadable '{ESTIMATE_METADATA}' metadata ({err!r})", path=path) from err
+
+
+@dataclass(frozen=True)
+class Timing:
+    """Wall-clock figures of one run (not deterministic, so kept apart)."""
+
+    wall_s: float
+    """Whole run: reading, decoding, histograms, SLAM, writing."""
+    slam_s: float
+    """Time inside the estimator's keyframe step only."""
+    keyframes_per_second: float
+    samples: int
+    keyframes: int
+
+    def as_record(self) -> dict[str, str]:
+        return {k: repr(v) for k, v in asdict(self).items()}
+
+    @classmethod
+    def from_record(cls, record: Mapping[str, str], path: Path) -> Timing:
+        try:
+            return cls(
+                wall_s=float(record["wall_s"]),
+                slam_s=float(record["slam_s"]),
+                keyframes_per_second=float(record["keyframes_per_second"]),
+                samples=int(record["samples"]),
+                keyframes=int(record["keyframes"]),
+            )
+        except (KeyError, ValueError) as err:
+            raise EstimateError(f"unreadable '{TIMING_METADATA}' metadata ({err!r})", path=path) from err
+
+
+class EstimateKeyframe(NamedTuple):
+    index: int
+    stamp_ns: int
+    action: tuple[float, float, float]
+    """(x_m, y_m, yaw_rad) since the previous keyframe."""
+    hypotheses: tuple[Hypothesis, ...]
+    """Best first."""
+
+
+@dataclass(frozen=True)
+class EstimateFile:
+    metadata: EstimateMetadata
+    timing: Timing | None
+    graph: dict[str, Any]
+    """The decoded ``/aslam/graph`` message (see ``GRAPH_SCHEMA``)."""
+
+
+# --- JSON helpers ------------------------------------------------------------------------------
+
+
+def _dumps(value: Any) -> str:
+    return json.dumps(value, separators=(",", ":"), allow_nan=False)
+
+
+def _hypothesis_json(h: Hypothesis) -> dict[str, Any]:
+    return {
+        "id": h.id,
+        "parent": h.parent_id,
+        "state": h.state,
+        "belief": h.belief,
+        "new_state": h.is_new_state,
+    }
+
+
+def _action_json(action: tuple[float, float, float] | Any) -> dict[str, float]:
+    x, y, yaw = (float(v) for v in action)
+    return {"x_m": x, "y_m": y, "yaw_rad": yaw}
+
+
+def keyframe_message(step: StepResult) -> dict[str, Any]:
+    return {
+        "index": step.keyframe,
+        "stamp_ns": step.stamp_ns,
+        "action": _action_json(step.action),
+        "hypotheses": [_hypothesis_json(h) for h in step.hypotheses],
+    }
+
+
+def graph_message(result: EstimateResult) -> dict[str, Any]:
+    return {
+        "keyframes": len(result.keyframe_stamps_ns),
+        "states": [{"id": s.id, "keyframes": list(s.keyframes)} for s in result.states],
+        "links": [
+            {
+                "from": link.from_state,
+                "to": link.to_state,
+                "action": _action_json(link.action),
+                "covariance": [[float(v) for v in row] for row in link.covariance],
+                "count": link.count,
+            }
+            for link in result.links
+        ],
+        "hypotheses": [_hypothesis_json(h) for h in result.hypotheses],
+        "tree": asdict(result.stats),
+    }
+
+
+# --- writing -------------------------------------------------------------------------------------
+
+
+def partial_name(path: Path) -> Path:
+    """Where a file lives until it is complete: a hidden name in the same folder."""
+    return path.with_name(f".{path.name}.partial-{os.getpid()}")
+
+
+def check_output_path(path: Path, *, force: bool) -> None:
+    """Fail early (before any work) when ``path`` cannot or must not be written."""
+    if path.is_dir():
+        raise EstimateError("is a directory", path=path)
+    if path.exists() and not force:
+        raise EstimateError("already exists; refusing to overwrite it (use --force)", path=path)
+    if not path.parent.is_dir():
+        raise EstimateError(f"folder {path.parent} does not exist", path=path)
+
+
+class EstimateWriter:
+    """Writes an estimate file; use as a context manager.
+
+    Written under a hidden temporary name and renamed to ``path`` by :meth:`finish`. Leaving the
+    ``with`` block without finishing (an exception, KeyboardInterrupt) removes the temporary file,
+    so nothing ever appears under ``path`` half-written. The same calls give the same bytes.
+    """
+
+    def __init__(self, path: Path, *, tool_version: str, force: bool = False) -> None:
+        from mcap.writer import CompressionType, Writer
+
+        self.path = Path(path)
+        check_output_path(self.path, force=force)
+        self.partial_path = partial_name(self.path)
+        try:
+            self._file: IO[bytes] = self.partial_path.open("wb")
+        except OSError as err:
+            raise EstimateError(f"cannot write: {err.strerror or err}", path=self.path) from err
+        self._done = False
+        try:
+            self._writer = Writer(self._file, chunk_size=CHUNK_SIZE_BYTES, compression=CompressionType.ZSTD)
+            self._writer.start(profile="", library=f"aslam {tool_version}")
+            keyframe_schema = self._writer.register_schema(
+                KEYFRAME_SCHEMA_NAME, "jsonschema", _dumps(KEYFRAME_SCHEMA).encode()
+            )
+            graph_schema = self._writer.register_schema(
+                GRAPH_SCHEMA_NAME, "jsonschema", _dumps(GRAPH_SCHEMA).encode()
+            )
+            self._keyframe_channel = self._writer.register_channel(KEYFRAME_TOPIC, "json", keyframe_schema)
+            self._graph_channel = self._writer.register_channel(GRAPH_TOPIC, "json", graph_schema)
+        except BaseException:
+            self.abort()
+            raise
+        self._sequence = 0
+        self._last_stamp_ns = 0
+
+    def __enter__(self) -> EstimateWriter:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        if not self._done:
+            self.abort()
+
+    def _add(self, channel: int, stamp_ns: int, message: dict[str, Any]) -> None:
+        try:
+            self._writer.add_message(
+                channel,
+                log_time=stamp_ns,
+                publish_time=stamp_ns,
+                data=_dumps(message).encode(),
+                sequence=self._sequence,
+            )
+        except OSError as err:
+            raise EstimateError(f"cannot write: {err.strerror or err}", path=self.path) from err
+        self._sequence += 1
+
+    def write_keyframe(self, step: StepResult) -> None:
+        self._last_stamp_ns = step.stamp_ns
+        self._add(self._keyframe_channel, step.stamp_ns, keyframe_message(step))
+
+    def finish(self, result: EstimateResult, metadata: EstimateMetadata, timing: Timing | None) -> None:
+        """Write the graph and the metadata, close, and move the file to its final name."""
+        try:
+            self._add(self._graph_channel, self._last_stamp_ns, graph_message(result))
+            self._writer.add_metadata(ESTIMATE_METADATA, metadata.as_record())
+            if timing is not None:
+                self._writer.add_metadata(TIMING_METADATA, timing.as_record())
+            self._writer.finish()
+            self._file.close()
+            os.replace(self.partial_path, self.path)
+        except OSError as err:
+            self.abort()
+            raise EstimateError(f"cannot write: {err.strerror or err}", path=self.path) from err
+        except BaseException:
+            self.abort()
+            raise
+        self._done = True
+
+    def abort(self) -> None:
+        """Drop the partial file; nothing is left under the final name."""
+        self._done = True
+        try:
+            self._file.close()
+        finally:
+            self.partial_path.unlink(missing_ok=True)
+
+
+# --- reading -------------------------------------------------------------------------------------
+
+
+def _check_path(path: Path) -> int:
+    if not path.exists():
+        raise EstimateError("no such file", path=path)
+    if path.is_dir():
+        raise EstimateError("is a directory, not an estimate file", path=path)
+    try:
+        size = path.stat().st_size
+        with path.open("rb") as f:
+            head = f.read(len(MAGIC))
+            f.seek(max(size - len(MAGIC), 0))
+            tail = f.read(len(MAGIC))
+    except OSError as err:
+        raise EstimateError(f"cannot read: {err.strerror or err}", path=path) from err
+    if head != MAGIC:
+        raise EstimateError("not an MCAP file (bad magic bytes at the start)", path=path)
+    if tail != MAGIC or size < 2 * len(MAGIC):
+        raise EstimateError(
+            "incomplete MCAP file (no trailing magic); was the estimate cut short?", path=path
+        )
+    return size
+
+
+def _open_reader(f: IO[bytes], path: Path, size: int) -> Any:
+    from mcap.reader import SeekingReader
+
+    try:
+        return SeekingReader(f, record_size_limit=max(size, 1024))
+    except Exception as err:
+        raise EstimateError(f"unreadable MCAP ({type(err).__name__}: {err})", path=path) from err
+
+
+def _metadata_records(path: Path) -> dict[str, dict[str, str]]:
+    size = _check_path(path)
+    records: dict[str, dict[str, str]] = {}
+    with path.open("rb") as f:
+        reader = _open_reader(f, path, size)
+        try:
+            for record in reader.iter_metadata():
+                records.setdefault(record.name, dict(record.metadata))
+        except Exception as err:
+            raise EstimateError(f"corrupt metadata ({type(err).__name__}: {err})", path=path) from err
+    if ESTIMATE_METADATA not in records:
+        raise EstimateError(
+            f"not an aslam estimate file (no '{ESTIMATE_METADATA}' metadata; is it a recording?)", path=path
+        )
+    return records
+
+
+def _messages(path: Path, topic: str) -> Iterator[dict[str, Any]]:
+    size = _check_path(path)
+    with path.open("rb") as f:
+        reader = _open_reader(f, path, size)
+        iterator = reader.iter_messages(topics=[topic], log_time_order=True)
+        while True:
+            try:
+                _schema, _channel, message = next(iterator)
+                decoded = json.loads(message.data)
+            except StopIteration:
+                return
+            except Exception as err:  # zstd, struct, McapError, JSON ... on a damaged file
+                raise EstimateError(
+                    f"corrupt data on '{topic}' ({type(err).__name__}: {err})", path=path
+                ) from err
+            yield decoded
+
+
+def _hypothesis(raw: Mapping[str, Any]) -> Hypothesis:
+    return Hypothesis(
+        int(raw["id"]),
+        None if raw["parent"] is None else int(raw["parent"]),
+        int(raw["state"]),
+        float(raw["belief"]),
+        bool(raw["new_state"]),
+    )
+
+
+def iter_keyframes(path: Path) -> Iterator[EstimateKeyframe]:
+    """The keyframes of an estimate file in order, streamed (one chunk in memory at a time)."""
+    path = Path(path)
+    _metadata_records(path)  # fails early, naming the file, on anything but an estimate
+    return _iter_keyframes(path)
+
+
+def _iter_keyframes(path: Path) -> Iterator[EstimateKeyframe]:
+    for raw in _messages(path, KEYFRAME_TOPIC):
+        try:
+            action = raw["action"]
+            yield EstimateKeyframe(
+                int(raw["index"]),
+                int(raw["stamp_ns"]),
+                (float(action["x_m"]), float(action["y_m"]), float(action["yaw_rad"])),
+                tuple(_hypothesis(h) for h in raw["hypotheses"]),
+            )
+        except (KeyError, TypeError, ValueError) as err:
+            raise EstimateError(f"malformed keyframe message ({err!r})", path=path) from err
+
+
+def read_estimate(path: Path) -> EstimateFile:
+    """The metadata, the timing (None if omitted) and the final graph of an estimate file."""
+    path = Path(path)
+    records = _metadata_records(path)
+    metadata = EstimateMetadata.from_record(records[ESTIMATE_METADATA], path)
+    timing = Timing.from_record(records[TIMING_METADATA], path) if TIMING_METADATA in records else None
+    with closing(_messages(path, GRAPH_TOPIC)) as graphs:
+        graph = next(graphs, None)
+    if graph is None:
+        raise EstimateError(f"no '{GRAPH_TOPIC}' message (the estimate is incomplete)", path=path)
+    return EstimateFile(metadata, timing, graph)

@@ -1,0 +1,364 @@
+"""`aslam estimate` and `aslam report` end to end, through `aslam.cli.app.main`, on a tiny recording.
+
+The recording is written with ``RecordingWriter`` from procedurally drawn images (one texture per
+place and heading) along a 3 m × 3 m square driven twice, so it needs no renderer.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from aslam.cli.app import main
+from aslam.core.estimator import Estimator
+from aslam.data_formats.estimate import (
+    ESTIMATE_METADATA,
+    KEYFRAME_TOPIC,
+    TIMING_METADATA,
+    iter_keyframes,
+    read_estimate,
+)
+from aslam.data_formats.recording import CameraIntrinsics, RecordingWriter, encode_image
+
+SIDE_STEPS = 3
+LAPS = 2
+
+
+def _route() -> list[np.ndarray]:
+    """True poses: per side 3 one-metre steps then a 90° turn in place; twice round."""
+    poses = [np.zeros(3)]
+    for _ in range(LAPS):
+        for _side in range(4):
+            for _ in range(SIDE_STEPS):
+                x, y, yaw = poses[-1]
+                poses.append(np.array([x + math.cos(yaw), y + math.sin(yaw), yaw]))
+            x, y, yaw = poses[-1]
+            poses.append(
+                np.array([x, y, math.atan2(math.sin(yaw + math.pi / 2), math.cos(yaw + math.pi / 2))])
+            )
+    return poses
+
+
+def _view(pose: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A 64×48 image that depends on the place and heading (plus a little noise per visit)."""
+    key = (round(pose[0]), round(pose[1]), round(math.degrees(pose[2]) / 90) % 4)
+    place = np.random.default_rng(abs(hash(key)) % (2**32))
+    image = np.full((48, 64, 3), 40, np.uint8)
+    for _ in range(12):
+        p1 = tuple(int(v) for v in place.integers(0, 64, 2))
+        p2 = tuple(int(v) for v in place.integers(0, 64, 2))
+        colour = tuple(int(v) for v in place.integers(60, 255, 3))
+        if place.random() < 0.5:
+            cv2.line(image, p1, p2, colour, int(place.integers(1, 4)))
+        else:
+            cv2.rectangle(image, p1, p2, colour, -1)
+    noise = rng.normal(0, 3, image.shape)
+    return np.clip(image + noise, 0, 255).astype(np.uint8)
+
+
+def write_recording(path: Path, *, with_truth: bool = True) -> None:
+    rng = np.random.default_rng(7)
+    camera = CameraIntrinsics(64, 48, 60.0)
+    odometry = np.zeros(3)
+    previous = None
+    with RecordingWriter(path, camera=camera, metadata={"world": "test", "route": "square"}) as writer:
+        for i, truth in enumerate(_route()):
+            if previous is not None:
+                from aslam.core import se2
+
+                step = se2.between(previous, truth)
+                noisy = step * (1 + rng.normal(0, 0.01, 3))
+                odometry = se2.compose(odometry, noisy)
+            previous = truth
+            stamp_ns = 1_000_000_000 * (i + 1)
+            image = encode_image(_view(truth, rng))
+            writer.write(stamp_ns, image, odometry, truth if with_truth else None)
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("rec") / "square.mcap"
+    write_recording(path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def estimate_file(recording: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("est") / "estimate.mcap"
+    assert main(["estimate", str(recording), "-o", str(out)]) == 0
+    return out
+
+
+def _one_error_line(err: str) -> None:
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("aslam: error:"), err
+    assert "Traceback" not in err
+
+
+# --- estimate ------------------------------------------------------------------------------------
+
+
+def test_estimate_file_decodes_with_mcaps_own_reader(estimate_file: Path, recording: Path):
+    keyframes, graphs = [], []
+    with estimate_file.open("rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None
+        for channel in summary.channels.values():
+            assert channel.message_encoding == "json"
+            assert summary.schemas[channel.schema_id].encoding == "jsonschema"
+            json.loads(summary.schemas[channel.schema_id].data)  # the schema is JSON
+        metadata = {m.name: m.metadata for m in reader.iter_metadata()}
+        for _schema, channel, message in reader.iter_messages():
+            (keyframes if channel.topic == KEYFRAME_TOPIC else graphs).append(json.loads(message.data))
+            if channel.topic == KEYFRAME_TOPIC:
+                assert message.log_time == keyframes[-1]["stamp_ns"]
+    assert set(metadata) == {ESTIMATE_METADATA, TIMING_METADATA}
+    meta = metadata[ESTIMATE_METADATA]
+    assert meta["recording_path"] == str(recording.absolute())
+    assert int(meta["recording_size_bytes"]) == recording.stat().st_size
+    assert len(meta["recording_sha256"]) == 64
+    assert json.loads(meta["config"])["step_m"] == 1.0
+    assert json.loads(meta["topics"])["image"] == "/camera/image/compressed"
+    assert float(metadata[TIMING_METADATA]["keyframes_per_second"]) > 0
+    assert len(keyframes) == len(_route())  # every route pose is a keyframe (1 m or 90°)
+    assert [k["index"] for k in keyframes] == list(range(len(keyframes)))
+    first = keyframes[0]
+    assert set(first) == {"index", "stamp_ns", "action", "hypotheses"}
+    assert set(first["action"]) == {"x_m", "y_m", "yaw_rad"}
+    assert set(first["hypotheses"][0]) == {"id", "parent", "state", "belief", "new_state"}
+    for k in keyframes:
+        assert abs(sum(h["belief"] for h in k["hypotheses"]) - 1) < 1e-6
+    (graph,) = graphs
+    assert graph["keyframes"] == len(keyframes)
+    assert {"states", "links", "hypotheses", "tree"} <= set(graph)
+
+
+def test_reader_api_streams_what_was_written(estimate_file: Path):
+    info = read_estimate(estimate_file)
+    rows = list(iter_keyframes(estimate_file))
+    assert len(rows) == info.graph["keyframes"]
+    assert info.timing is not None and info.timing.keyframes == len(rows)
+    assert rows[0].hypotheses[0].is_new_state
+
+
+def test_no_timing_gives_identical_bytes_and_timing_only_changes_metadata(recording: Path, tmp_path: Path):
+    a, b, c = tmp_path / "a.mcap", tmp_path / "b.mcap", tmp_path / "c.mcap"
+    assert main(["estimate", str(recording), "-o", str(a), "--no-timing"]) == 0
+    assert main(["estimate", str(recording), "-o", str(b), "--no-timing"]) == 0
+    assert a.read_bytes() == b.read_bytes()
+    assert main(["estimate", str(recording), "-o", str(c)]) == 0
+
+    def messages(path: Path) -> list[tuple[str, int, bytes]]:
+        with path.open("rb") as f:
+            return [(ch.topic, m.log_time, m.data) for _, ch, m in make_reader(f).iter_messages()]
+
+    assert messages(a) == messages(c)
+    assert read_estimate(a).timing is None and read_estimate(c).timing is not None
+
+
+def test_config_file_and_options_precedence(recording: Path, tmp_path: Path):
+    config = tmp_path / "c.toml"
+    config.write_text("[estimator]\nbeta = 3\nmax_hypotheses = 20\n")
+    out = tmp_path / "e.mcap"
+    args = ["estimate", str(recording), "-o", str(out), "--config", str(config), "--paper-faithful"]
+    assert main([*args, "--max-hypotheses", "10", "--no-timing"]) == 0
+    used = read_estimate(out).metadata.config
+    assert used["beta"] == 3.0  # file over default
+    assert used["max_hypotheses"] == 10  # option over file
+    assert used["cells_x"] == 1 and used["cells_y"] == 1  # --paper-faithful base
+
+
+def test_refuses_to_overwrite_without_force(recording: Path, tmp_path: Path, capsys):
+    out = tmp_path / "e.mcap"
+    out.write_bytes(b"keep me")
+    assert main(["estimate", str(recording), "-o", str(out)]) == 2
+    _one_error_line(capsys.readouterr().err)
+    assert out.read_bytes() == b"keep me"
+    assert main(["estimate", str(recording), "-o", str(out), "--force", "--no-timing"]) == 0
+
+
+def test_interrupted_estimate_leaves_no_file(recording: Path, tmp_path: Path, monkeypatch, capsys):
+    calls = {"n": 0}
+    original = Estimator.add_keyframe
+
+    def interrupt(self, *args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 5:
+            raise KeyboardInterrupt
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(Estimator, "add_keyframe", interrupt)
+    out = tmp_path / "e.mcap"
+    assert main(["estimate", str(recording), "-o", str(out)]) == 130
+    assert not out.exists()
+    assert os.listdir(tmp_path) == []  # no partial file either
+    assert "Traceback" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("extra", "needle"),
+    [
+        (["--step-m", "-1"], "step_m"),
+        (["--step-m", "abc"], "step-m"),
+        (["--max-hypotheses", "0", "--beta", "0"], "beta"),
+    ],
+)
+def test_bad_option_values_are_one_line_exit_2(recording: Path, tmp_path: Path, capsys, extra, needle):
+    out = tmp_path / "e.mcap"
+    assert main(["estimate", str(recording), "-o", str(out), *extra]) == 2
+    err = capsys.readouterr().err
+    _one_error_line(err)
+    assert needle in err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("text", "needle"),
+    [
+        ("[estimator]\nstep = 1\nbogus = 2\n", "estimator.step, estimator.bogus"),
+        ("step_m = 1\n", "step_m"),
+        ("[estimator\nstep_m = 1\n", "not valid TOML"),
+        ('[estimator]\nstep_m = "far"\n', "step_m must be a number"),
+        ("[estimator]\nstep_m = -1.0\nbeta = 0\n", "beta must be a positive"),
+    ],
+)
+def test_bad_config_files_are_one_line_exit_2(recording: Path, tmp_path: Path, capsys, text, needle):
+    config = tmp_path / "c.toml"
+    config.write_text(text)
+    assert main(["estimate", str(recording), "-o", str(tmp_path / "e.mcap"), "--config", str(config)]) == 2
+    err = capsys.readouterr().err
+    _one_error_line(err)
+    assert needle in err
+
+
+def test_bad_recordings_are_one_line_exit_2(tmp_path: Path, capsys):
+    text = tmp_path / "notes.mcap"
+    text.write_text("not an mcap file\n")
+    for path in (text, tmp_path / "missing.mcap"):
+        assert main(["estimate", str(path), "-o", str(tmp_path / "e.mcap")]) == 2
+        err = capsys.readouterr().err
+        _one_error_line(err)
+        assert str(path) in err
+    assert main(["report", str(text)]) == 2
+    _one_error_line(capsys.readouterr().err)
+
+
+def test_estimate_rejects_a_recording_as_report_input(recording: Path, capsys):
+    assert main(["report", str(recording)]) == 2
+    err = capsys.readouterr().err
+    _one_error_line(err)
+    assert "not an aslam estimate" in err
+
+
+# --- report --------------------------------------------------------------------------------------
+
+
+def _check_summary(summary: dict) -> None:
+    assert isinstance(summary["keyframes"], int)
+    assert isinstance(summary["states"], int) and isinstance(summary["links"], int)
+    h = summary["hypotheses"]
+    assert isinstance(h["max"], int) and isinstance(h["mean"], float) and isinstance(h["final"], int)
+    r = summary["relocalisation"]
+    assert isinstance(r["episodes"], int)
+    assert r["first_delay_keyframes"] is None or isinstance(r["first_delay_keyframes"], int)
+    assert r["mean_delay_keyframes"] is None or isinstance(r["mean_delay_keyframes"], float)
+    lc = summary["loop_closure"]
+    assert set(lc) >= {"claims", "correct", "ground_truth_revisits", "precision", "recall"}
+    assert isinstance(lc["claims"], int)
+    for kind in ("best", "weighted"):
+        for axis in ("x_m", "y_m", "heading_deg"):
+            assert set(summary["error"][kind][axis]) == {"mean", "median", "max"}
+    assert "keyframes_per_second" in summary["timing"]
+
+
+def test_report_outputs(estimate_file: Path, tmp_path: Path, capsys):
+    summary_path, graph_path, plots = tmp_path / "s.json", tmp_path / "g.json", tmp_path / "plots"
+    args = ["report", str(estimate_file), "--json", str(summary_path), "--graph", str(graph_path)]
+    assert main([*args, "--plots", str(plots)]) == 0
+    out = capsys.readouterr().out
+    assert "keyframes" in out and "Revisit errors" in out
+    summary = json.loads(summary_path.read_text())
+    _check_summary(summary)
+    assert summary["keyframes"] == len(_route())
+    assert summary["ground_truth"] is True
+    assert isinstance(summary["loop_closure"]["ground_truth_revisits"], int)
+    assert summary["loop_closure"]["ground_truth_revisits"] > 0
+    assert isinstance(summary["timing"]["keyframes_per_second"], float)
+    graph = json.loads(graph_path.read_text())
+    assert graph["keyframes"] == summary["keyframes"] and len(graph["states"]) == summary["states"]
+    state = graph["states"][0]
+    assert set(state) == {"id", "keyframes", "stamps_ns", "first_visit_truth"}
+    assert set(state["first_visit_truth"]) == {"x_m", "y_m", "yaw_rad"}
+    assert {"from", "to", "action", "covariance", "count", "loop_closure"} <= set(graph["links"][0])
+    assert {p.name for p in plots.iterdir()} == {"hypotheses.png", "errors.png", "map.png"}
+    assert all(p.read_bytes().startswith(b"\x89PNG") for p in plots.iterdir())
+    assert not [p for p in tmp_path.rglob(".*partial*")]
+
+
+def test_report_json_to_stdout_keeps_stdout_pure(estimate_file: Path, capsys):
+    assert main(["report", str(estimate_file), "--json", "-"]) == 0
+    captured = capsys.readouterr()
+    _check_summary(json.loads(captured.out))
+    assert "Revisit errors" in captured.err
+
+
+def test_fail_on_both_ways(estimate_file: Path, capsys):
+    n = len(_route())
+    assert main(["report", str(estimate_file), "--fail-on", f"keyframes<{n}", "--fail-on", "states<1"]) == 0
+    capsys.readouterr()
+    code = main(["report", str(estimate_file), "--fail-on", f"keyframes>={n}", "--fail-on", "links<1"])
+    assert code == 1
+    err = capsys.readouterr().err
+    _one_error_line(err)
+    assert f"keyframes>={n}" in err and "links<1" not in err
+
+
+@pytest.mark.parametrize(
+    ("condition", "needle"),
+    [
+        ("loop_closure.precision", "malformed"),
+        ("loop_closure.precision<<0.9", "malformed"),
+        ("loop_closure.prec<0.9", "unknown summary key"),
+        ("keyframes>abc", "not a number"),
+        ("keyframes<null", "null"),
+    ],
+)
+def test_bad_fail_on_is_exit_2_before_any_work(tmp_path: Path, capsys, condition, needle):
+    missing = tmp_path / "missing.mcap"  # never opened: the condition is checked first
+    assert main(["report", str(missing), "--fail-on", condition]) == 2
+    err = capsys.readouterr().err
+    _one_error_line(err)
+    assert needle in err and str(missing) not in err
+
+
+def test_report_without_the_recording_warns_and_continues(recording: Path, tmp_path: Path, capsys):
+    moved = tmp_path / "moved.mcap"
+    moved.write_bytes(recording.read_bytes())
+    out = tmp_path / "e.mcap"
+    assert main(["estimate", str(moved), "-o", str(out), "--no-timing"]) == 0
+    moved.unlink()
+    capsys.readouterr()
+    assert main(["report", str(out), "--json", "-", "--fail-on", "loop_closure.precision==null"]) == 1
+    captured = capsys.readouterr()
+    summary = json.loads(captured.out)
+    _check_summary(summary)
+    assert summary["ground_truth"] is False
+    assert summary["loop_closure"]["precision"] is None
+    assert summary["timing"]["keyframes_per_second"] is None
+    warnings = [line for line in captured.err.splitlines() if line.startswith("aslam: warning:")]
+    assert len(warnings) == 1 and "not found" in warnings[0]
+    # Null fails an ordering gate: a measurement that was not made never passes.
+    assert main(["report", str(out), "--fail-on", "loop_closure.precision<0.9"]) == 1
+    # --recording points elsewhere: ground truth again.
+    capsys.readouterr()
+    assert main(["report", str(out), "--recording", str(recording), "--json", "-"]) == 0
+    assert json.loads(capsys.readouterr().out)["ground_truth"] is True
