@@ -25,7 +25,7 @@ class HistogramConfig:
         return self.bins * self.cells_x * self.cells_y
 
 
-def _param(default: float | int, help: str) -> float | int:
+def _param(default: float | int | str, help: str) -> float | int | str:
     """A configuration field whose help text the CLI and docs read from ``metadata["help"]``."""
     return field(default=default, metadata={"help": help})  # type: ignore[return-value]
 
@@ -90,6 +90,11 @@ class EstimatorConfig:
     revisit_prior: float = _param(
         0.5, "Prior probability that a keyframe revisits some place rather than finding a new one."
     )
+    candidate_search: str = _param(
+        "graph",
+        "Where revisit candidates come from: 'graph' searches the hypothesis's map (loop closures give"
+        " short chains); 'path' traces its own path back in time, as the paper does.",
+    )
     search_sigma_m: float = _param(
         3.0,
         (
@@ -139,6 +144,8 @@ class EstimatorConfig:
                 problems.append(f"{name} must be a non-negative number, got {value!r}")
         if not 0 <= self.keyframe_slack < 1:
             problems.append(f"keyframe_slack must be in [0, 1), got {self.keyframe_slack!r}")
+        if self.candidate_search not in ("graph", "path"):
+            problems.append(f"candidate_search must be 'graph' or 'path', got {self.candidate_search!r}")
         if not 0 < self.revisit_prior < 1:
             problems.append(f"revisit_prior must be in (0, 1), got {self.revisit_prior!r}")
         if not 0 < self.prune_ratio < 1:
@@ -160,8 +167,8 @@ class EstimatorConfig:
 
     @classmethod
     def paper_faithful(cls, **overrides: object) -> EstimatorConfig:
-        """The paper's estimator: one global histogram per image."""
-        return cls(**{"cells_x": 1, "cells_y": 1, **overrides})
+        """The paper's estimator: one global histogram per image, candidates along the path only."""
+        return cls(**{"cells_x": 1, "cells_y": 1, "candidate_search": "path", **overrides})
 
     @classmethod
     def parameters(cls) -> list[tuple[str, type, object, str]]:

@@ -90,6 +90,8 @@ class HypothesisTree:
         self.shared = SharedMap()
         self.observations = GrowableArray((observation_length,), np.float32)
         self.committed_state_of_keyframe = GrowableArray((), np.int64)
+        self.committed_rel_of_keyframe = GrowableArray((9,), np.float64)
+        """The link each committed keyframe arrived by: the path, for ``candidate_search="path"``."""
         self.leaves: list[Node] = []
         self.commit_root: Node | None = None
         self._next_id = 0
@@ -123,6 +125,7 @@ class HypothesisTree:
             self.commit_root = root
             self.shared.add_state(0)
             self.committed_state_of_keyframe.append(0)
+            self.committed_rel_of_keyframe.append(IDENTITY_REL)
             self._record_count(1)
             return [Hypothesis(root.id, None, 0, 1.0, True)]
 
@@ -180,7 +183,8 @@ class HypothesisTree:
         The searches are per leaf (each in its own map); the Gaussian algebra runs once over
         all their candidates together.
         """
-        searches = [self._search(leaf) for leaf in leaves]
+        search = self._search_path if self.config.candidate_search == "path" else self._search
+        searches = [search(leaf) for leaf in leaves]
         sizes = [len(states) for states, _ in searches]
         self._searched_sum += sum(sizes)
         if not any(sizes):
@@ -243,6 +247,32 @@ class HypothesisTree:
             rels[state] = compose_rel(rels[previous], edge)
         return order, [rels[s] for s in order]
 
+    def _search_path(self, leaf: Node) -> tuple[list[int], list[Rel]]:
+        """The paper's transition: trace the leaf's own path back in time, composing its actions.
+
+        Each earlier state is reached the way the robot came, never through a shortcut that a
+        loop closure made; the first (most recent) visit of each state counts.
+        """
+        found: dict[int, Rel] = {leaf.state: IDENTITY_REL}
+        rel, cost = IDENTITY_REL, 0.0
+        limit, bound = self.config.search_max_states, self._search_bound
+        node = leaf
+        while node is not self.commit_root and node.parent is not None:  # the uncommitted suffix
+            rel, cost = compose_rel(rel, node.inverse_rel), cost + node.weight
+            if cost > bound or len(found) >= limit:
+                return list(found), list(found.values())
+            found.setdefault(node.parent.state, rel)
+            node = node.parent
+        states = self.committed_state_of_keyframe.view
+        arrivals = self.committed_rel_of_keyframe.view
+        for keyframe in range(len(states) - 1, 0, -1):  # then the committed history
+            arrival: Rel = tuple(arrivals[keyframe].tolist())  # type: ignore[assignment]
+            rel, cost = compose_rel(rel, inverse_rel(arrival)), cost + link_weight(arrival)
+            if cost > bound or len(found) >= limit:
+                break
+            found.setdefault(int(states[keyframe - 1]), rel)
+        return list(found), list(found.values())
+
     def _suffix_overlay(self, leaf: Node) -> dict[int, list[tuple[int, tuple[Rel, float]]]]:
         """The links this leaf has that the shared map does not (its uncommitted suffix)."""
         overlay: dict[int, list[tuple[int, tuple[Rel, float]]]] = {}
@@ -303,6 +333,7 @@ class HypothesisTree:
                 self.shared.add_state(node.state)
             self.shared.add_traversal(node.parent.state, node.state, node.rel)
             self.committed_state_of_keyframe.append(node.state)
+            self.committed_rel_of_keyframe.append(node.rel)
         if path:
             ancestor.parent = None  # frees the committed nodes
             self.commit_root = ancestor

@@ -198,3 +198,11 @@ def test_config_reports_every_bad_value_at_once():
         EstimatorConfig(beta=-1.0, max_hypotheses=0, prune_ratio=2.0)
     message = str(raised.value)
     assert "beta" in message and "max_hypotheses" in message and "prune_ratio" in message
+
+
+def test_paper_faithful_path_search_also_relocalises():
+    config = synthetic_config(candidate_search="path")
+    _, results = run(rectangle_actions(), SyntheticWorld(3), config)
+    lap = 34
+    assert all(r.best.is_new_state for r in results[1:lap])
+    assert all(r.best.state == (r.keyframe - lap) % lap for r in results[lap:])

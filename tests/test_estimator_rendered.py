@@ -1,0 +1,66 @@
+"""The estimator on real rendered recordings (pyrender → MCAP → reader → SLAM → metrics).
+
+Small images keep this fast; the full-size, five-seed figures live in bench/.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from aslam.cli.app import main
+from aslam.core.config import EstimatorConfig
+from aslam.core.estimator import Estimator
+from aslam.core.metrics import evaluate
+from aslam.data_formats.recording import iter_samples
+
+LAP = 34  # the paper route: 30 forward steps and 4 turns per lap
+
+
+def record(folder: Path, name: str, *extra: str) -> Path:
+    path = folder / f"{name}.mcap"
+    code = main(["record", "--route", "paper", "--size", "96x72", "-o", str(path), *extra])
+    assert code == 0
+    return path
+
+
+def estimate(path: Path, config: EstimatorConfig):
+    estimator = Estimator(config)
+    steps, truth = [], []
+    for sample in iter_samples(path):
+        result = estimator.step(sample.stamp_ns, sample.odometry_pose, sample.image.decode_gray)
+        if result is not None:
+            steps.append((result.keyframe, result.hypotheses))
+            truth.append(sample.ground_truth_pose)
+    return estimator, evaluate(steps, np.array(truth))
+
+
+@pytest.fixture(scope="module")
+def recordings(tmp_path_factory) -> dict[str, Path]:
+    folder = tmp_path_factory.mktemp("rendered")
+    return {
+        "paper": record(folder, "paper", "--seed", "4"),
+        "aliased": record(folder, "aliased", "--seed", "5", "--aliasing", "0.5"),
+    }
+
+
+def test_paper_route_relocalises_at_the_start_of_the_second_lap(recordings):
+    estimator, evaluation = estimate(recordings["paper"], EstimatorConfig())
+    assert evaluation.keyframes == 2 * LAP + 1
+    assert evaluation.true_revisit[LAP:].all() and not evaluation.true_revisit[:LAP].any()
+    assert evaluation.first_delay is not None and evaluation.first_delay <= 2
+    assert evaluation.precision == 1.0
+    assert evaluation.recall >= 0.85
+    assert not evaluation.claims[:LAP].any()  # nothing claimed on the first lap
+    result = estimator.result()
+    assert LAP - 2 <= len(result.states) <= LAP + 4  # lap 2 reused lap 1's places
+    assert max(link.count for link in result.links) >= 2
+
+
+def test_aliased_textures_keep_precision(recordings):
+    _, evaluation = estimate(recordings["aliased"], EstimatorConfig())
+    assert evaluation.precision is not None and evaluation.precision >= 0.98
+    assert evaluation.recall >= 0.8
+    assert evaluation.hypothesis_counts.max() <= EstimatorConfig().max_hypotheses
