@@ -75,6 +75,8 @@ def main(argv: list[str] | None = None) -> int:
     _register_commands()
     try:
         code = app(args=argv, standalone_mode=False, prog_name="aslam")
+        if code == EXIT_INTERRUPTED:  # typer turns Ctrl-C into a silent exit 130
+            error_line("interrupted")
     except AslamError as err:
         error_line(str(err))
         return err.exit_code
@@ -82,6 +84,8 @@ def main(argv: list[str] | None = None) -> int:
         error_line("interrupted")
         return EXIT_INTERRUPTED
     except typer.Exit as done:
+        if done.exit_code == EXIT_INTERRUPTED:  # typer's own translation of Ctrl-C
+            error_line("interrupted")
         return done.exit_code
     except Exception as err:
         usage = _usage_error_line(err)
