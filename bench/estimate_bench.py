@@ -7,7 +7,7 @@ estimate = ``aslam estimate`` in-process (pipeline + SLAM + writing the estimate
 Target: estimate ≤ 1.25 × floor. Runs alternate (floor, estimate, floor, ...) and the best of
 each is kept, so page cache and CPU frequency treat both alike.
 
-    python bench/estimate_bench.py [--recording R.mcap] [--laps 4] [--fps 3] [--repeats 3]
+    python bench/estimate_bench.py [--recording R.mcap] [--laps 4] [--fps 3] [--repeats 3] [--json]
 
 Without --recording it renders (once, cached in bench/.cache/) a paper-route recording.
 """
@@ -15,6 +15,7 @@ Without --recording it renders (once, cached in bench/.cache/) a paper-route rec
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import tempfile
 import time
@@ -71,6 +72,7 @@ def main_bench() -> None:
     parser.add_argument("--laps", type=int, default=4)
     parser.add_argument("--fps", type=float, default=3)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     args = parser.parse_args()
     recording = args.recording or recording_for(args.laps, args.fps)
     config = EstimatorConfig()
@@ -85,6 +87,19 @@ def main_bench() -> None:
             estimates.append(time_estimate(recording, output, config))
     floor, estimate = min(floors), min(estimates)
     size_mb = recording.stat().st_size / 1e6
+    if args.json:
+        result = {
+            "recording": str(recording),
+            "size_mb": size_mb,
+            "keyframes": keyframes,
+            "repeats": args.repeats,
+            "floor_s": floor,
+            "estimate_s": estimate,
+            "ratio": estimate / floor,
+            "keyframes_per_second": keyframes / estimate,
+        }
+        print(json.dumps(result))
+        return
     print(f"recording   {recording} ({size_mb:.1f} MB, {keyframes} keyframes)")
     print(f"floor       {floor:.3f} s  (read + keyframe test + decode + histograms; best of {args.repeats})")
     print(f"estimate    {estimate:.3f} s  (the estimate command's body in-process; best of {args.repeats})")

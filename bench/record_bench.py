@@ -1,7 +1,7 @@
 """Recording speed: keyframes/s of `aslam record` at 320×240 on the paper route, against a bare
 pyrender render loop of the same scene measured in the same run.
 
-    python bench/record_bench.py [--laps 4] [--repeats 3] [--size 320x240]
+    python bench/record_bench.py [--laps 4] [--repeats 3] [--size 320x240] [--json]
 
 Three figures per run (best of ``--repeats``, alternating the two loops to share CPU contention):
 * ``record end-to-end``: :func:`aslam.recorder.record.record` from config to a finished MCAP file
@@ -14,6 +14,7 @@ The ratio ``record loop / bare loop`` is the recorder's overhead per frame (targ
 from __future__ import annotations
 
 import argparse
+import json
 import tempfile
 import time
 from pathlib import Path
@@ -53,6 +54,7 @@ def main() -> None:
     parser.add_argument("--laps", type=int, default=4, help="laps of the paper route (4 → 137 keyframes)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--size", default="320x240")
+    parser.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     args = parser.parse_args()
 
     from aslam.recorder.config import CameraSpec, RecordConfig, parse_size
@@ -71,6 +73,23 @@ def main() -> None:
             result = record(config, Path(tmp) / "bench.mcap", force=True)
             best["end"] = min(best["end"], result.seconds)
             best["loop"] = min(best["loop"], result.render_seconds)
+    if args.json:
+        result = {
+            "laps": args.laps,
+            "keyframes": n,
+            "size": f"{width}x{height}",
+            "repeats": args.repeats,
+            "end_to_end_s": best["end"],
+            "loop_s": best["loop"],
+            "bare_s": best["bare"],
+            "end_to_end_keyframes_per_second": n / best["end"],
+            "loop_keyframes_per_second": n / best["loop"],
+            "bare_keyframes_per_second": n / best["bare"],
+            "ratio_loop_over_bare": best["loop"] / best["bare"],
+            "ratio_end_to_end_over_bare": best["end"] / best["bare"],
+        }
+        print(json.dumps(result))
+        return
     print(f"paper route, {args.laps} laps, {n} keyframes at {width}x{height}, best of {args.repeats}")
     print(f"  record end-to-end : {n / best['end']:6.1f} keyframes/s  ({best['end']:.2f} s)")
     print(f"  record loop       : {n / best['loop']:6.1f} keyframes/s  ({best['loop']:.2f} s)")

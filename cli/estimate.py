@@ -437,3 +437,12 @@ def _signature() -> inspect.Signature:
 
 estimate.__signature__ = _signature()  # type: ignore[attr-defined]
 app.command()(estimate)
+
+
+def estimator_options_markdown() -> str:
+    """The estimator-parameter table of docs/usage.md (a test keeps the doc equal to this)."""
+    rows = ["| option | config key | type | default | meaning |", "|---|---|---|---|---|"]
+    for name, kind, default, help_text in EstimatorConfig.parameters():
+        meaning = help_text.replace("|", "/")
+        rows.append(f"| `{option_name(name)}` | `{name}` | {kind.__name__} | {default} | {meaning} |")
+    return "\n".join(rows) + "\n"
