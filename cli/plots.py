@@ -14,7 +14,8 @@ from typing import Any
 import numpy as np
 
 from aslam.core.metrics import Evaluation
-from aslam.data_formats.report import dead_reckoning, is_loop_closure_link, write_atomically
+from aslam.data_formats.files import write_atomically
+from aslam.data_formats.report import dead_reckoning, is_loop_closure_link
 
 DPI = 120
 

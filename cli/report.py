@@ -115,12 +115,8 @@ def run_report(
 
     from aslam.core.metrics import evaluate
     from aslam.data_formats.estimate import iter_keyframes, read_estimate
-    from aslam.data_formats.report import (
-        build_graph_json,
-        build_summary,
-        failed_conditions,
-        write_atomically,
-    )
+    from aslam.data_formats.files import write_atomically
+    from aslam.data_formats.report import build_graph_json, build_summary, failed_conditions
 
     info = read_estimate(estimate)
     steps = []

@@ -14,7 +14,6 @@ this package. ``EstimateWriter`` writes under a temporary name and renames when 
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Iterator, Mapping
 from contextlib import closing
 from dataclasses import asdict, dataclass
@@ -25,6 +24,7 @@ from typing import IO, Any, NamedTuple
 from aslam.core.errors import InputError
 from aslam.core.estimator import EstimateResult, StepResult
 from aslam.core.tree import Hypothesis
+from aslam.data_formats import files
 
 ESTIMATE_METADATA = "aslam.estimate"
 TIMING_METADATA = "aslam.timing"
@@ -34,7 +34,7 @@ KEYFRAME_SCHEMA_NAME = "aslam.Keyframe"
 GRAPH_SCHEMA_NAME = "aslam.Graph"
 FORMAT_VERSION = "1"
 CHUNK_SIZE_BYTES = 256 * 1024
-MAGIC = b"\x89MCAP0\r\n"
+MAGIC = files.MCAP_MAGIC
 
 
 class EstimateError(InputError):
@@ -265,19 +265,9 @@ def graph_message(result: EstimateResult) -> dict[str, Any]:
 # --- writing -------------------------------------------------------------------------------------
 
 
-def partial_name(path: Path) -> Path:
-    """Where a file lives until it is complete: a hidden name in the same folder."""
-    return path.with_name(f".{path.name}.partial-{os.getpid()}")
-
-
 def check_output_path(path: Path, *, force: bool) -> None:
     """Fail early (before any work) when ``path`` cannot or must not be written."""
-    if path.is_dir():
-        raise EstimateError("is a directory", path=path)
-    if path.exists() and not force:
-        raise EstimateError("already exists; refusing to overwrite it (use --force)", path=path)
-    if not path.parent.is_dir():
-        raise EstimateError(f"folder {path.parent} does not exist", path=path)
+    files.check_output_path(path, force=force, error=EstimateError)
 
 
 class EstimateWriter:
@@ -292,13 +282,9 @@ class EstimateWriter:
         from mcap.writer import CompressionType, Writer
 
         self.path = Path(path)
-        check_output_path(self.path, force=force)
-        self.partial_path = partial_name(self.path)
-        try:
-            self._file: IO[bytes] = self.partial_path.open("wb")
-        except OSError as err:
-            raise EstimateError(f"cannot write: {err.strerror or err}", path=self.path) from err
-        self._done = False
+        self._output = files.AtomicFile(self.path, force=force, error=EstimateError)
+        self.partial_path = self._output.partial_path
+        self._file = self._output.file
         try:
             self._writer = Writer(self._file, chunk_size=CHUNK_SIZE_BYTES, compression=CompressionType.ZSTD)
             self._writer.start(profile="", library=f"aslam {tool_version}")
@@ -322,7 +308,7 @@ class EstimateWriter:
     def __exit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
-        if not self._done:
+        if not self._output.closed:
             self.abort()
 
     def _add(self, channel: int, stamp_ns: int, message: dict[str, Any]) -> None:
@@ -350,43 +336,30 @@ class EstimateWriter:
             if timing is not None:
                 self._writer.add_metadata(TIMING_METADATA, timing.as_record())
             self._writer.finish()
-            self._file.close()
-            os.replace(self.partial_path, self.path)
         except OSError as err:
             self.abort()
             raise EstimateError(f"cannot write: {err.strerror or err}", path=self.path) from err
         except BaseException:
             self.abort()
             raise
-        self._done = True
+        self._output.commit()
 
     def abort(self) -> None:
         """Drop the partial file; nothing is left under the final name."""
-        self._done = True
-        try:
-            self._file.close()
-        finally:
-            self.partial_path.unlink(missing_ok=True)
+        self._output.abort()
 
 
 # --- reading -------------------------------------------------------------------------------------
 
 
 def _check_path(path: Path) -> int:
-    if not path.exists():
-        raise EstimateError("no such file", path=path)
-    if path.is_dir():
-        raise EstimateError("is a directory, not an estimate file", path=path)
+    size = files.check_mcap_input(path, error=EstimateError, what="an estimate file")
     try:
-        size = path.stat().st_size
         with path.open("rb") as f:
-            head = f.read(len(MAGIC))
             f.seek(max(size - len(MAGIC), 0))
             tail = f.read(len(MAGIC))
     except OSError as err:
         raise EstimateError(f"cannot read: {err.strerror or err}", path=path) from err
-    if head != MAGIC:
-        raise EstimateError("not an MCAP file (bad magic bytes at the start)", path=path)
     if tail != MAGIC or size < 2 * len(MAGIC):
         raise EstimateError(
             "incomplete MCAP file (no trailing magic); was the estimate cut short?", path=path

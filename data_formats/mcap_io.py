@@ -11,7 +11,6 @@ everything intact before it is kept. Every exception from the mcap libraries bec
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,9 +22,10 @@ from mcap.records import Channel, Chunk, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.summary import Summary
 
+from aslam.data_formats.files import MCAP_MAGIC as MAGIC
+from aslam.data_formats.files import check_mcap_input
 from aslam.data_formats.recording import RecordingError
 
-MAGIC = b"\x89MCAP0\r\n"
 _FOOTER_RECORD_SIZE = 1 + 8 + 8 + 8 + 4  # opcode, length, summary_start, summary_offset_start, crc
 
 
@@ -70,21 +70,7 @@ class Truncation:
 
 def check_recording_path(path: Path) -> int:
     """The size of ``path`` after checking it is a readable, non-empty file that starts like MCAP."""
-    if not path.exists():
-        raise RecordingError("no such file", path=path)
-    if path.is_dir():
-        raise RecordingError("is a directory, not an MCAP file", path=path)
-    try:
-        size = path.stat().st_size
-        with path.open("rb") as f:
-            head = f.read(len(MAGIC))
-    except OSError as err:
-        raise RecordingError(f"cannot read: {err.strerror or err}", path=path) from err
-    if size == 0:
-        raise RecordingError("empty file (0 bytes), not an MCAP recording", path=path)
-    if head != MAGIC:
-        raise RecordingError("not an MCAP file (bad magic bytes at the start)", path=path)
-    return size
+    return check_mcap_input(path, error=RecordingError, what="an MCAP recording")
 
 
 class McapSource:
@@ -285,8 +271,3 @@ class McapSource:
             raise
         except Exception as err:
             raise self._error("corrupt metadata record", err) from err
-
-
-def partial_name(path: Path) -> Path:
-    """Where a writer puts ``path`` until it is complete: a hidden name in the same folder."""
-    return path.with_name(f".{path.name}.partial-{os.getpid()}")

@@ -11,7 +11,6 @@ command can name these types in its signature without slowing ``aslam --help``.
 from __future__ import annotations
 
 import math
-import os
 import threading
 from bisect import bisect_right
 from collections import deque
@@ -282,25 +281,16 @@ class RecordingWriter:
     ) -> None:
         from mcap_ros2.writer import Writer
 
-        from aslam.data_formats.mcap_io import partial_name
+        from aslam.data_formats.files import AtomicFile
 
         self.path = Path(path)
         self.camera = camera
-        if self.path.is_dir():
-            raise RecordingError("is a directory", path=self.path)
-        if self.path.exists() and not force:
-            raise RecordingError("already exists; refusing to overwrite it (use --force)", path=self.path)
-        if not self.path.parent.is_dir():
-            raise RecordingError(f"folder {self.path.parent} does not exist", path=self.path)
         for key, value in metadata.items():
             if not isinstance(key, str) or not isinstance(value, str):
                 raise TypeError(f"metadata must map str to str, got {key!r}: {value!r}")
-        self.partial_path = partial_name(self.path)
-        try:
-            self._file = self.partial_path.open("wb")
-        except OSError as err:
-            raise RecordingError(f"cannot write: {err.strerror or err}", path=self.path) from err
-        self._closed = False
+        self._output = AtomicFile(self.path, force=force, error=RecordingError)
+        self.partial_path = self._output.partial_path
+        self._file = self._output.file
         self._last_stamp_ns: int | None = None
         self.frames_written = 0
         try:
@@ -343,7 +333,7 @@ class RecordingWriter:
         ground_truth_pose: np.ndarray | None,
     ) -> None:
         """One camera frame with the odometry pose (and true pose) at the same stamp."""
-        if self._closed:
+        if self._output.closed:
             raise RuntimeError(f"{self.path}: write() after the writer was closed")
         stamp_ns = int(stamp_ns)
         if stamp_ns < 0:
@@ -422,27 +412,21 @@ class RecordingWriter:
 
     def close(self) -> None:
         """Finish the file and move it to its final name."""
-        if self._closed:
+        if self._output.closed:
             return
         try:
             self._writer.finish()
-            self._file.close()
-            os.replace(self.partial_path, self.path)
         except OSError as err:
             self.abort()
             raise RecordingError(f"cannot write: {err.strerror or err}", path=self.path) from err
         except BaseException:
             self.abort()
             raise
-        self._closed = True
+        self._output.commit()
 
     def abort(self) -> None:
         """Drop the partial file; nothing is left under the final name."""
-        self._closed = True
-        try:
-            self._file.close()
-        finally:
-            self.partial_path.unlink(missing_ok=True)
+        self._output.abort()
 
 
 # --- reading ------------------------------------------------------------------------------------

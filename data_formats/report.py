@@ -4,24 +4,21 @@
 * ``build_summary`` turns an :class:`~aslam.core.metrics.Evaluation` into the summary JSON
   (``docs/usage.md``), whose leaves ``--fail-on`` conditions test (``parse_condition``);
 * ``build_graph_json`` is the map as documented in ``docs/graph-json.md``;
-* ``write_atomically`` writes any output under a temporary name and renames it when complete.
 """
 
 from __future__ import annotations
 
 import math
 import operator
-import os
 import re
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from aslam.core import se2
-from aslam.core.errors import ConfigError, InputError
+from aslam.core.errors import ConfigError
 from aslam.core.metrics import Evaluation
 
 GRAPH_JSON_VERSION = 1
@@ -300,20 +297,3 @@ def is_loop_closure_link(a: int, b: int) -> bool:
 
 
 # --- files -----------------------------------------------------------------------------------------
-
-
-def write_atomically(path: Path, write: Callable[[Path], None]) -> None:
-    """Call ``write(temporary_path)``, then rename to ``path``; on failure nothing appears at ``path``."""
-    path = Path(path)
-    if path.is_dir():
-        raise InputError("is a directory", path=path)
-    if not path.parent.is_dir():
-        raise InputError(f"folder {path.parent} does not exist", path=path)
-    temporary = path.with_name(f".{path.name}.partial-{os.getpid()}")
-    try:
-        write(temporary)
-        os.replace(temporary, path)
-    except OSError as err:
-        raise InputError(f"cannot write: {err.strerror or err}", path=path) from err
-    finally:
-        temporary.unlink(missing_ok=True)

@@ -137,13 +137,13 @@ def record(
     leaves nothing under ``output``.  Rendering runs in this thread; PNG/JPEG encoding and writing
     run in one helper thread, in frame order, so the output is deterministic.
     """
+    from aslam.data_formats.files import check_output_path
     from aslam.data_formats.recording import CameraIntrinsics, ImageFormat, RecordingWriter, encode_image
     from aslam.recorder.render import PyrenderRenderer
 
     started = time.perf_counter()
     output = Path(output)
-    if output.exists() and not force:  # the writer checks too; failing here skips the slow set-up
-        raise InputError("already exists; refusing to overwrite it (use --force)", path=output)
+    check_output_path(output, force=force)  # the writer checks too; failing here skips the slow set-up
     p = plan(config)
     cam = config.camera
     intrinsics = CameraIntrinsics(width_px=cam.width_px, height_px=cam.height_px, fov_deg=cam.fov_deg)
