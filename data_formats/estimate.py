@@ -330,19 +330,15 @@ class EstimateWriter:
 
     def finish(self, result: EstimateResult, metadata: EstimateMetadata, timing: Timing | None) -> None:
         """Write the graph and the metadata, close, and move the file to its final name."""
-        try:
+
+        def last_writes() -> None:
             self._add(self._graph_channel, self._last_stamp_ns, graph_message(result))
             self._writer.add_metadata(ESTIMATE_METADATA, metadata.as_record())
             if timing is not None:
                 self._writer.add_metadata(TIMING_METADATA, timing.as_record())
             self._writer.finish()
-        except OSError as err:
-            self.abort()
-            raise EstimateError(f"cannot write: {err.strerror or err}", path=self.path) from err
-        except BaseException:
-            self.abort()
-            raise
-        self._output.commit()
+
+        self._output.commit(finish=last_writes)
 
     def abort(self) -> None:
         """Drop the partial file; nothing is left under the final name."""

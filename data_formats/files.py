@@ -65,9 +65,14 @@ class AtomicFile:
             raise error(f"cannot write: {err.strerror or err}", path=self.path) from err
         self.closed = False
 
-    def commit(self) -> None:
-        """Close and rename to the final name; on failure nothing is left behind."""
+    def commit(self, finish: Callable[[], None] | None = None) -> None:
+        """Run ``finish`` (the last writes), close, and rename to the final name.
+
+        On any failure, or an interrupt, the partial file is removed and nothing is left behind.
+        """
         try:
+            if finish is not None:
+                finish()
             self.file.close()
             os.replace(self.partial_path, self.path)
         except OSError as err:

@@ -412,17 +412,8 @@ class RecordingWriter:
 
     def close(self) -> None:
         """Finish the file and move it to its final name."""
-        if self._output.closed:
-            return
-        try:
-            self._writer.finish()
-        except OSError as err:
-            self.abort()
-            raise RecordingError(f"cannot write: {err.strerror or err}", path=self.path) from err
-        except BaseException:
-            self.abort()
-            raise
-        self._output.commit()
+        if not self._output.closed:
+            self._output.commit(finish=self._writer.finish)
 
     def abort(self) -> None:
         """Drop the partial file; nothing is left under the final name."""
