@@ -359,7 +359,8 @@ def _signature() -> inspect.Signature:
             annotation=Annotated[
                 bool,
                 typer.Option(
-                    "--paper-faithful", help="Start from the paper's estimator (one global histogram)."
+                    "--paper-faithful",
+                    help="Start from the paper's estimator (one global histogram, path-only candidates).",
                 ),
             ],
         ),
