@@ -16,6 +16,7 @@ ground truth is matched to keyframe stamps as ``aslam report`` does (``truth_at_
 
 from __future__ import annotations
 
+import itertools
 import math
 from contextlib import closing
 from dataclasses import dataclass
@@ -163,7 +164,7 @@ def tune_threshold(keyframes: Keyframes) -> tuple[float, Evaluation]:
     """
     matches = nearest_neighbours(keyframes.histograms)
     values = np.unique(matches[1][np.isfinite(matches[1])])
-    candidates = [float(values[0]) / 2] + [float(a + b) / 2 for a, b in zip(values[:-1], values[1:])]
+    candidates = [float(values[0]) / 2] + [float(a + b) / 2 for a, b in itertools.pairwise(values)]
     candidates.append(float(values[-1]) * 1.01 + 1e-9)
     best_threshold, best_eval, best_f1 = math.nan, None, -1.0
     for threshold in candidates:
