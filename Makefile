@@ -23,12 +23,18 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 
+# pyrender pins PyOpenGL 3.1.0, whose OSMesa binding is too old for pyrender's own OSMesa code;
+# 3.1.10 serves EGL and OSMesa alike, so it replaces the pin (pip would refuse it as a dependency).
+PYOPENGL := PyOpenGL==3.1.10
+
 $(VENV)/.installed: pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install -q -e .
+	$(BIN)/python -m pip install -q --no-deps '$(PYOPENGL)'
 	touch $@
 
 $(VENV)/.dev-installed: pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install -q -e '.[dev]'
+	$(BIN)/python -m pip install -q --no-deps '$(PYOPENGL)'
 	touch $@ $(VENV)/.installed
 
 demo: sysdeps $(VENV)/.installed

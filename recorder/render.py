@@ -361,11 +361,13 @@ class PyrenderRenderer:
             self._renderer = pyrender.OffscreenRenderer(camera.width_px, camera.height_px)
         except Exception as err:
             platform = os.environ.get("PYOPENGL_PLATFORM", "")
-            hint = (
-                " (try PYOPENGL_PLATFORM=osmesa with libosmesa6 installed)"
-                if platform == "egl"
-                else " (install libegl-mesa0 or libosmesa6; `make sysdeps` does it)"
-            )
+            if platform == "egl":
+                hint = " (try PYOPENGL_PLATFORM=osmesa with libosmesa6 installed)"
+            elif platform == "osmesa" and "OSMesaCreateContextAttribs" in str(err):
+                # pyrender pins PyOpenGL 3.1.0, whose OSMesa binding predates what pyrender calls.
+                hint = " (OSMesa needs PyOpenGL >= 3.1.5: `pip install --no-deps PyOpenGL==3.1.10`)"
+            else:
+                hint = " (install libegl-mesa0 or libosmesa6; `make sysdeps` does it)"
             raise RenderError(
                 f"cannot create an OpenGL context with platform {platform!r}: {err}{hint}"
             ) from err
