@@ -102,6 +102,11 @@ class EstimatorConfig:
             " + (5 m)² × heading variance) exceeds this σ squared."
         ),
     )
+    search_nearness: float = _param(
+        0.05,
+        "The graph search expands states in order of uncertainty + this × (metres from where odometry"
+        " puts the robot)², so its budget is spent where revisits can be.",
+    )
     search_max_states: int = _param(
         200,
         "The graph search also stops after this many states: the cost per keyframe is bounded.",

@@ -183,8 +183,10 @@ class HypothesisTree:
         The searches are per leaf (each in its own map); the Gaussian algebra runs once over
         all their candidates together.
         """
-        search = self._search_path if self.config.candidate_search == "path" else self._search
-        searches = [search(leaf) for leaf in leaves]
+        if self.config.candidate_search == "path":
+            searches = [self._search_path(leaf) for leaf in leaves]
+        else:
+            searches = [self._search(leaf, action) for leaf in leaves]
         sizes = [len(states) for states, _ in searches]
         self._searched_sum += sum(sizes)
         if not any(sizes):
@@ -208,39 +210,57 @@ class HypothesisTree:
             start += size
         return proposals
 
-    def _search(self, leaf: Node) -> tuple[list[int], list[Rel]]:
-        """Dijkstra outward from the leaf's state through its own map, bounded by uncertainty.
+    def _search(self, leaf: Node, target: np.ndarray) -> tuple[list[int], list[Rel]]:
+        """Best-first search outward from the leaf's state through its own map.
 
         Returns the states reached and each one's pose (with covariance) seen from the leaf's
-        state, composed along the least uncertain path. The bound and the cap on states, not
-        the map's size, decide the cost.
+        state, composed along the path that reached it. A state is only reached through a path
+        whose summed link uncertainty stays within the bound, and at most ``search_max_states``
+        are expanded: those, not the map's size, decide the cost.
+
+        The order favours low uncertainty *and* nearness to ``target`` (where odometry says the
+        robot now is): priority = uncertainty + ``search_nearness`` × distance². In a dense map
+        the budget is then spent around the robot, where revisits can be, instead of far down
+        cheap straight corridors.
         """
         overlay = self._suffix_overlay(leaf)
         shared = self.shared.adjacency
         start = leaf.state
-        distance: dict[int, float] = {start: 0.0}
+        tx, ty = float(target[0]), float(target[1])
+        nearness = self.config.search_nearness
+        cost_of: dict[int, float] = {start: 0.0}
         via: dict[int, tuple[int, Rel]] = {}
-        heap = [(0.0, start)]
+        pose_of: dict[int, tuple[float, float, float]] = {}
+        heap = [(nearness * (tx * tx + ty * ty), start)]
         order: list[int] = []
-        done: set[int] = set()
         limit = self.config.search_max_states
         bound = self._search_bound
         empty: dict[int, tuple[Rel, float]] = {}
         while heap and len(order) < limit:
-            cost, state = heapq.heappop(heap)
-            if state in done:
+            _, state = heapq.heappop(heap)
+            if state in pose_of:
                 continue
-            done.add(state)
+            if state == start:
+                x, y, yaw = 0.0, 0.0, 0.0
+            else:
+                previous, edge = via[state]
+                px, py, pyaw = pose_of[previous]
+                c, s = math.cos(pyaw), math.sin(pyaw)
+                x, y, yaw = px + c * edge[0] - s * edge[1], py + s * edge[0] + c * edge[1], pyaw + edge[2]
+            pose_of[state] = (x, y, yaw)
             order.append(state)
+            cost = cost_of[state]
+            c, s = math.cos(yaw), math.sin(yaw)
             for edges in (shared.get(state, empty).items(), overlay.get(state, ())):
                 for neighbour, (edge, weight) in edges:
                     total = cost + weight
-                    if total > bound or neighbour in done:
+                    if total > bound or neighbour in pose_of or total >= cost_of.get(neighbour, math.inf):
                         continue
-                    if total < distance.get(neighbour, math.inf):
-                        distance[neighbour] = total
-                        via[neighbour] = (state, edge)
-                        heapq.heappush(heap, (total, neighbour))
+                    cost_of[neighbour] = total
+                    via[neighbour] = (state, edge)
+                    dx = x + c * edge[0] - s * edge[1] - tx
+                    dy = y + s * edge[0] + c * edge[1] - ty
+                    heapq.heappush(heap, (total + nearness * (dx * dx + dy * dy), neighbour))
         rels: dict[int, Rel] = {start: IDENTITY_REL}
         for state in order[1:]:  # a state's predecessor is always finished before it
             previous, edge = via[state]

@@ -206,3 +206,24 @@ def test_paper_faithful_path_search_also_relocalises():
     lap = 34
     assert all(r.best.is_new_state for r in results[1:lap])
     assert all(r.best.state == (r.keyframe - lap) % lap for r in results[lap:])
+
+
+def test_a_dense_map_is_revisited_from_new_directions_without_duplicate_places():
+    """A random walk on a small grid keeps entering known places from new directions; the search
+    must reach them (it spends its budget near the robot) rather than invent duplicates."""
+    rng = np.random.default_rng(7)
+    world = SyntheticWorld(7)
+    estimator = Estimator(synthetic_config())
+    truth = np.zeros(3)
+    estimator.add_keyframe(0, np.zeros(3), world.observe(truth))
+    for k in range(1, 1200):
+        ahead = se2.compose(truth, np.array([1.0, 0.0, 0.0]))
+        blocked = not (0 <= round(ahead[0]) < 8 and 0 <= round(ahead[1]) < 8)
+        turn = blocked or rng.random() < 0.25
+        action = (
+            np.array([0.0, 0.0, math.pi / 2 * rng.choice([-1.0, 1.0])]) if turn else np.array([1.0, 0.0, 0.0])
+        )
+        truth = se2.compose(truth, action)
+        estimator.add_keyframe(k, action * (1 + 0.03 * rng.standard_normal(3)), world.observe(truth))
+    places = len(world.places)
+    assert places <= len(estimator.result().states) <= places * 1.02
