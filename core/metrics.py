@@ -100,11 +100,14 @@ def ground_truth_revisits(true_poses: np.ndarray, radius_m: float, heading_deg: 
     revisit = np.zeros(n, dtype=bool)
     cells: dict[tuple[int, int], list[int]] = {}
     heading_rad = math.radians(heading_deg)
+    # Cells a hair larger than the radius: points whose rounded distance equals the radius
+    # always share or neighbour a cell.
+    cell = radius_m * (1.0 + 1e-9)
     for t in range(n):
         x, y, yaw = true_poses[t]
         if not np.isfinite(true_poses[t]).all():
             continue
-        cx, cy = math.floor(x / radius_m), math.floor(y / radius_m)
+        cx, cy = math.floor(x / cell), math.floor(y / cell)
         for i in (cx - 1, cx, cx + 1):
             for j in (cy - 1, cy, cy + 1):
                 for earlier in cells.get((i, j), ()):

@@ -100,6 +100,7 @@ class HypothesisTree:
             [config.place_radius_m**2, config.place_radius_m**2, math.radians(config.place_heading_deg) ** 2]
         )
         self._place_logdet = float(np.linalg.slogdet(self._place_cov)[1])
+        self._place_trace = float(np.trace(self._place_cov))
         self._visit_cov = np.diag(
             [config.visit_sigma_m**2, config.visit_sigma_m**2, math.radians(config.visit_sigma_deg) ** 2]
         )
@@ -186,9 +187,8 @@ class HypothesisTree:
         if self.config.candidate_search == "path":
             searches = [self._search_path(leaf) for leaf in leaves]
         else:
-            searches = [self._search(leaf, action) for leaf in leaves]
+            searches = [self._search(leaf, action, action_cov) for leaf in leaves]
         sizes = [len(states) for states, _ in searches]
-        self._searched_sum += sum(sizes)
         if not any(sizes):
             return [(np.zeros(0, np.int64), np.zeros(0)) for _ in leaves]
         table = np.array([rel for _, found in searches for rel in found])
@@ -210,62 +210,88 @@ class HypothesisTree:
             start += size
         return proposals
 
-    def _search(self, leaf: Node, target: np.ndarray) -> tuple[list[int], list[Rel]]:
+    def _search(self, leaf: Node, action: np.ndarray, action_cov: np.ndarray) -> tuple[list[int], list[Rel]]:
         """Best-first search outward from the leaf's state through its own map.
 
-        Returns the states reached and each one's pose (with covariance) seen from the leaf's
-        state, composed along the path that reached it. A state is only reached through a path
-        whose summed link uncertainty stays within the bound, and at most ``search_max_states``
-        are expanded: those, not the map's size, decide the cost.
+        Returns the states that may pass the motion gate and each one's pose (with covariance)
+        seen from the leaf's state, composed along the path that reached it. A state is reached
+        only through paths whose summed link uncertainty stays within the bound, and at most
+        ``search_max_states`` are expanded: those, not the map's size, decide the cost.
 
-        The order favours low uncertainty *and* nearness to ``target`` (where odometry says the
-        robot now is): priority = uncertainty + ``search_nearness`` × distance². In a dense map
-        the budget is then spent around the robot, where revisits can be, instead of far down
-        cheap straight corridors.
+        The order favours low uncertainty *and* nearness to where odometry says the robot now is
+        (priority = uncertainty + ``search_nearness`` × distance²): in a dense map the budget is
+        spent around the robot, where revisits can be, not far down cheap straight corridors.
+
+        Full covariances are composed only for states that can pass the gate. Along the way each
+        state carries its pose and two scalars: the heading variance ``V`` (exact) and an upper
+        bound ``U`` on √(trace of the position covariance). Composing a link of length ℓ gives
+        ``U' ≤ √((U + ℓ√V)² + tr Σ_link,pos)`` (Cauchy–Schwarz on the SE(2) Jacobian); the residual
+        of a state at distance D from the prediction then has covariance trace at most
+        ``(U + D√V)² + V + tr Σ_u + tr Σ_place``, and ``m² ≥ |d|² / trace``.
         """
         overlay = self._suffix_overlay(leaf)
         shared = self.shared.adjacency
         start = leaf.state
-        tx, ty = float(target[0]), float(target[1])
+        tx, ty, tyaw = float(action[0]), float(action[1]), float(action[2])
+        fixed_trace = float(np.trace(action_cov)) + self._place_trace
+        gate = self._gate
         nearness = self.config.search_nearness
         cost_of: dict[int, float] = {start: 0.0}
         via: dict[int, tuple[int, Rel]] = {}
-        pose_of: dict[int, tuple[float, float, float]] = {}
+        reached: dict[int, tuple[float, float, float, float, float]] = {}  # x, y, yaw, U, V
         heap = [(nearness * (tx * tx + ty * ty), start)]
-        order: list[int] = []
+        expanded = 0
+        candidates: list[int] = []
         limit = self.config.search_max_states
         bound = self._search_bound
         empty: dict[int, tuple[Rel, float]] = {}
-        while heap and len(order) < limit:
+        while heap and expanded < limit:
             _, state = heapq.heappop(heap)
-            if state in pose_of:
+            if state in reached:
                 continue
             if state == start:
-                x, y, yaw = 0.0, 0.0, 0.0
+                x = y = yaw = u_bound = v = 0.0
             else:
                 previous, edge = via[state]
-                px, py, pyaw = pose_of[previous]
+                px, py, pyaw, pu, pv = reached[previous]
                 c, s = math.cos(pyaw), math.sin(pyaw)
                 x, y, yaw = px + c * edge[0] - s * edge[1], py + s * edge[0] + c * edge[1], pyaw + edge[2]
-            pose_of[state] = (x, y, yaw)
-            order.append(state)
+                grown = pu + math.hypot(edge[0], edge[1]) * math.sqrt(pv)
+                u_bound = math.sqrt(grown * grown + edge[3] + edge[6])
+                v = pv + edge[8]
+            reached[state] = (x, y, yaw, u_bound, v)
+            expanded += 1
+            dx, dy = tx - x, ty - y
+            distance2 = dx * dx + dy * dy
+            dyaw = (tyaw - yaw + math.pi) % (2.0 * math.pi) - math.pi
+            spread = u_bound + math.sqrt(distance2 * v)
+            if distance2 + dyaw * dyaw <= gate * (spread * spread + v + fixed_trace):
+                candidates.append(state)
             cost = cost_of[state]
             c, s = math.cos(yaw), math.sin(yaw)
             for edges in (shared.get(state, empty).items(), overlay.get(state, ())):
                 for neighbour, (edge, weight) in edges:
                     total = cost + weight
-                    if total > bound or neighbour in pose_of or total >= cost_of.get(neighbour, math.inf):
+                    if total > bound or neighbour in reached or total >= cost_of.get(neighbour, math.inf):
                         continue
                     cost_of[neighbour] = total
                     via[neighbour] = (state, edge)
-                    dx = x + c * edge[0] - s * edge[1] - tx
-                    dy = y + s * edge[0] + c * edge[1] - ty
-                    heapq.heappush(heap, (total + nearness * (dx * dx + dy * dy), neighbour))
+                    ex = x + c * edge[0] - s * edge[1] - tx
+                    ey = y + s * edge[0] + c * edge[1] - ty
+                    heapq.heappush(heap, (total + nearness * (ex * ex + ey * ey), neighbour))
+        self._searched_sum += expanded
         rels: dict[int, Rel] = {start: IDENTITY_REL}
-        for state in order[1:]:  # a state's predecessor is always finished before it
-            previous, edge = via[state]
-            rels[state] = compose_rel(rels[previous], edge)
-        return order, [rels[s] for s in order]
+
+        def rel_of(state: int) -> Rel:  # composed along the search tree, memoised
+            chain = []
+            while state not in rels:
+                chain.append(state)
+                state = via[state][0]
+            for node in reversed(chain):
+                rels[node] = compose_rel(rels[via[node][0]], via[node][1])
+            return rels[chain[0]] if chain else rels[state]
+
+        return candidates, [rel_of(state) for state in candidates]
 
     def _search_path(self, leaf: Node) -> tuple[list[int], list[Rel]]:
         """The paper's transition: trace the leaf's own path back in time, composing its actions.
