@@ -91,7 +91,3 @@ class GrowableArray:
     @property
     def view(self) -> np.ndarray:
         return self._data[: self._size]
-
-    @property
-    def nbytes(self) -> int:
-        return self._data.nbytes

@@ -28,7 +28,6 @@ from aslam.core.motion import (
     compose_rel,
     inverse_rel,
     link_weight,
-    rel_covariance,
     revisit_residuals,
     to_rel,
 )
@@ -435,7 +434,3 @@ def _recent_states(node: Node | None, count: int) -> tuple[int, ...]:
 def _flat(covariance: np.ndarray) -> list[float]:
     c = covariance
     return [c[0, 0], c[0, 1], c[0, 2], c[1, 1], c[1, 2], c[2, 2]]
-
-
-def rel_to_pose_and_covariance(rel: Rel) -> tuple[np.ndarray, np.ndarray]:
-    return np.array(rel[:3]), rel_covariance(rel)
