@@ -65,7 +65,7 @@ def report(
         float, typer.Option(help="A revisit is within this distance of the earlier true position (m).")
     ] = 0.5,
     heading_deg: Annotated[
-        float, typer.Option(help="... and within this difference of true heading (degrees).")
+        float, typer.Option(help="A revisit is within this difference of the earlier true heading (degrees).")
     ] = 45.0,
 ) -> None:
     """Score an estimate against the recording's ground truth: tables, graph JSON, plots, gates.
