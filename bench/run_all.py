@@ -42,7 +42,7 @@ import scenarios
 from scenarios import ROOT, Scenario
 
 from aslam.core.config import EstimatorConfig
-from aslam.core.metrics import Evaluation, evaluate
+from aslam.core.metrics import Evaluation, evaluate, true_runs
 from aslam.data_formats.report import build_summary
 
 BENCH = ROOT / "bench"
@@ -839,15 +839,7 @@ def write_doc(
 
 def spans(mask: np.ndarray) -> str:
     """'38–43, 50–52' for the runs of True in ``mask``."""
-    out, t, n = [], 0, len(mask)
-    while t < n:
-        if not mask[t]:
-            t += 1
-            continue
-        start = t
-        while t < n and mask[t]:
-            t += 1
-        out.append(str(start) if t - 1 == start else f"{start}–{t - 1}")
+    out = [str(start) if stop - 1 == start else f"{start}–{stop - 1}" for start, stop in true_runs(mask)]
     return ", ".join(out) if out else "nowhere"
 
 

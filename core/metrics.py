@@ -179,17 +179,16 @@ def evaluate(
     )
 
 
+def true_runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """(start, stop) of each maximal run of True in ``mask``, stop exclusive."""
+    padded = np.concatenate([[False], np.asarray(mask, dtype=bool), [False]])
+    edges = np.flatnonzero(padded[1:] != padded[:-1])
+    return [(int(start), int(stop)) for start, stop in zip(edges[::2], edges[1::2], strict=True)]
+
+
 def _episodes(true_revisit: np.ndarray, correct: np.ndarray) -> tuple[Episode, ...]:
     episodes = []
-    t = 0
-    n = len(true_revisit)
-    while t < n:
-        if not true_revisit[t]:
-            t += 1
-            continue
-        start = t
-        while t < n and true_revisit[t]:
-            t += 1
-        hits = np.flatnonzero(correct[start:t])
-        episodes.append(Episode(start, t - start, int(hits[0]) if hits.size else None))
+    for start, stop in true_runs(true_revisit):
+        hits = np.flatnonzero(correct[start:stop])
+        episodes.append(Episode(start, stop - start, int(hits[0]) if hits.size else None))
     return tuple(episodes)

@@ -73,3 +73,16 @@ def test_without_ground_truth_only_counts():
     assert result.precision is None and result.recall is None and result.first_delay is None
     assert result.claims.tolist() == [False, True]
     assert result.hypothesis_counts.tolist() == [1, 2]
+
+
+@given(st.lists(st.booleans(), max_size=30))
+def test_true_runs_are_the_maximal_runs(flags):
+    from aslam.core.metrics import true_runs
+
+    mask = np.array(flags, dtype=bool)
+    rebuilt = np.zeros(len(mask), dtype=bool)
+    for start, stop in true_runs(mask):
+        assert start < stop and mask[start:stop].all()
+        assert (start == 0 or not mask[start - 1]) and (stop == len(mask) or not mask[stop])
+        rebuilt[start:stop] = True
+    assert (rebuilt == mask).all()
