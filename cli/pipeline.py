@@ -63,7 +63,6 @@ def keyframe_histograms(
     histogram: HistogramConfig,
     *,
     counts: PipelineCounts | None = None,
-    on_sample: Callable[[], None] | None = None,
     workers: int = DEFAULT_WORKERS,
     depth: int = DEFAULT_DEPTH,
 ) -> Iterator[Keyframe]:
@@ -89,8 +88,6 @@ def keyframe_histograms(
                 while pending and pending[0][3].done():
                     yield _take(pending)
                     counts.keyframes += 1
-            if on_sample is not None:
-                on_sample()
         while pending:
             yield _take(pending)
             counts.keyframes += 1
@@ -184,13 +181,12 @@ def run_estimate(
     estimator: Estimator,
     *,
     counts: PipelineCounts | None = None,
-    on_sample: Callable[[], None] | None = None,
     workers: int = DEFAULT_WORKERS,
     depth: int = DEFAULT_DEPTH,
 ) -> Iterator[StepResult]:
     """Feed ``samples`` through ``estimator``; one ``StepResult`` per keyframe, in order."""
     counts = counts if counts is not None else PipelineCounts()
-    if can_fork() and on_sample is None:
+    if can_fork():
         keyframes = keyframes_from_child_process(
             samples,
             estimator.wants_image,
@@ -205,7 +201,6 @@ def run_estimate(
             estimator.wants_image,
             estimator.config.histogram,
             counts=counts,
-            on_sample=on_sample,
             workers=workers,
             depth=depth,
         )
