@@ -186,24 +186,15 @@ def run_estimate(
 ) -> Iterator[StepResult]:
     """Feed ``samples`` through ``estimator``; one ``StepResult`` per keyframe, in order."""
     counts = counts if counts is not None else PipelineCounts()
-    if can_fork():
-        keyframes = keyframes_from_child_process(
-            samples,
-            estimator.wants_image,
-            estimator.config.histogram,
-            counts=counts,
-            workers=workers,
-            depth=depth,
-        )
-    else:
-        keyframes = keyframe_histograms(
-            samples,
-            estimator.wants_image,
-            estimator.config.histogram,
-            counts=counts,
-            workers=workers,
-            depth=depth,
-        )
+    produce = keyframes_from_child_process if can_fork() else keyframe_histograms
+    keyframes = produce(
+        samples,
+        estimator.wants_image,
+        estimator.config.histogram,
+        counts=counts,
+        workers=workers,
+        depth=depth,
+    )
     try:
         for keyframe in keyframes:
             start = time.perf_counter()
