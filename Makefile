@@ -41,7 +41,7 @@ demo: sysdeps $(VENV)/.installed
 	@mkdir -p $(DEMO)
 	$(BIN)/aslam record --route paper -o $(DEMO)/paper.mcap --force --contact-sheet $(DEMO)/contact-sheet.png
 	$(BIN)/aslam estimate $(DEMO)/paper.mcap -o $(DEMO)/estimate.mcap --force
-	$(BIN)/aslam report $(DEMO)/estimate.mcap --graph $(DEMO)/graph.json --plots $(DEMO)/plots --json $(DEMO)/summary.json
+	$(BIN)/aslam report $(DEMO)/estimate.mcap --force --graph $(DEMO)/graph.json --plots $(DEMO)/plots --json $(DEMO)/summary.json
 
 test: sysdeps $(VENV)/.dev-installed
 	$(BIN)/ruff check .

@@ -1,7 +1,7 @@
 """Estimate wall time against its floor, measured in one run.
 
 floor    = the same pipeline without SLAM: read the MCAP, keyframe test, decode keyframe images,
-           compute histograms (``aslam.cli.pipeline.run_floor``);
+           compute histograms (``aslam.app.pipeline.run_floor``);
 estimate = ``aslam estimate`` in-process (pipeline + SLAM + writing the estimate file + hashing).
 
 Target: estimate ≤ 1.25 × floor. Runs alternate (floor, estimate, floor, ...) and the best of
@@ -22,12 +22,13 @@ import tempfile
 import time
 from pathlib import Path
 
-from aslam.cli.app import main
-from aslam.cli.estimate import run_estimate_command
-from aslam.cli.pipeline import DEFAULT_WORKERS, run_floor
+from aslam.app.estimate import estimate
+from aslam.app.pipeline import run_floor
 from aslam.core.config import EstimatorConfig
 from aslam.core.estimator import Estimator
-from aslam.data_formats.recording import iter_samples
+from aslam.data_formats.recording import Recording
+from aslam.recorder.config import RecordConfig
+from aslam.recorder.record import record
 
 CACHE = Path(__file__).resolve().parent / ".cache"
 
@@ -37,31 +38,21 @@ def recording_for(laps: int, fps: float) -> Path:
     if not path.exists():
         CACHE.mkdir(exist_ok=True)
         print(f"rendering {path.name} (once) ...", file=sys.stderr)
-        code = main(["record", "--route", "paper", "--laps", str(laps), "--fps", str(fps), "-o", str(path)])
-        if code != 0:
-            raise SystemExit(f"aslam record failed with exit code {code}")
+        record(RecordConfig(route="paper", laps=laps, fps=fps), path)
     return path
 
 
 def time_floor(recording: Path, config: EstimatorConfig) -> tuple[float, int]:
     start = time.perf_counter()
-    keyframes = run_floor(iter_samples(recording), Estimator(config))
+    keyframes = run_floor(Recording(recording).samples(), Estimator(config))
     return time.perf_counter() - start, keyframes
 
 
 def time_estimate(recording: Path, output: Path, config: EstimatorConfig) -> float:
-    """The estimate command's whole body (open, stream, SLAM, hash, write, rename), without the
+    """The estimate's whole body (open, stream, SLAM, hash, write, rename), without the
     command-line parsing and interpreter start-up that the in-process floor does not pay either."""
     start = time.perf_counter()
-    run_estimate_command(
-        recording,
-        output,
-        config,
-        topics_given={"image": None, "odometry": None, "ground_truth": None},
-        force=True,
-        timing=False,
-        workers=DEFAULT_WORKERS,
-    )
+    estimate(recording, output, config, force=True, timing=False)
     return time.perf_counter() - start
 
 
@@ -70,12 +61,12 @@ def time_parts(recording: Path, config: EstimatorConfig, repeats: int) -> dict[s
     the SLAM steps on precomputed histograms, and the SHA-256 of the recording."""
     from contextlib import closing
 
-    from aslam.cli.pipeline import keyframe_histograms
+    from aslam.app.pipeline import keyframe_histograms
     from aslam.core.estimator import Keyframer
 
     keyframer = Keyframer(config.step_m, config.turn_deg, config.keyframe_slack)
     with closing(
-        keyframe_histograms(iter_samples(recording), keyframer.action_if_keyframe, config.histogram)
+        keyframe_histograms(Recording(recording).samples(), keyframer.action_if_keyframe, config.histogram)
     ) as stream:
         keyframes = list(stream)
     slam, sha = float("inf"), float("inf")

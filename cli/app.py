@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import os
 import sys
-from importlib.metadata import PackageNotFoundError, version
 from typing import Annotated
 
 import typer
+import typer.core
 
 from aslam.core.errors import AslamError
+from aslam.data_formats.provenance import tool_version
 
 EXIT_OK = 0
 EXIT_BAD_INPUT = 2
@@ -23,17 +24,19 @@ EXIT_INTERRUPTED = 130
 app = typer.Typer(
     name="aslam",
     no_args_is_help=True,
-    add_completion=False,
     pretty_exceptions_enable=False,
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 
+_display_type_rich = typer.core.TyperOption.display_type_rich
 
-def tool_version() -> str:
-    try:
-        return version("aslam")
-    except PackageNotFoundError:  # running from a source tree without an install
-        return "0+unknown"
+
+def _no_flag_placeholder(self: typer.core.TyperOption, ctx: typer.Context) -> str | None:
+    """Flags take no value, so the help shows none (typer would print ``<bool>``)."""
+    return None if self.is_flag else _display_type_rich(self, ctx)
+
+
+typer.core.TyperOption.display_type_rich = _no_flag_placeholder  # type: ignore[method-assign]
 
 
 def _print_version(value: bool) -> None:
@@ -57,8 +60,7 @@ def _root(
 
 
 def _register_commands() -> None:
-    import aslam.cli.info  # noqa: F401
-    from aslam.cli import estimate, record, report  # noqa: F401  (registers the commands)
+    from aslam.cli import estimate, info, record, report  # noqa: F401  (registers the commands)
 
 
 def error_line(message: str) -> None:

@@ -10,28 +10,28 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from aslam.cli.app import app
+from aslam.cli.output import (
+    GroundTruthTopicOption,
+    ImageTopicOption,
+    OdometryTopicOption,
+    QuietOption,
+    Terminal,
+    VerboseOption,
+)
 
 if TYPE_CHECKING:
     from aslam.data_formats.recording_info import RecordingInfo
-
-
-def _warning_line(message: str) -> None:
-    sys.stderr.write(f"aslam: warning: {' '.join(message.split())}\n")
-    sys.stderr.flush()
 
 
 @app.command()
 def info(
     recording: Annotated[Path, typer.Argument(help="The recording (.mcap) to read.", show_default=False)],
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object to stdout.")] = False,
-    image_topic: Annotated[
-        str | None,
-        typer.Option(help="Image topic (CompressedImage or Image). [default: /camera/image/compressed]"),
-    ] = None,
-    odometry_topic: Annotated[str | None, typer.Option(help="Odometry topic. [default: /odom]")] = None,
-    ground_truth_topic: Annotated[
-        str | None, typer.Option(help="Ground-truth pose topic. [default: /ground_truth/pose]")
-    ] = None,
+    image_topic: ImageTopicOption = None,
+    odometry_topic: OdometryTopicOption = None,
+    ground_truth_topic: GroundTruthTopicOption = None,
+    quiet: QuietOption = False,
+    verbose: VerboseOption = False,
 ) -> None:
     """Read a recording, decoding every image, and print its topics, counts, duration and metadata.
 
@@ -41,13 +41,11 @@ def info(
     from aslam.data_formats.recording import RecordingTopics
     from aslam.data_formats.recording_info import describe_recording
 
-    defaults = RecordingTopics()
-    topics = RecordingTopics(
-        image=image_topic or defaults.image,
-        odometry=odometry_topic or defaults.odometry,
-        ground_truth=ground_truth_topic or defaults.ground_truth,
+    terminal = Terminal(quiet=quiet, verbose=verbose)
+    topics = RecordingTopics.given(
+        image=image_topic, odometry=odometry_topic, ground_truth=ground_truth_topic
     )
-    result = describe_recording(recording, topics, on_warning=_warning_line)
+    result = describe_recording(recording, topics, on_warning=terminal.warning)
     if as_json:
         sys.stdout.write(json.dumps(result.as_dict(), indent=2, sort_keys=False) + "\n")
         return

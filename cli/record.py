@@ -13,6 +13,7 @@ from typing import Annotated
 import typer
 
 from aslam.cli.app import app
+from aslam.cli.output import ForceOption, QuietOption, Terminal, VerboseOption
 from aslam.recorder.config import (
     DEFAULT_CAMERA_HEIGHT_M,
     DEFAULT_FOV_DEG,
@@ -69,7 +70,9 @@ def record(
     contact_sheet: Annotated[
         Path | None, typer.Option(help="Also write a PNG grid of sample keyframes.", dir_okay=False)
     ] = None,
-    force: Annotated[bool, typer.Option("--force", help="Overwrite an existing output file.")] = False,
+    force: ForceOption = False,
+    quiet: QuietOption = False,
+    verbose: VerboseOption = False,
 ) -> None:
     """Render an indoor walkthrough along a route into an MCAP recording (images, odometry, truth)."""
     width, height = parse_size(size)
@@ -89,13 +92,13 @@ def record(
     )
     config.validate()  # before the slow imports, so bad options fail instantly
 
-    from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     from aslam.recorder.record import record as run_record
 
-    console = Console(stderr=True)
-    if not console.is_terminal:  # no bar in logs and pipes: just the summary line
+    terminal = Terminal(quiet=quiet, verbose=verbose)
+    console = terminal.console
+    if not terminal.shows_progress:  # no bar in logs, pipes or with --quiet: just the summary line
         result = run_record(config, output, force=force)
     else:
         with Progress(
@@ -113,10 +116,8 @@ def record(
 
             result = run_record(config, output, force=force, progress=on_progress)
     rate = result.frames / result.seconds if result.seconds > 0 else float("inf")
-    console.print(
+    terminal.info(
         f"wrote {result.output} ({result.frames} frames, {result.keyframes} keyframes, "
         f"{result.seconds:.1f} s, {rate:.0f} frames/s)"
-        + (f"; contact sheet {result.contact_sheet}" if result.contact_sheet else ""),
-        highlight=False,
-        soft_wrap=True,
+        + (f"; contact sheet {result.contact_sheet}" if result.contact_sheet else "")
     )

@@ -3,14 +3,12 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from aslam.core import se2
 from aslam.core.config import EstimatorConfig
-from aslam.core.features import orientation_histogram
 from aslam.core.mapgraph import SharedMap
 from aslam.core.tree import Hypothesis, HypothesisTree, TreeStats
 
@@ -89,22 +87,9 @@ class Estimator:
         self._tree = HypothesisTree(self.config, self._histogram.length)
         self._stamps: list[int] = []
 
-    def wants_image(self, odometry_pose: np.ndarray) -> np.ndarray | None:
+    def keyframe_action(self, odometry_pose: np.ndarray) -> np.ndarray | None:
         """Keyframe test without the image (so callers decode only keyframes): the action or None."""
         return self._keyframer.action_if_keyframe(odometry_pose)
-
-    def step(
-        self, stamp_ns: int, odometry_pose: np.ndarray, image: np.ndarray | Callable[[], np.ndarray]
-    ) -> StepResult | None:
-        """Feed one sample; returns a result when it became a keyframe, else None.
-
-        ``image`` may be a callable, called only for keyframes, so non-keyframes are never decoded.
-        """
-        action = self.wants_image(odometry_pose)
-        if action is None:
-            return None
-        pixels = image() if callable(image) else image
-        return self.add_keyframe(stamp_ns, action, orientation_histogram(pixels, self._histogram))
 
     def add_keyframe(self, stamp_ns: int, action: np.ndarray, observation: np.ndarray) -> StepResult:
         """The SLAM step proper, on an observation histogram: split, weigh, prune, commit."""

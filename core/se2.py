@@ -50,19 +50,14 @@ def between(a: Pose2, b: Pose2) -> Pose2:
     return compose(inverse(a), b)
 
 
-def as_matrix(a: Pose2) -> np.ndarray:
-    """Homogeneous 3×3 matrix of one pose."""
-    x, y, yaw = np.asarray(a, dtype=float)
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.array([[c, -s, x], [s, c, y], [0.0, 0.0, 1.0]])
-
-
-def from_matrix(m: np.ndarray) -> Pose2:
-    """Pose of a homogeneous 3×3 rigid-motion matrix."""
-    return np.array([m[0, 2], m[1, 2], float(np.arctan2(m[1, 0], m[0, 0]))])
-
-
 def interpolate(a: Pose2, b: Pose2, fraction: float) -> Pose2:
-    """Pose a fraction of the way from ``a`` to ``b`` (straight line, shortest turn)."""
-    delta = between(a, b)
-    return compose(a, np.asarray(delta) * float(fraction))
+    """Pose a fraction of the way from ``a`` to ``b`` (straight line, shortest turn).
+
+    The one interpolation of the tool: poses between render frames, odometry and ground truth at
+    image stamps, truth at keyframe stamps.
+    """
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    xy = a[:2] + fraction * (b[:2] - a[:2])
+    yaw = wrap_angle(a[2] + fraction * wrap_angle(b[2] - a[2]))
+    return np.array([xy[0], xy[1], float(yaw)])

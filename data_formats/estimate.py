@@ -8,7 +8,8 @@
 
 Every channel has a JSON Schema, so Foxglove and ``mcap cat --json`` can read the file without
 this package. ``EstimateWriter`` writes under a temporary name and renames when complete;
-``iter_keyframes`` streams the keyframes back and ``read_estimate`` returns the rest.
+``iter_keyframes`` streams the keyframes back and ``read_estimate`` returns the rest as the core's
+own types (``MapState``, ``MapLink``, ``Hypothesis``, ``TreeStats``).
 """
 
 from __future__ import annotations
@@ -19,12 +20,13 @@ from contextlib import closing
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any, NamedTuple
+from typing import Any, NamedTuple
 
-from aslam.core.errors import InputError
-from aslam.core.estimator import EstimateResult, StepResult
-from aslam.core.tree import Hypothesis
+from aslam.core.estimator import EstimateResult, MapLink, MapState, StepResult
+from aslam.core.tree import Hypothesis, TreeStats
 from aslam.data_formats import files
+from aslam.data_formats.errors import EstimateError
+from aslam.data_formats.mcap_file import McapFile
 
 ESTIMATE_METADATA = "aslam.estimate"
 TIMING_METADATA = "aslam.timing"
@@ -34,12 +36,6 @@ KEYFRAME_SCHEMA_NAME = "aslam.Keyframe"
 GRAPH_SCHEMA_NAME = "aslam.Graph"
 FORMAT_VERSION = "1"
 CHUNK_SIZE_BYTES = 256 * 1024
-MAGIC = files.MCAP_MAGIC
-
-
-class EstimateError(InputError):
-    """An estimate file that cannot be read or written; the message is ``PATH: problem`` (exit 2)."""
-
 
 # --- schemas ---------------------------------------------------------------------------------------
 
@@ -205,11 +201,21 @@ class EstimateKeyframe(NamedTuple):
 
 
 @dataclass(frozen=True)
+class EstimateGraph:
+    """The ``/aslam/graph`` message: the best hypothesis's map and the final hypotheses."""
+
+    keyframes: int
+    states: tuple[MapState, ...]
+    links: tuple[MapLink, ...]
+    hypotheses: tuple[Hypothesis, ...]
+    tree: TreeStats
+
+
+@dataclass(frozen=True)
 class EstimateFile:
     metadata: EstimateMetadata
     timing: Timing | None
-    graph: dict[str, Any]
-    """The decoded ``/aslam/graph`` message (see ``GRAPH_SCHEMA``)."""
+    graph: EstimateGraph
 
 
 # --- JSON helpers ------------------------------------------------------------------------------
@@ -219,7 +225,7 @@ def _dumps(value: Any) -> str:
     return json.dumps(value, separators=(",", ":"), allow_nan=False)
 
 
-def _hypothesis_json(h: Hypothesis) -> dict[str, Any]:
+def hypothesis_json(h: Hypothesis) -> dict[str, Any]:
     return {
         "id": h.id,
         "parent": h.parent_id,
@@ -229,7 +235,7 @@ def _hypothesis_json(h: Hypothesis) -> dict[str, Any]:
     }
 
 
-def _action_json(action: tuple[float, float, float] | Any) -> dict[str, float]:
+def action_json(action: tuple[float, float, float] | Any) -> dict[str, float]:
     x, y, yaw = (float(v) for v in action)
     return {"x_m": x, "y_m": y, "yaw_rad": yaw}
 
@@ -238,8 +244,8 @@ def keyframe_message(step: StepResult) -> dict[str, Any]:
     return {
         "index": step.keyframe,
         "stamp_ns": step.stamp_ns,
-        "action": _action_json(step.action),
-        "hypotheses": [_hypothesis_json(h) for h in step.hypotheses],
+        "action": action_json(step.action),
+        "hypotheses": [hypothesis_json(h) for h in step.hypotheses],
     }
 
 
@@ -251,13 +257,13 @@ def graph_message(result: EstimateResult) -> dict[str, Any]:
             {
                 "from": link.from_state,
                 "to": link.to_state,
-                "action": _action_json(link.action),
+                "action": action_json(link.action),
                 "covariance": [[float(v) for v in row] for row in link.covariance],
                 "count": link.count,
             }
             for link in result.links
         ],
-        "hypotheses": [_hypothesis_json(h) for h in result.hypotheses],
+        "hypotheses": [hypothesis_json(h) for h in result.hypotheses],
         "tree": asdict(result.stats),
     }
 
@@ -348,63 +354,24 @@ class EstimateWriter:
 # --- reading -------------------------------------------------------------------------------------
 
 
-def _check_path(path: Path) -> int:
-    size = files.check_mcap_input(path, error=EstimateError, what="an estimate file")
-    try:
-        with path.open("rb") as f:
-            f.seek(max(size - len(MAGIC), 0))
-            tail = f.read(len(MAGIC))
-    except OSError as err:
-        raise EstimateError(f"cannot read: {err.strerror or err}", path=path) from err
-    if tail != MAGIC or size < 2 * len(MAGIC):
+def _open(path: Path) -> McapFile:
+    """The estimate file, checked: a complete MCAP file with the estimate metadata."""
+    source = McapFile(Path(path), error=EstimateError, what="an estimate file", require_complete=True)
+    if source.metadata(ESTIMATE_METADATA) is None:
         raise EstimateError(
-            "incomplete MCAP file (no trailing magic); was the estimate cut short?", path=path
+            f"not an aslam estimate file (no '{ESTIMATE_METADATA}' metadata; is it a recording?)",
+            path=source.path,
         )
-    return size
+    return source
 
 
-def _open_reader(f: IO[bytes], path: Path, size: int) -> Any:
-    from mcap.reader import SeekingReader
-
-    try:
-        return SeekingReader(f, record_size_limit=max(size, 1024))
-    except Exception as err:
-        raise EstimateError(f"unreadable MCAP ({type(err).__name__}: {err})", path=path) from err
-
-
-def _metadata_records(path: Path) -> dict[str, dict[str, str]]:
-    size = _check_path(path)
-    records: dict[str, dict[str, str]] = {}
-    with path.open("rb") as f:
-        reader = _open_reader(f, path, size)
+def _messages(source: McapFile, topic: str) -> Iterator[dict[str, Any]]:
+    for _schema, _channel, message in source.messages([topic]):
         try:
-            for record in reader.iter_metadata():
-                records.setdefault(record.name, dict(record.metadata))
-        except Exception as err:
-            raise EstimateError(f"corrupt metadata ({type(err).__name__}: {err})", path=path) from err
-    if ESTIMATE_METADATA not in records:
-        raise EstimateError(
-            f"not an aslam estimate file (no '{ESTIMATE_METADATA}' metadata; is it a recording?)", path=path
-        )
-    return records
-
-
-def _messages(path: Path, topic: str) -> Iterator[dict[str, Any]]:
-    size = _check_path(path)
-    with path.open("rb") as f:
-        reader = _open_reader(f, path, size)
-        iterator = reader.iter_messages(topics=[topic], log_time_order=True)
-        while True:
-            try:
-                _schema, _channel, message = next(iterator)
-                decoded = json.loads(message.data)
-            except StopIteration:
-                return
-            except Exception as err:  # zstd, struct, McapError, JSON ... on a damaged file
-                raise EstimateError(
-                    f"corrupt data on '{topic}' ({type(err).__name__}: {err})", path=path
-                ) from err
-            yield decoded
+            decoded = json.loads(message.data)
+        except ValueError as err:
+            raise EstimateError(f"corrupt JSON on '{topic}' ({err})", path=source.path) from err
+        yield decoded
 
 
 def _hypothesis(raw: Mapping[str, Any]) -> Hypothesis:
@@ -417,35 +384,60 @@ def _hypothesis(raw: Mapping[str, Any]) -> Hypothesis:
     )
 
 
+def _action(raw: Mapping[str, Any]) -> tuple[float, float, float]:
+    return (float(raw["x_m"]), float(raw["y_m"]), float(raw["yaw_rad"]))
+
+
 def iter_keyframes(path: Path) -> Iterator[EstimateKeyframe]:
     """The keyframes of an estimate file in order, streamed (one chunk in memory at a time)."""
-    path = Path(path)
-    _metadata_records(path)  # fails early, naming the file, on anything but an estimate
-    return _iter_keyframes(path)
+    return _iter_keyframes(_open(path))  # fails early, naming the file, on anything but an estimate
 
 
-def _iter_keyframes(path: Path) -> Iterator[EstimateKeyframe]:
-    for raw in _messages(path, KEYFRAME_TOPIC):
+def _iter_keyframes(source: McapFile) -> Iterator[EstimateKeyframe]:
+    for raw in _messages(source, KEYFRAME_TOPIC):
         try:
-            action = raw["action"]
             yield EstimateKeyframe(
                 int(raw["index"]),
                 int(raw["stamp_ns"]),
-                (float(action["x_m"]), float(action["y_m"]), float(action["yaw_rad"])),
+                _action(raw["action"]),
                 tuple(_hypothesis(h) for h in raw["hypotheses"]),
             )
         except (KeyError, TypeError, ValueError) as err:
-            raise EstimateError(f"malformed keyframe message ({err!r})", path=path) from err
+            raise EstimateError(f"malformed keyframe message ({err!r})", path=source.path) from err
+
+
+def _graph(raw: Mapping[str, Any], path: Path) -> EstimateGraph:
+    try:
+        return EstimateGraph(
+            keyframes=int(raw["keyframes"]),
+            states=tuple(
+                MapState(int(s["id"]), tuple(int(k) for k in s["keyframes"])) for s in raw["states"]
+            ),
+            links=tuple(
+                MapLink(
+                    int(link["from"]),
+                    int(link["to"]),
+                    _action(link["action"]),
+                    tuple(tuple(float(v) for v in row) for row in link["covariance"]),  # type: ignore[misc]
+                    int(link["count"]),
+                )
+                for link in raw["links"]
+            ),
+            hypotheses=tuple(_hypothesis(h) for h in raw["hypotheses"]),
+            tree=TreeStats(**raw["tree"]),
+        )
+    except (KeyError, TypeError, ValueError) as err:
+        raise EstimateError(f"malformed '{GRAPH_TOPIC}' message ({err!r})", path=path) from err
 
 
 def read_estimate(path: Path) -> EstimateFile:
     """The metadata, the timing (None if omitted) and the final graph of an estimate file."""
-    path = Path(path)
-    records = _metadata_records(path)
-    metadata = EstimateMetadata.from_record(records[ESTIMATE_METADATA], path)
-    timing = Timing.from_record(records[TIMING_METADATA], path) if TIMING_METADATA in records else None
-    with closing(_messages(path, GRAPH_TOPIC)) as graphs:
+    source = _open(path)
+    metadata = EstimateMetadata.from_record(source.metadata(ESTIMATE_METADATA) or {}, source.path)
+    timing_record = source.metadata(TIMING_METADATA)
+    timing = None if timing_record is None else Timing.from_record(timing_record, source.path)
+    with closing(_messages(source, GRAPH_TOPIC)) as graphs:
         graph = next(graphs, None)
     if graph is None:
-        raise EstimateError(f"no '{GRAPH_TOPIC}' message (the estimate is incomplete)", path=path)
-    return EstimateFile(metadata, timing, graph)
+        raise EstimateError(f"no '{GRAPH_TOPIC}' message (the estimate is incomplete)", path=source.path)
+    return EstimateFile(metadata, timing, _graph(graph, source.path))

@@ -8,13 +8,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from aslam.data_formats.recording import (
-    METADATA_NAME,
-    CameraIntrinsics,
-    RecordingTopics,
-    iter_samples,
-    read_camera_intrinsics,
-)
+from aslam.data_formats.camera import CameraIntrinsics
+from aslam.data_formats.recording import METADATA_NAME, Recording, RecordingTopics
 
 
 @dataclass(frozen=True)
@@ -86,16 +81,12 @@ def describe_recording(
     topics: RecordingTopics = RecordingTopics(),
     *,
     on_warning: Callable[[str], None] | None = None,
-    on_sample: Callable[[int], None] | None = None,
 ) -> RecordingInfo:
     """Read the whole recording, decoding every image, and say what it holds.
 
     Any problem iter_samples would meet raises here too (RecordingError); warnings are passed to
-    ``on_warning`` as they come and also collected in the result. ``on_sample(n)`` is called after
-    each sample (for a progress display).
+    ``on_warning`` as they come and also collected in the result.
     """
-    from aslam.data_formats.mcap_io import McapSource
-
     path = Path(path)
     warnings: list[str] = []
 
@@ -104,10 +95,11 @@ def describe_recording(
         if on_warning is not None:
             on_warning(message)
 
-    source = McapSource(path, on_warning=warn)
+    recording = Recording(path, on_warning=warn)
+    source = recording.file
     counts = source.count_messages()
-    metadata = source.metadata(METADATA_NAME) or {}
-    camera = read_camera_intrinsics(path, topics)
+    metadata = recording.metadata()
+    camera = recording.camera(topics)
 
     samples = with_truth = 0
     first = last = None
@@ -115,7 +107,7 @@ def describe_recording(
     sizes: dict[str, int] = {}
     distance = 0.0
     previous_xy = None
-    for sample in iter_samples(path, topics, on_warning=warn):
+    for sample in recording.samples(topics):
         gray = sample.image.decode_gray()
         size = f"{gray.shape[1]}x{gray.shape[0]}"
         sizes[size] = sizes.get(size, 0) + 1
@@ -130,8 +122,6 @@ def describe_recording(
             distance += math.hypot(float(xy[0] - previous_xy[0]), float(xy[1] - previous_xy[1]))
         previous_xy = xy
         samples += 1
-        if on_sample is not None:
-            on_sample(samples)
 
     if camera is not None and sizes:
         expected = f"{camera.width_px}x{camera.height_px}"

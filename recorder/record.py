@@ -12,7 +12,6 @@ from collections import deque
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import NamedTuple
 
@@ -20,6 +19,7 @@ import numpy as np
 
 from aslam.core import se2
 from aslam.core.errors import ConfigError, InputError
+from aslam.data_formats.provenance import tool_version
 from aslam.recorder import noise, routes
 from aslam.recorder.config import RecordConfig
 from aslam.recorder.world import GridWorld, SceneWorld, check_route_in_scene, generate_world, load_scene_world
@@ -84,13 +84,6 @@ class RecordResult:
     contact_sheet: Path | None
 
 
-def tool_version() -> str:
-    try:
-        return version("aslam")
-    except PackageNotFoundError:
-        return "0+unknown"
-
-
 def plan(config: RecordConfig) -> Plan:
     """Validate the config, resolve the route, build or load the world, simulate the poses."""
     config.validate()
@@ -137,8 +130,10 @@ def record(
     leaves nothing under ``output``.  Rendering runs in this thread; PNG/JPEG encoding and writing
     run in one helper thread, in frame order, so the output is deterministic.
     """
+    from aslam.data_formats.camera import CameraIntrinsics
     from aslam.data_formats.files import check_output_path
-    from aslam.data_formats.recording import CameraIntrinsics, ImageFormat, RecordingWriter, encode_image
+    from aslam.data_formats.images import ImageFormat, encode_image
+    from aslam.data_formats.recording_writer import RecordingWriter
     from aslam.recorder.render import PyrenderRenderer
 
     started = time.perf_counter()

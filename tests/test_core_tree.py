@@ -180,17 +180,11 @@ def test_keyframer_uses_the_paper_thresholds_with_slack():
     assert turned is not None and math.isclose(turned[2], math.radians(88))
 
 
-def test_estimator_step_decodes_only_keyframes():
+def test_keyframe_test_needs_odometry_only():
     estimator = Estimator(EstimatorConfig())
-    calls = []
-
-    def image():
-        calls.append(1)
-        return np.random.default_rng(len(calls)).integers(0, 255, (24, 32)).astype(np.uint8)
-
-    for i, x in enumerate([0.0, 0.3, 0.6, 1.0, 1.2, 2.0]):
-        estimator.step(i, np.array([x, 0.0, 0.0]), image)
-    assert len(calls) == 3  # x = 0, 1.0, 2.0
+    poses = [0.0, 0.3, 0.6, 1.0, 1.2, 2.0]
+    actions = [estimator.keyframe_action(np.array([x, 0.0, 0.0])) for x in poses]
+    assert [a is not None for a in actions] == [True, False, False, True, False, True]  # x = 0, 1.0, 2.0
 
 
 def test_config_reports_every_bad_value_at_once():

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from aslam.cli.estimate import estimator_options_markdown
+from aslam.app.config_file import estimator_options_markdown
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 

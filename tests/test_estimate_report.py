@@ -17,7 +17,8 @@ import pytest
 from mcap.reader import make_reader
 
 from aslam.cli.app import main
-from aslam.core.estimator import Estimator
+from aslam.core.estimator import Estimator, MapLink, MapState
+from aslam.data_formats.camera import CameraIntrinsics
 from aslam.data_formats.estimate import (
     ESTIMATE_METADATA,
     KEYFRAME_TOPIC,
@@ -25,7 +26,8 @@ from aslam.data_formats.estimate import (
     iter_keyframes,
     read_estimate,
 )
-from aslam.data_formats.recording import CameraIntrinsics, RecordingWriter, encode_image
+from aslam.data_formats.images import encode_image
+from aslam.data_formats.recording_writer import RecordingWriter
 
 SIDE_STEPS = 3
 LAPS = 2
@@ -145,7 +147,10 @@ def test_estimate_file_decodes_with_mcaps_own_reader(estimate_file: Path, record
 def test_reader_api_streams_what_was_written(estimate_file: Path):
     info = read_estimate(estimate_file)
     rows = list(iter_keyframes(estimate_file))
-    assert len(rows) == info.graph["keyframes"]
+    assert len(rows) == info.graph.keyframes
+    assert all(isinstance(state, MapState) for state in info.graph.states)
+    assert all(isinstance(link, MapLink) and len(link.covariance) == 3 for link in info.graph.links)
+    assert info.graph.tree.keyframes == len(rows)
     assert info.timing is not None and info.timing.keyframes == len(rows)
     assert rows[0].hypotheses[0].is_new_state
 

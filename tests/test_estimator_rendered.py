@@ -13,8 +13,9 @@ import pytest
 from aslam.cli.app import main
 from aslam.core.config import EstimatorConfig
 from aslam.core.estimator import Estimator
+from aslam.core.features import orientation_histogram
 from aslam.core.metrics import evaluate
-from aslam.data_formats.recording import iter_samples
+from aslam.data_formats.recording import Recording
 
 LAP = 34  # the paper route: 30 forward steps and 4 turns per lap
 
@@ -29,9 +30,11 @@ def record(folder: Path, name: str, *extra: str) -> Path:
 def estimate(path: Path, config: EstimatorConfig):
     estimator = Estimator(config)
     steps, truth = [], []
-    for sample in iter_samples(path):
-        result = estimator.step(sample.stamp_ns, sample.odometry_pose, sample.image.decode_gray)
-        if result is not None:
+    for sample in Recording(path).samples():
+        action = estimator.keyframe_action(sample.odometry_pose)
+        if action is not None:
+            histogram = orientation_histogram(sample.image.decode_gray(), config.histogram)
+            result = estimator.add_keyframe(sample.stamp_ns, action, histogram)
             steps.append((result.keyframe, result.hypotheses))
             truth.append(sample.ground_truth_pose)
     return estimator, evaluate(steps, np.array(truth))

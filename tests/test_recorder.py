@@ -18,7 +18,7 @@ import pytest
 
 from aslam.cli.app import main
 from aslam.core import se2
-from aslam.data_formats.recording import iter_samples, read_metadata
+from aslam.data_formats.recording import Recording
 from aslam.recorder import noise, routes
 from aslam.recorder.config import CameraSpec, NoiseParams, RecordConfig
 from aslam.recorder.errors import RouteError, WorldError
@@ -221,10 +221,10 @@ def test_record_end_to_end_is_readable_and_byte_identical(tmp_path, capsys):
     assert main([*args, "-o", str(tmp_path / "b.mcap")]) == 0
     a, b = (tmp_path / "a.mcap").read_bytes(), (tmp_path / "b.mcap").read_bytes()
     assert a == b
-    samples = list(iter_samples(tmp_path / "a.mcap"))  # 21 small samples
+    samples = list(Recording(tmp_path / "a.mcap").samples())  # 21 small samples
     assert len(samples) == 21
     assert [s.stamp_ns for s in samples] == sorted(s.stamp_ns for s in samples)
-    meta = read_metadata(tmp_path / "a.mcap")
+    meta = Recording(tmp_path / "a.mcap").metadata()
     assert json.loads(meta["route"])["actions"][0] == {"forward_m": 1.0}
     assert json.loads(meta["noise"])["noise"] == 0.03 and meta["seed"] == "3"
     assert json.loads(meta["world"])["kind"] == "generated"
@@ -236,7 +236,7 @@ def test_fps_renders_intermediate_frames(tmp_path):
     route = _write_json(tmp_path / "short.json", {"actions": [{"forward_m": 1}, {"turn_deg": 90}]})
     out = tmp_path / "v.mcap"
     assert main(["record", "--route", str(route), "--size", "32x24", "--fps", "4", "-o", str(out)]) == 0
-    stamps = [s.stamp_ns for s in iter_samples(out)]
+    stamps = [s.stamp_ns for s in Recording(out).samples()]
     assert len(stamps) == 2 * 4 + 1
     assert np.diff(stamps).tolist() == [250_000_000] * 8
 
@@ -343,6 +343,6 @@ def test_osmesa_fallback_renders_the_same_scene(tmp_path):
         [sys.executable, "-c", code, *args], env=env, capture_output=True, text=True, timeout=120
     )
     assert done.returncode == 0, done.stderr
-    frames = [s.image.decode_gray() for s in iter_samples(out)]
+    frames = [s.image.decode_gray() for s in Recording(out).samples()]
     assert len(frames) == 35
     assert all(frame.std() > 5 for frame in frames)  # real views, not blank buffers

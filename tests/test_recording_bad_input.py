@@ -29,7 +29,9 @@ from test_recording_format import (
 
 from aslam.cli.app import main
 from aslam.data_formats import ros_msgs
-from aslam.data_formats.recording import ImageFormat, RecordingError, encode_image, iter_samples
+from aslam.data_formats.errors import RecordingError
+from aslam.data_formats.images import ImageFormat, encode_image
+from aslam.data_formats.recording import Recording
 
 PNG = encode_image(np.zeros((24, 32, 3), dtype=np.uint8)).data
 
@@ -181,7 +183,7 @@ def test_bad_recording_is_one_line_exit_2(tmp_path, capfd, case):
     build(path)
     assert_one_error_line(path, capfd, *needles)
     with pytest.raises(RecordingError):  # the library raises the same, never another exception
-        for sample in iter_samples(path):
+        for sample in Recording(path).samples():
             sample.image.decode_gray()
 
 
@@ -202,7 +204,7 @@ def test_truncated_file_is_read_up_to_the_damage(tmp_path, capfd):
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(data[: int(len(data) * 0.7)])
     warnings: list[str] = []
-    samples = list(iter_samples(cut, on_warning=warnings.append))
+    samples = list(Recording(cut, on_warning=warnings.append).samples())
     assert 0 < len(samples) < 12
     assert [s.stamp_ns for s in samples] == [f[0] for f in frames[: len(samples)]]
     assert warnings[0].startswith(f"{cut}: truncated at byte ")
@@ -220,7 +222,7 @@ def small_recording(tmp_path_factory) -> tuple[bytes, list[int]]:
     path = write_recording(
         tmp_path_factory.mktemp("trunc") / "r.mcap", random_frames(6, seed=5), chunk_size_bytes=3000
     )
-    return path.read_bytes(), [s.stamp_ns for s in iter_samples(path)]
+    return path.read_bytes(), [s.stamp_ns for s in Recording(path).samples()]
 
 
 @settings(max_examples=50, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -234,7 +236,7 @@ def test_any_cut_reads_a_prefix_or_fails_cleanly(small_recording, fraction):
         warnings: list[str] = []
         try:
             got = []
-            for sample in iter_samples(path, on_warning=warnings.append):
+            for sample in Recording(path, on_warning=warnings.append).samples():
                 sample.image.decode_gray()
                 got.append(sample.stamp_ns)
         except RecordingError as err:

@@ -1,12 +1,15 @@
-"""Reading the records of an MCAP file we do not trust: indexed when we can, linear up to damage.
+"""One reader object per MCAP file we do not trust: indexed when we can, linear up to damage.
+
+``McapFile`` checks the path and reads the summary once; recordings, ``aslam info``, image counts
+and estimate files are all served from it.
 
 An intact file (trailing magic, a footer, a summary with chunk indexes) is read through
 ``mcap.reader.SeekingReader`` in log-time order: it seeks from chunk to chunk, holding only the
 chunks that overlap in time. Anything else (no summary, a file cut short, a file still being
 written) is read front to back with ``mcap.stream_reader.StreamReader`` through a wrapper that
 refuses to read past the end of the file, so the read stops cleanly at the first damaged record and
-everything intact before it is kept. Every exception from the mcap libraries becomes a
-``RecordingError`` naming the file; nothing else escapes.
+everything intact before it is kept. Every exception from the mcap libraries becomes the caller's
+error type (``RecordingError``, ``EstimateError``) naming the file; nothing else escapes.
 """
 
 from __future__ import annotations
@@ -22,9 +25,10 @@ from mcap.records import Channel, Chunk, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.summary import Summary
 
+from aslam.core.errors import InputError
+from aslam.data_formats.errors import RecordingError
 from aslam.data_formats.files import MCAP_MAGIC as MAGIC
 from aslam.data_formats.files import check_mcap_input
-from aslam.data_formats.recording import RecordingError
 
 _FOOTER_RECORD_SIZE = 1 + 8 + 8 + 8 + 4  # opcode, length, summary_start, summary_offset_start, crc
 
@@ -68,23 +72,34 @@ class Truncation:
     size: int
 
 
-def check_recording_path(path: Path) -> int:
-    """The size of ``path`` after checking it is a readable, non-empty file that starts like MCAP."""
-    return check_mcap_input(path, error=RecordingError, what="an MCAP recording")
-
-
-class McapSource:
+class McapFile:
     """The messages of one MCAP file in time order, and what is known about its channels.
 
-    ``channels`` maps topic → schema name. With a usable summary it is complete from the start
-    (``complete_channels`` is True); on a linear read it grows as channel records are met.
-    ``truncation`` is set once a linear read has stopped at damage.
+    The path is checked and the summary read once, here. ``channels`` maps topic → schema name.
+    With a usable summary it is complete from the start (``complete_channels`` is True); on a
+    linear read it grows as channel records are met. ``truncation`` is set once a linear read has
+    stopped at damage. No file handle is kept between calls, so the object may cross a fork.
+
+    ``error`` is the exception type raised for this kind of file, ``what`` names the kind in
+    messages; ``require_complete`` refuses a file without its trailing magic (a file written by
+    a writer that did not finish) instead of reading it linearly.
     """
 
-    def __init__(self, path: Path, *, on_warning: Callable[[str], None] | None = None) -> None:
+    def __init__(
+        self,
+        path: Path,
+        *,
+        error: type[InputError] = RecordingError,
+        what: str = "an MCAP recording",
+        require_complete: bool = False,
+        on_warning: Callable[[str], None] | None = None,
+    ) -> None:
         self.path = Path(path)
-        self.size = check_recording_path(self.path)
+        self._error_type = error
+        self.size = check_mcap_input(self.path, error=error, what=what)
         self._warn = on_warning or (lambda _message: None)
+        if require_complete and not self._ends_intact():
+            raise error("incomplete MCAP file (no trailing magic); was it cut short?", path=self.path)
         self.truncation: Truncation | None = None
         self.channels: dict[str, str] = {}
         self.message_counts: dict[str, int] | None = None
@@ -104,22 +119,34 @@ class McapSource:
                         counts[channel.topic] = counts.get(channel.topic, 0) + count
                 self.message_counts = counts
 
-    def _error(self, problem: str, err: BaseException | None = None) -> RecordingError:
+    def _error(self, problem: str, err: BaseException | None = None) -> InputError:
         detail = f": {type(err).__name__}: {err}" if err is not None else ""
-        return RecordingError(f"{problem}{detail}", path=self.path)
+        return self._error_type(f"{problem}{detail}", path=self.path)
+
+    def message_count(self, topic: str) -> int | None:
+        """Messages on ``topic`` from the summary's statistics, or None when the file has none."""
+        if self.message_counts is None:
+            return None
+        return self.message_counts.get(topic, 0)
 
     # --- summary ------------------------------------------------------------------------------
 
-    def _read_summary(self) -> Summary | None:
-        """The summary if the file ends intact and has a consistent chunk index, else None."""
-        if self.size < 2 * len(MAGIC) + _FOOTER_RECORD_SIZE:
-            return None
+    def _ends_intact(self) -> bool:
+        if self.size < 2 * len(MAGIC):
+            return False
         try:
             with self.path.open("rb") as f:
                 f.seek(self.size - len(MAGIC))
-                if f.read(len(MAGIC)) != MAGIC:
-                    return None  # cut short or still being written: read linearly
-                f.seek(0)
+                return f.read(len(MAGIC)) == MAGIC
+        except OSError as err:
+            raise self._error("cannot read", err) from err
+
+    def _read_summary(self) -> Summary | None:
+        """The summary if the file ends intact and has a consistent chunk index, else None."""
+        if self.size < 2 * len(MAGIC) + _FOOTER_RECORD_SIZE or not self._ends_intact():
+            return None  # cut short or still being written: read linearly
+        try:
+            with self.path.open("rb") as f:
                 reader = SeekingReader(f, record_size_limit=self.size)
                 summary = reader.get_summary()
         except OSError as err:
@@ -267,7 +294,7 @@ class McapSource:
                     if isinstance(record, Metadata) and record.name == name:
                         return dict(record.metadata)
             return None
-        except RecordingError:
+        except InputError:
             raise
         except Exception as err:
             raise self._error("corrupt metadata record", err) from err

@@ -1,4 +1,4 @@
-"""The estimate pipeline, shared by ``aslam estimate`` and ``bench/estimate_bench.py``.
+"""The streaming estimate pipeline behind :func:`aslam.app.estimate.estimate` and the benchmarks.
 
 The floor of an estimate is reading the recording, decoding the keyframe images and computing
 their histograms. The pipeline keeps the SLAM step off that critical path:
@@ -31,7 +31,8 @@ import numpy as np
 
 from aslam.core.estimator import Estimator, Keyframer, StepResult
 from aslam.core.features import HistogramConfig, orientation_histogram
-from aslam.data_formats.recording import LazyImage, Sample
+from aslam.data_formats.images import LazyImage
+from aslam.data_formats.pose_sync import Sample
 
 DEFAULT_WORKERS = 2
 DEFAULT_DEPTH = 8
@@ -59,7 +60,7 @@ def _histogram(image: LazyImage, config: HistogramConfig) -> np.ndarray:
 
 def keyframe_histograms(
     samples: Iterable[Sample],
-    wants_image: Callable[[np.ndarray], np.ndarray | None],
+    keyframe_action: Callable[[np.ndarray], np.ndarray | None],
     histogram: HistogramConfig,
     *,
     counts: PipelineCounts | None = None,
@@ -68,7 +69,7 @@ def keyframe_histograms(
 ) -> Iterator[Keyframe]:
     """The keyframes of ``samples`` with their histograms, in order, computed ``workers`` at a time.
 
-    ``wants_image(odometry_pose)`` is the keyframe test (the action, or None). At most ``depth``
+    ``keyframe_action(odometry_pose)`` is the keyframe test (the action, or None). At most ``depth``
     images are decoded or waiting at once. Stopping early (an exception, KeyboardInterrupt, the
     consumer closing the generator) cancels the queued work and joins the pool.
     """
@@ -78,7 +79,7 @@ def keyframe_histograms(
     try:
         for sample in samples:
             counts.samples += 1
-            action = wants_image(sample.odometry_pose)
+            action = keyframe_action(sample.odometry_pose)
             if action is not None:
                 future = pool.submit(_histogram, sample.image, histogram)
                 pending.append((sample.stamp_ns, action, sample.ground_truth_pose, future))
@@ -107,7 +108,7 @@ SEND_BATCH = 4
 
 def keyframes_from_child_process(
     samples: Iterable[Sample],
-    wants_image: Callable[[np.ndarray], np.ndarray | None],
+    keyframe_action: Callable[[np.ndarray], np.ndarray | None],
     histogram: HistogramConfig,
     *,
     counts: PipelineCounts,
@@ -130,7 +131,7 @@ def keyframes_from_child_process(
         try:
             batch: list[Keyframe] = []
             for keyframe in keyframe_histograms(
-                samples, wants_image, histogram, counts=child_counts, workers=workers, depth=depth
+                samples, keyframe_action, histogram, counts=child_counts, workers=workers, depth=depth
             ):
                 batch.append(keyframe)
                 if len(batch) >= SEND_BATCH:
@@ -189,7 +190,7 @@ def run_estimate(
     produce = keyframes_from_child_process if can_fork() else keyframe_histograms
     keyframes = produce(
         samples,
-        estimator.wants_image,
+        estimator.keyframe_action,
         estimator.config.histogram,
         counts=counts,
         workers=workers,

@@ -1,4 +1,4 @@
-"""`aslam report --plots DIR`: PNG figures (matplotlib, Agg), each written atomically.
+"""The report's PNG figures (matplotlib, Agg), each written atomically.
 
 * ``hypotheses.png``: hypothesis count per keyframe (the paper's figure 8);
 * ``errors.png``: x, y and heading error per keyframe, best and belief-weighted (figures 9-11);
@@ -13,9 +13,11 @@ from typing import Any
 
 import numpy as np
 
+from aslam.app.score import Report, dead_reckoning
 from aslam.core.metrics import Evaluation
+from aslam.data_formats.estimate import EstimateGraph
 from aslam.data_formats.files import write_atomically
-from aslam.data_formats.report import dead_reckoning, is_loop_closure_link
+from aslam.data_formats.graph_json import is_loop_closure_link
 
 DPI = 120
 
@@ -32,24 +34,17 @@ def _save(fig: Any, path: Path) -> None:
         plt.close(fig)
 
 
-def write_plots(
-    folder: Path,
-    evaluation: Evaluation,
-    graph: dict[str, Any],
-    actions: np.ndarray,
-    true_poses: np.ndarray | None,
-    *,
-    title: str,
-) -> list[Path]:
+def write_plots(folder: Path, report: Report) -> list[Path]:
     """Write the figures into ``folder`` (created if missing); returns their paths."""
     import matplotlib
 
     matplotlib.use("Agg")
+    title = report.estimate_path.name
     folder.mkdir(parents=True, exist_ok=True)
     paths = [folder / "hypotheses.png", folder / "errors.png", folder / "map.png"]
-    _save(_hypotheses_figure(evaluation, title), paths[0])
-    _save(_errors_figure(evaluation, title), paths[1])
-    _save(_map_figure(graph, actions, true_poses, title), paths[2])
+    _save(_hypotheses_figure(report.evaluation, title), paths[0])
+    _save(_errors_figure(report.evaluation, title), paths[1])
+    _save(_map_figure(report.estimate.graph, report.actions, report.true_poses, title), paths[2])
     return paths
 
 
@@ -77,6 +72,7 @@ def _revisit_spans(ax: Any, evaluation: Evaluation) -> None:
 
 def _hypotheses_figure(evaluation: Evaluation, title: str) -> Any:
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     fig, ax = plt.subplots(figsize=(9, 3.6), layout="constrained")
     counts = evaluation.hypothesis_counts
@@ -89,6 +85,8 @@ def _hypotheses_figure(evaluation: Evaluation, title: str) -> Any:
     ax.set_xlabel("keyframe")
     ax.set_ylabel("hypotheses")
     ax.set_ylim(0, max(int(counts.max()) if counts.size else 1, 1) * 1.15)
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))  # counts: no 1.5 hypotheses
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlim(-0.5, max(len(counts) - 0.5, 0.5))
     ax.grid(True, alpha=0.3)
     ax.legend(loc="upper left", fontsize="small")
@@ -98,6 +96,7 @@ def _hypotheses_figure(evaluation: Evaluation, title: str) -> Any:
 
 def _errors_figure(evaluation: Evaluation, title: str) -> Any:
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     fig, axes = plt.subplots(3, 1, figsize=(9, 7.5), sharex=True, layout="constrained")
     keyframes = np.arange(evaluation.keyframes)
@@ -115,6 +114,7 @@ def _errors_figure(evaluation: Evaluation, title: str) -> Any:
         axes[0].text(
             0.5, 0.5, "no ground truth", transform=axes[0].transAxes, ha="center", va="center", color="0.4"
         )
+    axes[-1].xaxis.set_major_locator(MaxNLocator(integer=True))
     axes[-1].set_xlabel("keyframe")
     axes[-1].set_xlim(-0.5, max(evaluation.keyframes - 0.5, 0.5))
     axes[0].legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=3, fontsize="small", frameon=False)
@@ -122,7 +122,7 @@ def _errors_figure(evaluation: Evaluation, title: str) -> Any:
     return fig
 
 
-def _map_figure(graph: dict[str, Any], actions: np.ndarray, true_poses: np.ndarray | None, title: str) -> Any:
+def _map_figure(graph: EstimateGraph, actions: np.ndarray, true_poses: np.ndarray | None, title: str) -> Any:
     import matplotlib.pyplot as plt
     from matplotlib.collections import LineCollection
 
@@ -137,10 +137,10 @@ def _map_figure(graph: dict[str, Any], actions: np.ndarray, true_poses: np.ndarr
     where = true_poses if has_truth else odometry
     assert where is not None
     position = {}
-    for state in graph["states"]:
-        pose = where[int(state["id"])] if int(state["id"]) < len(where) else None
+    for state in graph.states:
+        pose = where[state.id] if state.id < len(where) else None
         if pose is not None and np.isfinite(pose[:2]).all():
-            position[int(state["id"])] = pose[:2]
+            position[state.id] = pose[:2]
     if has_truth:
         assert true_poses is not None
         ok = np.isfinite(true_poses).all(axis=1)
@@ -149,8 +149,8 @@ def _map_figure(graph: dict[str, Any], actions: np.ndarray, true_poses: np.ndarr
         odometry[:, 0], odometry[:, 1], "--", color="tab:gray", linewidth=1, label="odometry (dead reckoning)"
     )
     normal, closing = [], []
-    for link in graph["links"]:
-        a, b = int(link["from"]), int(link["to"])
+    for link in graph.links:
+        a, b = link.from_state, link.to_state
         if a in position and b in position and a != b:
             (closing if is_loop_closure_link(a, b) else normal).append([position[a], position[b]])
     if normal:
@@ -161,7 +161,7 @@ def _map_figure(graph: dict[str, Any], actions: np.ndarray, true_poses: np.ndarr
         )
     if position:
         xy = np.array(list(position.values()))
-        visits = {int(s["id"]): len(s["keyframes"]) for s in graph["states"]}
+        visits = {s.id: len(s.keyframes) for s in graph.states}
         revisited = np.array([visits.get(s, 1) > 1 for s in position])
         ax.plot(xy[~revisited, 0], xy[~revisited, 1], "o", color="tab:blue", markersize=5, label="place")
         if revisited.any():

@@ -1,0 +1,89 @@
+"""Estimator configuration from its three sources, in one order of precedence.
+
+option > ``--config`` file (TOML, an ``[estimator]`` table) > ``--paper-faithful`` base > default.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import Any
+
+from aslam.core.config import EstimatorConfig
+from aslam.core.errors import ConfigError
+
+CONFIG_TABLE = "estimator"
+
+
+def option_name(field: str) -> str:
+    """The command-line option of an ``EstimatorConfig`` field."""
+    return "--" + field.replace("_", "-")
+
+
+def estimator_options_markdown() -> str:
+    """The estimator-parameter table of docs/usage.md (a test keeps the doc equal to this)."""
+    rows = ["| option | config key | type | default | meaning |", "|---|---|---|---|---|"]
+    for name, kind, default, help_text in EstimatorConfig.parameters():
+        meaning = help_text.replace("|", "/")
+        rows.append(f"| `{option_name(name)}` | `{name}` | {kind.__name__} | {default} | {meaning} |")
+    return "\n".join(rows) + "\n"
+
+
+def read_config_file(path: Path) -> dict[str, Any]:
+    """The ``[estimator]`` table of a TOML file, checked: every unknown key and wrong type at once."""
+    try:
+        with path.open("rb") as f:
+            document = tomllib.load(f)
+    except FileNotFoundError as err:
+        raise ConfigError("no such file", path=path) from err
+    except IsADirectoryError as err:
+        raise ConfigError("is a directory, not a TOML file", path=path) from err
+    except OSError as err:
+        raise ConfigError(f"cannot read: {err.strerror or err}", path=path) from err
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise ConfigError(f"not valid TOML ({err})", path=path) from err
+    unknown = [key for key in document if key != CONFIG_TABLE]
+    table = document.get(CONFIG_TABLE, {})
+    if not isinstance(table, dict):
+        raise ConfigError(f"'{CONFIG_TABLE}' must be a table ([{CONFIG_TABLE}])", path=path)
+    types = {name: kind for name, kind, _default, _help in EstimatorConfig.parameters()}
+    unknown += [f"{CONFIG_TABLE}.{key}" for key in table if key not in types]
+    if unknown:
+        known = ", ".join(types)
+        raise ConfigError(
+            f"unknown key{'s' if len(unknown) > 1 else ''} {', '.join(unknown)} "
+            f"(keys go in an [{CONFIG_TABLE}] table; known: {known})",
+            path=path,
+        )
+    problems = []
+    values: dict[str, Any] = {}
+    for key, value in table.items():
+        kind = types[key]
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            problems.append(f"{key} must be a number, got {value!r}")
+        elif kind is int and not isinstance(value, int):
+            problems.append(f"{key} must be a whole number, got {value!r}")
+        else:
+            values[key] = kind(value)
+    if problems:
+        raise ConfigError("; ".join(problems), path=path)
+    return values
+
+
+def build_config(
+    *, paper_faithful: bool, config_file: Path | None, options: dict[str, Any]
+) -> EstimatorConfig:
+    """Defaults, then ``--paper-faithful``, then the file, then the options that were given."""
+    values: dict[str, Any] = {}
+    if paper_faithful:
+        base = EstimatorConfig.paper_faithful()
+        values.update({name: getattr(base, name) for name, *_ in EstimatorConfig.parameters()})
+    from_file = read_config_file(config_file) if config_file is not None else {}
+    values.update(from_file)
+    values.update({k: v for k, v in options.items() if v is not None})
+    try:
+        return EstimatorConfig(**values)
+    except ConfigError as err:
+        raise ConfigError(
+            f"bad estimator configuration: {err}", path=config_file if from_file else None
+        ) from err

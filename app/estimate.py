@@ -1,0 +1,191 @@
+"""``estimate()``: stream a recording through the SLAM into an estimate file.
+
+Shaped like ``aslam.recorder.record.record``: paths and a typed configuration in, progress and
+warnings out through callbacks, a typed summary back; no terminal.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import threading
+import time
+from collections.abc import Callable
+from contextlib import closing
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from aslam.app.pipeline import DEFAULT_WORKERS, PipelineCounts, run_estimate
+from aslam.core.config import EstimatorConfig
+from aslam.core.errors import InputError
+from aslam.core.estimator import Estimator
+from aslam.data_formats.estimate import (
+    EstimateMetadata,
+    EstimateWriter,
+    RecordingIdentity,
+    Timing,
+    check_output_path,
+)
+from aslam.data_formats.provenance import tool_version
+from aslam.data_formats.recording import Recording, RecordingTopics
+
+PROGRESS_INTERVAL_S = 0.1
+
+
+@dataclass(frozen=True)
+class EstimateProgress:
+    """How far a run is; handed to ``on_progress`` about ten times a second and once at the end."""
+
+    samples: int
+    samples_total: int | None
+    """Images in the recording, from its summary; None when unknown (e.g. a truncated file)."""
+    keyframes: int
+    hypotheses: int
+    elapsed_s: float
+
+    @property
+    def keyframes_per_second(self) -> float:
+        return self.keyframes / max(self.elapsed_s, 1e-9)
+
+
+@dataclass(frozen=True)
+class EstimateSummary:
+    """What one run produced."""
+
+    output: Path
+    samples: int
+    keyframes: int
+    states: int
+    links: int
+    hypotheses: int
+    wall_s: float
+    slam_s: float
+
+    @property
+    def keyframes_per_second(self) -> float:
+        return self.keyframes / max(self.wall_s, 1e-9)
+
+
+class FileHasher:
+    """SHA-256 of a file, computed in a background thread while the estimate runs.
+
+    A second, sequential read of the file (mostly from the page cache); hashlib releases the GIL
+    on large buffers, so it costs the pipeline little. ``result()`` joins.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._digest: str | None = None
+        self._error: OSError | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="aslam-sha256", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        sha = hashlib.sha256()
+        try:
+            with self.path.open("rb") as f:
+                while not self._stop.is_set():
+                    block = f.read(4 * 1024 * 1024)
+                    if not block:
+                        break
+                    sha.update(block)
+        except OSError as err:
+            self._error = err
+            return
+        self._digest = sha.hexdigest()
+
+    def cancel(self) -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def result(self) -> str:
+        self._thread.join()
+        if self._error is not None:
+            raise InputError(f"cannot read: {self._error.strerror or self._error}", path=self.path)
+        assert self._digest is not None
+        return self._digest
+
+
+def estimate(
+    recording: Path,
+    output: Path,
+    config: EstimatorConfig,
+    *,
+    topics: RecordingTopics = RecordingTopics(),
+    force: bool = False,
+    timing: bool = True,
+    workers: int = DEFAULT_WORKERS,
+    on_progress: Callable[[EstimateProgress], None] | None = None,
+    on_warning: Callable[[str], None] | None = None,
+) -> EstimateSummary:
+    """Run the estimator over ``recording`` and write the hypotheses and the map to ``output``.
+
+    Streams the recording. ``output`` appears only when complete; any failure or interrupt leaves
+    nothing under it. With ``timing=False`` the same inputs give a byte-identical file.
+    """
+    if workers < 1:
+        raise InputError(f"--workers must be at least 1, got {workers}")
+    recording = Path(recording).absolute()
+    output = Path(output).absolute()
+    if output == recording:
+        raise InputError("the output would overwrite the recording", path=output)
+    check_output_path(output, force=force)
+    warn = on_warning or (lambda _line: None)
+    source = Recording(recording, on_warning=warn)
+    total = source.image_count(topics)
+    estimator = Estimator(config)
+    counts = PipelineCounts()
+    hasher = FileHasher(recording)
+    start = time.perf_counter()
+
+    def progress(keyframes: int, hypotheses: int) -> None:
+        if on_progress is not None:
+            elapsed = time.perf_counter() - start
+            on_progress(EstimateProgress(counts.samples, total, keyframes, hypotheses, elapsed))
+
+    try:
+        with (
+            EstimateWriter(output, tool_version=tool_version(), force=force) as writer,
+            closing(run_estimate(source.samples(topics), estimator, counts=counts, workers=workers)) as steps,
+        ):
+            last_update = 0.0
+            for step in steps:
+                writer.write_keyframe(step)
+                now = time.perf_counter()
+                if now - last_update > PROGRESS_INTERVAL_S:
+                    last_update = now
+                    progress(step.keyframe + 1, len(step.hypotheses))
+            result = estimator.result()
+            wall_s = time.perf_counter() - start
+            keyframes = len(result.keyframe_stamps_ns)
+            progress(keyframes, len(result.hypotheses))
+            metadata = EstimateMetadata(
+                tool_version=tool_version(),
+                config=asdict(config),
+                recording=RecordingIdentity(str(recording), source.size_bytes, hasher.result()),
+                topics=asdict(topics),
+            )
+            run_timing = None
+            if timing:
+                run_timing = Timing(
+                    wall_s=wall_s,
+                    slam_s=counts.slam_s,
+                    keyframes_per_second=keyframes / max(wall_s, 1e-9),
+                    samples=counts.samples,
+                    keyframes=keyframes,
+                )
+            writer.finish(result, metadata, run_timing)
+    finally:
+        hasher.cancel()
+    if not result.keyframe_stamps_ns:
+        warn(f"{recording}: no keyframes (no images with odometry)")
+    return EstimateSummary(
+        output=output,
+        samples=counts.samples,
+        keyframes=len(result.keyframe_stamps_ns),
+        states=len(result.states),
+        links=len(result.links),
+        hypotheses=len(result.hypotheses),
+        wall_s=time.perf_counter() - start,
+        slam_s=counts.slam_s,
+    )

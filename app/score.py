@@ -1,0 +1,253 @@
+"""``score()``: an estimate against its recording's ground truth — the summary, tables' data, plots' data.
+
+Reads the estimate file (keyframes streamed, kept as small per-keyframe rows), takes the ground
+truth at the keyframe stamps from the recording, and scores with ``aslam.core.metrics``. The
+summary JSON (``docs/usage.md``) is what ``--fail-on`` gates test (``aslam.app.gates``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Sequence
+from contextlib import closing
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from aslam.core import se2
+from aslam.core.errors import InputError
+from aslam.core.metrics import Evaluation, evaluate
+from aslam.data_formats.errors import RecordingError
+from aslam.data_formats.estimate import EstimateFile, iter_keyframes, read_estimate
+from aslam.data_formats.graph_json import build_graph_json
+from aslam.data_formats.recording import Recording, RecordingTopics
+
+# --- ground truth ----------------------------------------------------------------------------------
+
+
+def truth_at_stamps(
+    stamps_ns: Sequence[int], truth: Iterable[tuple[int, np.ndarray]], *, max_gap_ns: int = 1_000_000_000
+) -> np.ndarray:
+    """(n, 3) true poses at ``stamps_ns`` (ascending), NaN where unknown.
+
+    ``truth`` is a time-ordered stream of ``(stamp_ns, (x_m, y_m, yaw_rad))``, read once. A stamp
+    matching a message exactly takes its pose; between two messages at most ``max_gap_ns`` apart
+    the pose is interpolated (heading along the shorter arc); outside the messages it is unknown.
+    """
+    n = len(stamps_ns)
+    poses = np.full((n, 3), np.nan)
+    i = 0
+    previous: tuple[int, np.ndarray] | None = None
+    for stamp, pose in truth:
+        pose = np.asarray(pose, dtype=float)
+        while i < n and stamps_ns[i] <= stamp:
+            target = stamps_ns[i]
+            if target == stamp:
+                poses[i] = pose
+            elif previous is not None and stamp - previous[0] <= max_gap_ns:
+                t0, p0 = previous
+                poses[i] = se2.interpolate(p0, pose, (target - t0) / (stamp - t0))
+            i += 1
+        previous = (stamp, pose)
+        if i >= n:
+            break
+    return poses
+
+
+def dead_reckoning(actions: np.ndarray, start: np.ndarray | None = None) -> np.ndarray:
+    """(n, 3) poses from composing the keyframe actions (the first action is the start's)."""
+    poses = np.zeros((len(actions), 3))
+    pose = np.zeros(3) if start is None else np.asarray(start, dtype=float)
+    for i, action in enumerate(actions):
+        pose = pose if i == 0 else se2.compose(pose, action)
+        poses[i] = pose
+    return poses
+
+
+# --- the summary -----------------------------------------------------------------------------------
+
+
+def _stats(values: dict[str, Any]) -> dict[str, dict[str, float | None]]:
+    return {axis: {"mean": s.mean, "median": s.median, "max": s.max} for axis, s in values.items()}
+
+
+def build_summary(
+    evaluation: Evaluation,
+    *,
+    states: int,
+    links: int,
+    keyframes_per_second: float | None,
+) -> dict[str, Any]:
+    """The summary JSON (every key always present; null where not measurable)."""
+    counts = evaluation.hypothesis_counts
+    has_truth = evaluation.has_ground_truth
+    return {
+        "keyframes": int(evaluation.keyframes),
+        "states": int(states),
+        "links": int(links),
+        "ground_truth": bool(has_truth),
+        "hypotheses": {
+            "max": int(counts.max()) if counts.size else 0,
+            "mean": float(counts.mean()) if counts.size else 0.0,
+            "final": int(counts[-1]) if counts.size else 0,
+        },
+        "relocalisation": {
+            "episodes": len(evaluation.episodes),
+            "first_delay_keyframes": evaluation.first_delay,
+            "mean_delay_keyframes": evaluation.mean_delay,
+        },
+        "loop_closure": {
+            "claims": int(evaluation.claims.sum()),
+            "correct": int(evaluation.correct.sum()) if has_truth else None,
+            "ground_truth_revisits": int(evaluation.true_revisit.sum()) if has_truth else None,
+            "precision": evaluation.precision,
+            "recall": evaluation.recall,
+        },
+        "error": {
+            "best": _stats(evaluation.error_stats(weighted=False)),
+            "weighted": _stats(evaluation.error_stats(weighted=True)),
+        },
+        "timing": {"keyframes_per_second": keyframes_per_second},
+    }
+
+
+def summary_keys() -> set[str]:
+    """Every dotted leaf key of the summary (what ``--fail-on`` may test)."""
+    empty = Evaluation(
+        0,
+        np.zeros(0, np.int64),
+        np.zeros(0, bool),
+        False,
+        np.zeros(0, bool),
+        np.zeros(0, bool),
+        np.zeros((0, 3)),
+        np.zeros((0, 3)),
+        (),
+    )
+    return set(leaves(build_summary(empty, states=0, links=0, keyframes_per_second=None)))
+
+
+def leaves(tree: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            out.update(leaves(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+# --- scoring ---------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Report:
+    """An estimate scored: everything the tables, plots, graph JSON and gates are made from."""
+
+    estimate_path: Path
+    estimate: EstimateFile
+    recording_path: Path | None
+    """The recording the ground truth came from; None when reporting without ground truth."""
+    stamps_ns: tuple[int, ...]
+    actions: np.ndarray
+    """(n, 3) keyframe actions (x_m, y_m, yaw_rad) from odometry."""
+    true_poses: np.ndarray | None
+    """(n, 3) true poses at the keyframes; None without ground truth."""
+    evaluation: Evaluation
+    summary: dict[str, Any]
+
+    def graph_json(self) -> dict[str, Any]:
+        return build_graph_json(
+            self.estimate.graph,
+            self.stamps_ns,
+            self.true_poses,
+            estimate_path=str(self.estimate_path.absolute()),
+            recording_path=None if self.recording_path is None else str(self.recording_path),
+        )
+
+
+def score(
+    estimate: Path,
+    *,
+    recording: Path | None = None,
+    radius_m: float = 0.5,
+    heading_deg: float = 45.0,
+    on_warning: Callable[[str], None] | None = None,
+) -> Report:
+    """Score ``estimate`` against the ground truth of ``recording`` (default: the one it names).
+
+    Without ground truth (no recording found, none in it) it scores what needs none, with one
+    warning line saying why.
+    """
+    if not radius_m > 0:
+        raise InputError(f"--radius-m must be positive, got {radius_m}")
+    if not 0 < heading_deg <= 180:
+        raise InputError(f"--heading-deg must be in (0, 180], got {heading_deg}")
+    warn = on_warning or (lambda _line: None)
+    estimate = Path(estimate)
+    info = read_estimate(estimate)
+    steps = []
+    stamps: list[int] = []
+    actions = []
+    with closing(iter_keyframes(estimate)) as keyframes:
+        for keyframe in keyframes:
+            steps.append((keyframe.index, keyframe.hypotheses))
+            stamps.append(keyframe.stamp_ns)
+            actions.append(keyframe.action)
+    recording_path = _find_recording(recording, info, warn)
+    true_poses = None
+    if recording_path is not None:
+        topics = RecordingTopics.given(**info.metadata.topics)
+        true_poses = _ground_truth(recording_path, topics, stamps, warn)
+    evaluation = evaluate(steps, true_poses, radius_m=radius_m, heading_deg=heading_deg)
+    if not evaluation.has_ground_truth:
+        true_poses = None
+    summary = build_summary(
+        evaluation,
+        states=len(info.graph.states),
+        links=len(info.graph.links),
+        keyframes_per_second=None if info.timing is None else info.timing.keyframes_per_second,
+    )
+    return Report(
+        estimate_path=estimate,
+        estimate=info,
+        recording_path=recording_path,
+        stamps_ns=tuple(stamps),
+        actions=np.array(actions, dtype=float).reshape(-1, 3),
+        true_poses=true_poses,
+        evaluation=evaluation,
+        summary=summary,
+    )
+
+
+def _find_recording(given: Path | None, info: EstimateFile, warn: Callable[[str], None]) -> Path | None:
+    """The recording to take ground truth from, or None (with one warning line) if it is missing."""
+    if given is not None:
+        if not given.is_file():
+            raise InputError("no such recording", path=given)
+        return given.absolute()
+    named, size_bytes = info.metadata.recording.path, info.metadata.recording.size_bytes
+    path = Path(named)
+    if not path.is_file():
+        warn(f"recording {named} (named in the estimate) not found; reporting without ground truth")
+        return None
+    if path.stat().st_size != size_bytes:
+        size = path.stat().st_size
+        warn(f"recording {named} has changed since the estimate ({size} bytes, was {size_bytes})")
+    return path
+
+
+def _ground_truth(
+    path: Path, topics: RecordingTopics, stamps: list[int], warn: Callable[[str], None]
+) -> np.ndarray | None:
+    try:
+        with closing(Recording(path, on_warning=warn).ground_truth(topics)) as truth:  # type: ignore[arg-type]
+            poses = truth_at_stamps(stamps, truth)
+    except RecordingError as err:
+        warn(f"{err}; reporting without ground truth")
+        return None
+    if not len(poses) or not (poses == poses).all(axis=1).any():
+        warn(f"{path}: no ground truth at the keyframe stamps; reporting without ground truth")
+        return None
+    return poses

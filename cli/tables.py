@@ -1,0 +1,93 @@
+"""The tables `aslam report` prints: the summary, revisit errors, the hypothesis count as a sparkline."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    import numpy as np
+    from rich.console import Console
+
+    from aslam.app.score import Report
+
+SPARK = "▁▂▃▄▅▆▇█"
+SPARK_WIDTH = 64
+
+
+# --- tables --------------------------------------------------------------------------------------
+
+
+def _fmt(value: Any, digits: int = 3) -> str:
+    if value is None:
+        return "—"
+    if isinstance(value, float):
+        return f"{value:.{digits}f}"
+    return str(value)
+
+
+def sparkline(counts: np.ndarray, width: int = SPARK_WIDTH) -> str:
+    """The hypothesis count over the run, one character per bucket of keyframes (bucket maximum)."""
+    import numpy as np
+
+    if counts.size == 0:
+        return ""
+    buckets = np.array_split(counts, min(width, counts.size))
+    peak = max(int(counts.max()), 1)
+    return "".join(SPARK[min(len(SPARK) - 1, (int(b.max()) * len(SPARK) - 1) // peak)] for b in buckets)
+
+
+def print_report(console: Console, report: Report) -> None:
+    """The report's tables and the hypothesis sparkline."""
+    from rich.table import Table
+
+    s = report.summary
+    estimate, recording = report.estimate_path, report.recording_path
+    table = Table(title=f"aslam report — {estimate.name}", show_header=False, title_justify="left")
+    table.add_column("measure", style="bold")
+    table.add_column("value", justify="right")
+    loop = s["loop_closure"]
+    reloc = s["relocalisation"]
+    rows = [
+        ("ground truth", str(recording) if s["ground_truth"] else "none"),
+        ("keyframes", s["keyframes"]),
+        ("states (places)", s["states"]),
+        ("links", s["links"]),
+        ("loop closures claimed (best hypothesis)", loop["claims"]),
+        ("  correct", loop["correct"]),
+        ("  true revisits", loop["ground_truth_revisits"]),
+        ("  precision", loop["precision"]),
+        ("  recall", loop["recall"]),
+        ("relocalisation episodes", reloc["episodes"]),
+        ("  first delay (keyframes)", reloc["first_delay_keyframes"]),
+        ("  mean delay (keyframes)", reloc["mean_delay_keyframes"]),
+        ("hypotheses max / mean / final", "{max} / {mean:.1f} / {final}".format(**s["hypotheses"])),
+        ("keyframes/s", s["timing"]["keyframes_per_second"]),
+    ]
+    for name, value in rows:
+        table.add_row(name, _fmt(value, 1 if name == "keyframes/s" else 3))
+    console.print(table)
+
+    if s["ground_truth"]:
+        errors = Table(title="Revisit errors (absolute; new-state hypotheses excluded)", title_justify="left")
+        for name, justify in (
+            ("error", "left"),
+            ("hypothesis", "left"),
+            ("mean", "right"),
+            ("median", "right"),
+            ("max", "right"),
+        ):
+            errors.add_column(name, justify=justify)  # type: ignore[arg-type]
+        for axis, label in (("x_m", "x (m)"), ("y_m", "y (m)"), ("heading_deg", "heading (°)")):
+            for kind in ("best", "weighted"):
+                stats = s["error"][kind][axis]
+                errors.add_row(
+                    label if kind == "best" else "",
+                    "best" if kind == "best" else "belief-weighted",
+                    *(_fmt(stats[stat]) for stat in ("mean", "median", "max")),
+                    end_section=kind == "weighted",
+                )
+        console.print(errors)
+
+    counts = report.evaluation.hypothesis_counts
+    console.print(f"hypotheses over the run (max {s['hypotheses']['max']}):", highlight=False)
+    console.print(f"  {sparkline(counts)}", highlight=False)

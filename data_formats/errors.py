@@ -1,0 +1,17 @@
+"""The file-format errors, under the tool's one root (``aslam.core.errors.AslamError``).
+
+Kept apart from the readers and writers so that every module of ``data_formats`` can raise them
+without importing another's machinery (no import cycles, no imports hidden inside functions).
+"""
+
+from __future__ import annotations
+
+from aslam.core.errors import InputError
+
+
+class RecordingError(InputError):
+    """A recording that cannot be read or written; the message is ``PATH: problem`` (exit 2)."""
+
+
+class EstimateError(InputError):
+    """An estimate file that cannot be read or written; the message is ``PATH: problem`` (exit 2)."""

@@ -1,0 +1,155 @@
+"""Camera images as recordings store them: PNG/JPEG bytes or raw pixels, decoded on request."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from enum import StrEnum
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from aslam.data_formats.errors import RecordingError
+
+
+class ImageFormat(StrEnum):
+    PNG = "png"
+    JPEG = "jpeg"
+
+
+class EncodedImage(NamedTuple):
+    format: ImageFormat
+    data: bytes
+
+
+def encode_image(rgb: np.ndarray, fmt: ImageFormat = ImageFormat.PNG, jpeg_quality: int = 90) -> EncodedImage:
+    """PNG or JPEG bytes of an RGB ``(H, W, 3)`` (or grey ``(H, W)``) uint8 image.
+
+    The same input gives the same bytes (same OpenCV build): no timestamps or random state.
+    """
+    import cv2
+
+    rgb = np.asarray(rgb)
+    if rgb.dtype != np.uint8 or not (rgb.ndim == 2 or (rgb.ndim == 3 and rgb.shape[2] == 3)):
+        raise ValueError(f"expected a uint8 (H, W, 3) or (H, W) image, got {rgb.dtype} {rgb.shape}")
+    pixels = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR) if rgb.ndim == 3 else rgb
+    fmt = ImageFormat(fmt)
+    if fmt is ImageFormat.PNG:
+        ok, buf = cv2.imencode(".png", pixels, [cv2.IMWRITE_PNG_COMPRESSION, 3])
+    else:
+        if not 0 <= jpeg_quality <= 100:
+            raise ValueError(f"jpeg_quality must be in [0, 100], got {jpeg_quality}")
+        ok, buf = cv2.imencode(".jpg", pixels, [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)])
+    if not ok:
+        raise ValueError(f"OpenCV could not encode a {rgb.shape} image as {fmt.value}")
+    return EncodedImage(fmt, buf.tobytes())
+
+
+RAW_CHANNELS = {"mono8": 1, "rgb8": 3, "bgr8": 3}
+
+
+class _QuietOpenCV:
+    """Silence OpenCV's log while any thread decodes, so a corrupt image's warning (``[ WARN:0@…]
+    PNG input buffer is incomplete``) does not reach stderr; the error says it instead. Reference
+    counted, so decoding threads can overlap and the user's level comes back after the last one."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._users = 0
+        self._saved_level = 0
+
+    @contextmanager
+    def __call__(self) -> Iterator[None]:
+        import cv2
+
+        logging = cv2.utils.logging
+        with self._lock:
+            if self._users == 0:
+                self._saved_level = logging.getLogLevel()
+                logging.setLogLevel(logging.LOG_LEVEL_SILENT)
+            self._users += 1
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._users -= 1
+                if self._users == 0:
+                    logging.setLogLevel(self._saved_level)
+
+
+_quiet_opencv = _QuietOpenCV()
+
+
+class LazyImage:
+    """One camera image as stored: encoded bytes (PNG/JPEG) or raw pixels, decoded only on request.
+
+    ``encoding`` is ``"png"``, ``"jpeg"``, ``"mono8"``, ``"rgb8"`` or ``"bgr8"``; ``width``,
+    ``height`` and ``step`` are known up front only for raw images (0 otherwise).
+    """
+
+    __slots__ = ("data", "encoding", "height", "path", "stamp_ns", "step", "width")
+
+    def __init__(
+        self,
+        data: bytes,
+        encoding: str,
+        *,
+        path: Path | str,
+        stamp_ns: int,
+        width: int = 0,
+        height: int = 0,
+        step: int = 0,
+    ) -> None:
+        self.data = data
+        self.encoding = encoding
+        self.path = Path(path)
+        self.stamp_ns = stamp_ns
+        self.width = width
+        self.height = height
+        self.step = step
+
+    def __repr__(self) -> str:
+        return f"LazyImage({self.encoding}, {len(self.data)} bytes, stamp_ns={self.stamp_ns})"
+
+    def _error(self, problem: str) -> RecordingError:
+        return RecordingError(f"image at stamp {self.stamp_ns} ns: {problem}", path=self.path)
+
+    def _imdecode(self, flags: int) -> np.ndarray:
+        import cv2
+
+        buf = np.frombuffer(self.data, dtype=np.uint8)
+        try:
+            with _quiet_opencv():
+                pixels = cv2.imdecode(buf, flags) if buf.size else None
+        except cv2.error as err:
+            raise self._error(f"corrupt {self.encoding.upper()} data ({err})") from err
+        if pixels is None:
+            raise self._error(f"corrupt {self.encoding.upper()} data ({len(self.data)} bytes)")
+        return pixels
+
+    def _raw(self) -> np.ndarray:
+        channels = RAW_CHANNELS[self.encoding]
+        row = self.width * channels
+        if self.width <= 0 or self.height <= 0 or self.step < row or len(self.data) < self.step * self.height:
+            raise self._error(
+                f"{len(self.data)} bytes do not hold a {self.width}x{self.height} {self.encoding} "
+                f"image with step {self.step}"
+            )
+        rows = np.frombuffer(self.data, dtype=np.uint8, count=self.step * self.height)
+        pixels = rows.reshape(self.height, self.step)[:, :row]
+        return pixels.reshape(self.height, self.width, channels) if channels == 3 else pixels
+
+    def decode_gray(self) -> np.ndarray:
+        """uint8 ``(H, W)``."""
+        import cv2
+
+        if self.encoding in RAW_CHANNELS:
+            pixels = self._raw()
+            if self.encoding == "mono8":
+                return np.ascontiguousarray(pixels)
+            code = cv2.COLOR_RGB2GRAY if self.encoding == "rgb8" else cv2.COLOR_BGR2GRAY
+            return cv2.cvtColor(pixels, code)
+        pixels = self._imdecode(cv2.IMREAD_GRAYSCALE)
+        return pixels

@@ -1,0 +1,218 @@
+"""Pairing camera images with poses interpolated to their stamps, holding only images still waiting.
+
+Real robots publish odometry (and ground truth) at their own rates and latencies; the assembler
+turns three time-ordered streams into one ``Sample`` per image with bounded memory.
+"""
+
+from __future__ import annotations
+
+from bisect import bisect_right
+from collections import deque
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from aslam.core import se2
+from aslam.data_formats.images import LazyImage
+
+# Images held while waiting for the odometry message after them. Past this the oldest is dropped
+# (counted and reported): memory stays bounded even when odometry stops mid-recording.
+MAX_PENDING_IMAGES = 512
+# Odometry (and ground-truth) messages kept to interpolate images that arrive late, i.e. whose
+# stamp is older than the newest pose already read (sensor latency differs between topics).
+POSE_HISTORY = 256
+
+
+class Sample(NamedTuple):
+    stamp_ns: int
+    image: LazyImage
+    odometry_pose: np.ndarray  # (x_m, y_m, yaw_rad) in the odom frame, at stamp_ns
+    ground_truth_pose: np.ndarray | None  # (x_m, y_m, yaw_rad) in the world frame, or None
+
+
+_WAIT, _BEFORE, _LATE = "wait", "before", "late"
+
+
+class PoseTrack:
+    """Recent poses of one topic, for interpolation to image stamps."""
+
+    def __init__(self, history: int = POSE_HISTORY) -> None:
+        self._stamps: deque[int] = deque(maxlen=history)
+        self._poses: deque[np.ndarray] = deque(maxlen=history)
+        self.first_ns: int | None = None
+        self.last_ns: int | None = None
+        self.count = 0
+
+    def add(self, stamp_ns: int, pose: np.ndarray) -> None:
+        self._stamps.append(stamp_ns)
+        self._poses.append(pose)
+        if self.first_ns is None:
+            self.first_ns = stamp_ns
+        self.last_ns = stamp_ns
+        self.count += 1
+
+    def lookup(self, stamp_ns: int) -> np.ndarray | str:
+        """The pose at ``stamp_ns``, or why not: _WAIT (no pose after it yet), _BEFORE, _LATE."""
+        if self.last_ns is None or stamp_ns > self.last_ns:
+            return _WAIT
+        stamps = self._stamps
+        if stamp_ns < stamps[0]:
+            return _BEFORE if stamps[0] == self.first_ns else _LATE
+        j = bisect_right(stamps, stamp_ns) - 1  # the last pose at or before stamp_ns
+        if stamps[j] == stamp_ns:
+            return self._poses[j].copy()
+        t0, t1 = stamps[j], stamps[j + 1]
+        return se2.interpolate(self._poses[j], self._poses[j + 1], (stamp_ns - t0) / (t1 - t0))
+
+
+@dataclass(eq=False)
+class _Pending:
+    stamp_ns: int
+    image: LazyImage
+    ground_truth_done: bool = False
+    odometry: np.ndarray | None = None
+    ground_truth: np.ndarray | None = None
+    dropped: bool = False
+
+
+@dataclass
+class _Counts:
+    before_first: int = 0
+    late: int = 0
+    gap: int = 0
+    after_last: int = 0
+    no_ground_truth: int = 0
+
+
+@dataclass
+class SampleAssembler:
+    """Pairs images with poses interpolated to their stamps, holding only images still waiting."""
+
+    path: Path
+    max_pending: int = MAX_PENDING_IMAGES
+    # Whether images wait for a ground-truth pose; set once the ground-truth channel is known
+    # (on a linear read it may be met after the first images).
+    expect_ground_truth: bool = False
+    odometry: PoseTrack = field(default_factory=PoseTrack)
+    ground_truth: PoseTrack = field(default_factory=PoseTrack)
+    counts: _Counts = field(default_factory=_Counts)
+    images: int = 0
+    yielded: int = 0
+    last_image_ns: int | None = None
+    _pending: deque[_Pending] = field(default_factory=deque)
+
+    def add_image(self, stamp_ns: int, image: LazyImage) -> Iterator[Sample]:
+        self.images += 1
+        self.last_image_ns = stamp_ns
+        item = _Pending(stamp_ns, image)
+        self._resolve(item)
+        if not item.dropped:
+            self._pending.append(item)
+        yield from self._drain()
+
+    def add_odometry(self, stamp_ns: int, pose: np.ndarray) -> Iterator[Sample]:
+        self.odometry.add(stamp_ns, pose)
+        for item in self._pending:
+            if item.odometry is None and not item.dropped:
+                self._resolve(item)
+        yield from self._drain()
+
+    def add_ground_truth(self, stamp_ns: int, pose: np.ndarray) -> Iterator[Sample]:
+        self.ground_truth.add(stamp_ns, pose)
+        for item in self._pending:
+            if not item.ground_truth_done and not item.dropped:
+                self._resolve(item)
+        yield from self._drain()
+
+    def _resolve(self, item: _Pending) -> None:
+        if item.odometry is None:
+            found = self.odometry.lookup(item.stamp_ns)
+            if found is _BEFORE or found is _LATE:
+                item.dropped = True
+                if found is _BEFORE:
+                    self.counts.before_first += 1
+                else:
+                    self.counts.late += 1
+                return
+            if not isinstance(found, str):
+                item.odometry = found
+        if self.expect_ground_truth and not item.ground_truth_done:
+            found = self.ground_truth.lookup(item.stamp_ns)
+            if found is _BEFORE or found is _LATE:
+                item.ground_truth_done = True
+                self.counts.no_ground_truth += 1
+            elif not isinstance(found, str):
+                item.ground_truth = found
+                item.ground_truth_done = True
+
+    def _drain(self) -> Iterator[Sample]:
+        pending = self._pending
+        while pending:
+            head = pending[0]
+            if head.dropped:
+                pending.popleft()
+                continue
+            ready = head.odometry is not None and (head.ground_truth_done or not self.expect_ground_truth)
+            if not ready and len(pending) > self.max_pending:
+                if head.odometry is None:  # odometry stopped or far too slow: let the oldest go
+                    if self.odometry.last_ns is None:
+                        self.counts.before_first += 1
+                    else:
+                        self.counts.gap += 1
+                    pending.popleft()
+                    continue
+                head.ground_truth_done = True
+                self.counts.no_ground_truth += 1
+                ready = True
+            if not ready:
+                return
+            pending.popleft()
+            yield self._sample(head)
+
+    def _sample(self, item: _Pending) -> Sample:
+        self.yielded += 1
+        assert item.odometry is not None
+        return Sample(item.stamp_ns, item.image, item.odometry, item.ground_truth)
+
+    def finish(self) -> Iterator[Sample]:
+        while self._pending:
+            item = self._pending.popleft()
+            if item.dropped:
+                continue
+            if item.odometry is None:
+                self.counts.after_last += 1
+                continue
+            if self.expect_ground_truth and not item.ground_truth_done:
+                self.counts.no_ground_truth += 1
+            yield self._sample(item)
+
+    def warnings(self) -> list[str]:
+        c, path, out = self.counts, self.path, []
+        if c.before_first:
+            out.append(
+                f"{path}: dropped {c.before_first} image(s) stamped before the first odometry message"
+                + (f" (at {self.odometry.first_ns} ns)" if self.odometry.first_ns is not None else "")
+            )
+        if c.late:
+            out.append(
+                f"{path}: dropped {c.late} image(s) that arrived more than {POSE_HISTORY} "
+                "odometry messages late"
+            )
+        if c.gap:
+            out.append(
+                f"{path}: dropped {c.gap} image(s) in odometry gaps longer than {self.max_pending} images"
+            )
+        if c.after_last:
+            out.append(
+                f"{path}: dropped {c.after_last} image(s) stamped after the last odometry message"
+                + (f" (at {self.odometry.last_ns} ns)" if self.odometry.last_ns is not None else "")
+            )
+        if c.no_ground_truth:
+            out.append(
+                f"{path}: {c.no_ground_truth} image(s) have no ground truth (stamped outside the "
+                "ground-truth messages)"
+            )
+        return out
