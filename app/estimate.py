@@ -42,10 +42,6 @@ class EstimateProgress:
     hypotheses: int
     elapsed_s: float
 
-    @property
-    def keyframes_per_second(self) -> float:
-        return self.keyframes / max(self.elapsed_s, 1e-9)
-
 
 @dataclass(frozen=True)
 class EstimateSummary:

@@ -74,7 +74,7 @@ def estimate(**options: Any) -> None:
             total=p.samples_total,
             keyframes=p.keyframes,
             hypotheses=p.hypotheses,
-            rate=p.keyframes_per_second,
+            rate=p.keyframes / max(p.elapsed_s, 1e-9),
         )
 
     with progress:

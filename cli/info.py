@@ -9,15 +9,8 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
+from aslam.cli import output
 from aslam.cli.app import app
-from aslam.cli.output import (
-    GroundTruthTopicOption,
-    ImageTopicOption,
-    OdometryTopicOption,
-    QuietOption,
-    Terminal,
-    VerboseOption,
-)
 
 if TYPE_CHECKING:
     from aslam.data_formats.recording_info import RecordingInfo
@@ -27,11 +20,11 @@ if TYPE_CHECKING:
 def info(
     recording: Annotated[Path, typer.Argument(help="The recording (.mcap) to read.", show_default=False)],
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object to stdout.")] = False,
-    image_topic: ImageTopicOption = None,
-    odometry_topic: OdometryTopicOption = None,
-    ground_truth_topic: GroundTruthTopicOption = None,
-    quiet: QuietOption = False,
-    verbose: VerboseOption = False,
+    image_topic: output.ImageTopicOption = None,
+    odometry_topic: output.OdometryTopicOption = None,
+    ground_truth_topic: output.GroundTruthTopicOption = None,
+    quiet: output.QuietOption = False,
+    verbose: output.VerboseOption = False,
 ) -> None:
     """Read a recording, decoding every image, and print its topics, counts, duration and metadata.
 
@@ -41,7 +34,7 @@ def info(
     from aslam.data_formats.recording import RecordingTopics
     from aslam.data_formats.recording_info import describe_recording
 
-    terminal = Terminal(quiet=quiet, verbose=verbose)
+    terminal = output.Terminal(quiet=quiet, verbose=verbose)
     topics = RecordingTopics.given(
         image=image_topic, odometry=odometry_topic, ground_truth=ground_truth_topic
     )

@@ -10,6 +10,7 @@ import numpy as np
 from aslam.core import se2
 from aslam.core.config import EstimatorConfig
 from aslam.core.mapgraph import SharedMap
+from aslam.core.motion import rel_covariance
 from aslam.core.tree import Hypothesis, HypothesisTree, TreeStats
 
 
@@ -119,9 +120,9 @@ class Estimator:
         links = []
         for key in sorted(graph.links):
             link = graph.links[key]
-            x, y, yaw, cxx, cxy, cxt, cyy, cyt, ctt = link.rel
-            covariance = ((cxx, cxy, cxt), (cxy, cyy, cyt), (cxt, cyt, ctt))
-            links.append(MapLink(link.from_state, link.to_state, (x, y, yaw), covariance, link.count))
+            x, y, yaw = link.rel[:3]
+            covariance = tuple(tuple(float(v) for v in row) for row in rel_covariance(link.rel))
+            links.append(MapLink(link.from_state, link.to_state, (x, y, yaw), covariance, link.count))  # type: ignore[arg-type]
         return EstimateResult(
             states, tuple(links), tuple(tree.hypotheses()), tuple(self._stamps), tree.stats()
         )

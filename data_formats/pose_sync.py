@@ -190,29 +190,25 @@ class SampleAssembler:
             yield self._sample(item)
 
     def warnings(self) -> list[str]:
-        c, path, out = self.counts, self.path, []
-        if c.before_first:
-            out.append(
-                f"{path}: dropped {c.before_first} image(s) stamped before the first odometry message"
-                + (f" (at {self.odometry.first_ns} ns)" if self.odometry.first_ns is not None else "")
-            )
-        if c.late:
-            out.append(
-                f"{path}: dropped {c.late} image(s) that arrived more than {POSE_HISTORY} "
-                "odometry messages late"
-            )
-        if c.gap:
-            out.append(
-                f"{path}: dropped {c.gap} image(s) in odometry gaps longer than {self.max_pending} images"
-            )
-        if c.after_last:
-            out.append(
-                f"{path}: dropped {c.after_last} image(s) stamped after the last odometry message"
-                + (f" (at {self.odometry.last_ns} ns)" if self.odometry.last_ns is not None else "")
-            )
+        c, first, last = self.counts, self.odometry.first_ns, self.odometry.last_ns
+        lines = [
+            (
+                c.before_first,
+                "image(s) stamped before the first odometry message"
+                + (f" (at {first} ns)" if first is not None else ""),
+            ),
+            (c.late, f"image(s) that arrived more than {POSE_HISTORY} odometry messages late"),
+            (c.gap, f"image(s) in odometry gaps longer than {self.max_pending} images"),
+            (
+                c.after_last,
+                "image(s) stamped after the last odometry message"
+                + (f" (at {last} ns)" if last is not None else ""),
+            ),
+        ]
+        out = [f"{self.path}: dropped {count} {what}" for count, what in lines if count]
         if c.no_ground_truth:
             out.append(
-                f"{path}: {c.no_ground_truth} image(s) have no ground truth (stamped outside the "
+                f"{self.path}: {c.no_ground_truth} image(s) have no ground truth (stamped outside the "
                 "ground-truth messages)"
             )
         return out

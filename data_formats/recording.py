@@ -158,24 +158,45 @@ def _lazy_image(path: Path, topic: str, datatype: str, msg: Any, stamp_ns: int) 
     )
 
 
-def _pose(path: Path, what: str, topic: str, datatype: str, msg: Any, stamp_ns: int) -> np.ndarray:
-    try:
-        pose = ros_msgs.pose_of_message(datatype, msg)
-    except (AttributeError, TypeError, ValueError) as err:
-        raise RecordingError(
-            f"{what} message on '{topic}' at stamp {stamp_ns} ns has no pose", path=path
-        ) from err
-    if not np.all(np.isfinite(pose)):
-        raise RecordingError(
-            f"{what} pose on '{topic}' at stamp {stamp_ns} ns is not finite (NaN or infinite)", path=path
-        )
-    return pose
+class _Stream:
+    """One kind of message in a recording: its accepted types, and stamps that must not go back."""
 
+    def __init__(self, path: Path, what: str, accepted: tuple[str, ...], decode: _MessageDecoder) -> None:
+        self.path = path
+        self.what = what
+        self.accepted = accepted
+        self.decode = decode
+        self.last_ns: int | None = None
 
-def _backwards(path: Path, what: str, topic: str, stamp_ns: int, previous_ns: int) -> RecordingError:
-    return RecordingError(
-        f"{what} stamps go backwards on '{topic}': {stamp_ns} ns after {previous_ns} ns", path=path
-    )
+    def read(self, schema: Any, channel: Any, message: Any) -> tuple[int, Any, str]:
+        """``(stamp_ns, decoded message, datatype)``, checked."""
+        datatype = schema.name if schema is not None else ""
+        _check_type(self.path, self.what, channel.topic, datatype, self.accepted)
+        msg = self.decode(schema, channel, message)
+        stamp_ns = _header_stamp_ns(msg, message.log_time)
+        if self.last_ns is not None and stamp_ns < self.last_ns:
+            topic, previous = channel.topic, self.last_ns
+            raise RecordingError(
+                f"{self.what} stamps go backwards on '{topic}': {stamp_ns} ns after {previous} ns",
+                path=self.path,
+            )
+        self.last_ns = stamp_ns
+        return stamp_ns, msg, datatype
+
+    def pose(self, topic: str, datatype: str, msg: Any, stamp_ns: int) -> np.ndarray:
+        """The planar pose of a pose message (Odometry, PoseStamped, ...), finite."""
+        try:
+            pose = ros_msgs.pose_of_message(datatype, msg)
+        except (AttributeError, TypeError, ValueError) as err:
+            raise RecordingError(
+                f"{self.what} message on '{topic}' at stamp {stamp_ns} ns has no pose", path=self.path
+            ) from err
+        if not np.all(np.isfinite(pose)):
+            raise RecordingError(
+                f"{self.what} pose on '{topic}' at stamp {stamp_ns} ns is not finite (NaN or infinite)",
+                path=self.path,
+            )
+        return pose
 
 
 class Recording:
@@ -229,41 +250,24 @@ class Recording:
                 )
         decode = _MessageDecoder(path)
         assembler = SampleAssembler(path)
-        last_odometry_ns: int | None = None
-        last_truth_ns: int | None = None
+        images = _Stream(path, "image", ros_msgs.IMAGE_TYPES, decode)
+        odometry = _Stream(path, "odometry", ros_msgs.POSE_TYPES, decode)
+        truth = _Stream(path, "ground-truth", ros_msgs.POSE_TYPES, decode)
         wanted = (topics.image, topics.odometry, topics.ground_truth)
         truth_messages = source.message_count(topics.ground_truth)
         for schema, channel, message in source.messages(wanted):
-            datatype = schema.name if schema is not None else ""
             topic = channel.topic
             if not assembler.expect_ground_truth and topics.ground_truth in channels and truth_messages != 0:
                 assembler.expect_ground_truth = True
             if topic == topics.image:
-                _check_type(path, "image", topic, datatype, ros_msgs.IMAGE_TYPES)
-                msg = decode(schema, channel, message)
-                stamp_ns = _header_stamp_ns(msg, message.log_time)
-                if assembler.last_image_ns is not None and stamp_ns < assembler.last_image_ns:
-                    raise _backwards(path, "image", topic, stamp_ns, assembler.last_image_ns)
-                image = _lazy_image(path, topic, datatype, msg, stamp_ns)
-                yield from assembler.add_image(stamp_ns, image)
+                stamp_ns, msg, datatype = images.read(schema, channel, message)
+                yield from assembler.add_image(stamp_ns, _lazy_image(path, topic, datatype, msg, stamp_ns))
             elif topic == topics.odometry:
-                _check_type(path, "odometry", topic, datatype, ros_msgs.POSE_TYPES)
-                msg = decode(schema, channel, message)
-                stamp_ns = _header_stamp_ns(msg, message.log_time)
-                if last_odometry_ns is not None and stamp_ns < last_odometry_ns:
-                    raise _backwards(path, "odometry", topic, stamp_ns, last_odometry_ns)
-                last_odometry_ns = stamp_ns
-                pose = _pose(path, "odometry", topic, datatype, msg, stamp_ns)
-                yield from assembler.add_odometry(stamp_ns, pose)
+                stamp_ns, msg, datatype = odometry.read(schema, channel, message)
+                yield from assembler.add_odometry(stamp_ns, odometry.pose(topic, datatype, msg, stamp_ns))
             else:
-                _check_type(path, "ground-truth", topic, datatype, ros_msgs.POSE_TYPES)
-                msg = decode(schema, channel, message)
-                stamp_ns = _header_stamp_ns(msg, message.log_time)
-                if last_truth_ns is not None and stamp_ns < last_truth_ns:
-                    raise _backwards(path, "ground-truth", topic, stamp_ns, last_truth_ns)
-                last_truth_ns = stamp_ns
-                pose = _pose(path, "ground-truth", topic, datatype, msg, stamp_ns)
-                yield from assembler.add_ground_truth(stamp_ns, pose)
+                stamp_ns, msg, datatype = truth.read(schema, channel, message)
+                yield from assembler.add_ground_truth(stamp_ns, truth.pose(topic, datatype, msg, stamp_ns))
         if not source.complete_channels:
             if topics.image not in channels:
                 raise _missing_topic(path, "image", topics.image, channels, source)
@@ -288,19 +292,12 @@ class Recording:
         topic = topics.ground_truth
         if source.complete_channels and topic not in source.channels:
             raise _missing_topic(path, "ground-truth", topic, source.channels, source)
-        decode = _MessageDecoder(path)
-        last_ns: int | None = None
+        stream = _Stream(path, "ground-truth", ros_msgs.POSE_TYPES, _MessageDecoder(path))
         count = 0
         for schema, channel, message in source.messages([topic]):
-            datatype = schema.name if schema is not None else ""
-            _check_type(path, "ground-truth", topic, datatype, ros_msgs.POSE_TYPES)
-            msg = decode(schema, channel, message)
-            stamp_ns = _header_stamp_ns(msg, message.log_time)
-            if last_ns is not None and stamp_ns < last_ns:
-                raise _backwards(path, "ground-truth", topic, stamp_ns, last_ns)
-            last_ns = stamp_ns
+            stamp_ns, msg, datatype = stream.read(schema, channel, message)
             count += 1
-            yield stamp_ns, _pose(path, "ground-truth", topic, datatype, msg, stamp_ns)
+            yield stamp_ns, stream.pose(topic, datatype, msg, stamp_ns)
         if not source.complete_channels and topic not in source.channels:
             raise _missing_topic(path, "ground-truth", topic, source.channels, source)
         if source.truncation is not None:
