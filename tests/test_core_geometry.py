@@ -133,3 +133,13 @@ def test_action_covariance_is_proportional_to_distance_and_angle():
     assert math.isclose(math.sqrt(forward[0, 0]), 0.06)
     turn = action_covariance(np.array([0.0, 0.0, math.pi / 2]), noise)
     assert math.isclose(math.sqrt(turn[2, 2]), 0.03 * math.pi / 2)
+
+
+@given(poses, poses)
+def test_interpolate_runs_from_a_to_b_along_the_shorter_turn(a, b):
+    assert close_poses(se2.interpolate(a, b, 0.0), a, 1e-9)
+    assert close_poses(se2.interpolate(a, b, 1.0), b, 1e-6)
+    middle = se2.interpolate(a, b, 0.5)
+    np.testing.assert_allclose(middle[:2], (a[:2] + b[:2]) / 2, atol=1e-9)
+    turn = abs(se2.wrap_angle(middle[2] - a[2]))
+    assert turn <= np.pi / 2 + 1e-9  # half of a turn that is at most π

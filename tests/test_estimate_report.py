@@ -14,6 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from conftest import one_error_line
 from mcap.reader import make_reader
 
 from aslam.cli.app import main
@@ -98,13 +99,6 @@ def estimate_file(recording: Path, tmp_path_factory: pytest.TempPathFactory) -> 
     return out
 
 
-def _one_error_line(err: str) -> None:
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    assert lines[0].startswith("aslam: error:"), err
-    assert "Traceback" not in err
-
-
 # --- estimate ------------------------------------------------------------------------------------
 
 
@@ -186,7 +180,7 @@ def test_refuses_to_overwrite_without_force(recording: Path, tmp_path: Path, cap
     out = tmp_path / "e.mcap"
     out.write_bytes(b"keep me")
     assert main(["estimate", str(recording), "-o", str(out)]) == 2
-    _one_error_line(capsys.readouterr().err)
+    one_error_line(capsys.readouterr().err)
     assert out.read_bytes() == b"keep me"
     assert main(["estimate", str(recording), "-o", str(out), "--force", "--no-timing"]) == 0
 
@@ -223,7 +217,7 @@ def test_bad_option_values_are_one_line_exit_2(recording: Path, tmp_path: Path, 
     out = tmp_path / "e.mcap"
     assert main(["estimate", str(recording), "-o", str(out), *extra]) == 2
     err = capsys.readouterr().err
-    _one_error_line(err)
+    one_error_line(err)
     assert needle in err
     assert not out.exists()
 
@@ -243,7 +237,7 @@ def test_bad_config_files_are_one_line_exit_2(recording: Path, tmp_path: Path, c
     config.write_text(text)
     assert main(["estimate", str(recording), "-o", str(tmp_path / "e.mcap"), "--config", str(config)]) == 2
     err = capsys.readouterr().err
-    _one_error_line(err)
+    one_error_line(err)
     assert needle in err
 
 
@@ -253,16 +247,16 @@ def test_bad_recordings_are_one_line_exit_2(tmp_path: Path, capsys):
     for path in (text, tmp_path / "missing.mcap"):
         assert main(["estimate", str(path), "-o", str(tmp_path / "e.mcap")]) == 2
         err = capsys.readouterr().err
-        _one_error_line(err)
+        one_error_line(err)
         assert str(path) in err
     assert main(["report", str(text)]) == 2
-    _one_error_line(capsys.readouterr().err)
+    one_error_line(capsys.readouterr().err)
 
 
 def test_estimate_rejects_a_recording_as_report_input(recording: Path, capsys):
     assert main(["report", str(recording)]) == 2
     err = capsys.readouterr().err
-    _one_error_line(err)
+    one_error_line(err)
     assert "not an aslam estimate" in err
 
 
@@ -325,7 +319,7 @@ def test_fail_on_both_ways(estimate_file: Path, capsys):
     code = main(["report", str(estimate_file), "--fail-on", f"keyframes>={n}", "--fail-on", "links<1"])
     assert code == 1
     err = capsys.readouterr().err
-    _one_error_line(err)
+    one_error_line(err)
     assert f"keyframes>={n}" in err and "links<1" not in err
 
 
@@ -343,7 +337,7 @@ def test_bad_fail_on_is_exit_2_before_any_work(tmp_path: Path, capsys, condition
     missing = tmp_path / "missing.mcap"  # never opened: the condition is checked first
     assert main(["report", str(missing), "--fail-on", condition]) == 2
     err = capsys.readouterr().err
-    _one_error_line(err)
+    one_error_line(err)
     assert needle in err and str(missing) not in err
 
 
@@ -369,3 +363,79 @@ def test_report_without_the_recording_warns_and_continues(recording: Path, tmp_p
     capsys.readouterr()
     assert main(["report", str(out), "--recording", str(recording), "--json", "-"]) == 0
     assert json.loads(capsys.readouterr().out)["ground_truth"] is True
+
+
+# --- the application layer and the CLI conventions ------------------------------------------------
+
+
+def test_app_layer_gives_what_the_cli_prints(recording: Path, tmp_path: Path, capsys):
+    from aslam.app.estimate import estimate
+    from aslam.app.score import score
+    from aslam.core.config import EstimatorConfig
+
+    progress, warnings = [], []
+    summary = estimate(
+        recording,
+        tmp_path / "api.mcap",
+        EstimatorConfig(),
+        timing=False,
+        on_progress=progress.append,
+        on_warning=warnings.append,
+    )
+    assert summary.output == (tmp_path / "api.mcap").absolute() and summary.keyframes > 0
+    assert progress[-1].keyframes == summary.keyframes and warnings == []
+    assert main(["estimate", str(recording), "-o", str(tmp_path / "cli.mcap"), "--no-timing", "-q"]) == 0
+    assert (tmp_path / "api.mcap").read_bytes() == (tmp_path / "cli.mcap").read_bytes()
+    report = score(tmp_path / "api.mcap")
+    assert main(["report", str(tmp_path / "cli.mcap"), "--json", "-", "-q"]) == 0
+    assert json.loads(capsys.readouterr().out) == report.summary
+
+
+def test_quiet_and_verbose(recording: Path, tmp_path: Path, capsys):
+    assert main(["estimate", str(recording), "-o", str(tmp_path / "q.mcap"), "--quiet"]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == "" and captured.out == ""
+    assert main(["estimate", str(recording), "-o", str(tmp_path / "v.mcap"), "--verbose"]) == 0
+    err = capsys.readouterr().err
+    assert "wrote" in err and "configuration:" in err and "SLAM step" in err
+    assert main(["estimate", str(recording), "-o", str(tmp_path / "x.mcap"), "-q", "-v"]) == 2
+    one_error_line(capsys.readouterr().err)
+
+
+def test_report_names_the_files_it_wrote_and_obeys_force(estimate_file: Path, tmp_path: Path, capsys):
+    graph, summary = tmp_path / "g.json", tmp_path / "s.json"
+    args = ["report", str(estimate_file), "--graph", str(graph), "--json", str(summary)]
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert f"wrote {graph}" in err and f"wrote {summary}" in err
+    assert main(args) == 2  # both exist now
+    assert "--force" in one_error_line(capsys.readouterr().err)
+    assert main([*args, "--force"]) == 0
+
+
+def test_report_graph_to_stdout(estimate_file: Path, capsys):
+    assert main(["report", str(estimate_file), "--graph", "-"]) == 0
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["version"] == 1 and "aslam report" in captured.err
+
+
+@pytest.mark.parametrize("command", ["record", "estimate", "report", "info"])
+def test_help_shows_flags_without_a_value_placeholder(command: str, capsys):
+    assert main([command, "--help"]) == 0
+    out = capsys.readouterr().out
+    assert "--quiet" in out and "--verbose" in out
+    assert "<bool>" not in out and "BOOLEAN" not in out
+
+
+def test_completion_can_be_installed(capsys):
+    assert main(["--help"]) == 0
+    assert "--install-completion" in capsys.readouterr().out
+
+
+def test_hypothesis_plot_has_whole_number_axes(estimate_file: Path):
+    from aslam.app.plots import _hypotheses_figure
+    from aslam.app.score import score
+
+    figure = _hypotheses_figure(score(estimate_file).evaluation, "t")
+    ticks = figure.axes[0].get_yticks()
+    assert len(ticks) and all(float(t).is_integer() for t in ticks)

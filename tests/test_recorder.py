@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import one_error_line
 
 from aslam.cli.app import main
 from aslam.core import se2
@@ -46,12 +47,6 @@ LOOP = {
 def _write_json(path: Path, doc) -> Path:
     path.write_text(json.dumps(doc))
     return path
-
-
-def _one_error_line(capsys) -> str:
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1, err
-    return err
 
 
 # ------------------------------------------------------------------------------------------ routes
@@ -277,7 +272,7 @@ def test_scene_file_world_renders_and_a_route_through_a_wall_is_refused(tmp_path
     through = _write_json(tmp_path / "through.json", {"actions": [{"forward_m": 1}, {"forward_m": 4}]})
     bad_out = tmp_path / "bad.mcap"
     assert main(["record", "--world", str(scene), "--route", str(through), "-o", str(bad_out)]) == 2
-    err = _one_error_line(capsys)
+    err = one_error_line(capsys.readouterr().err)
     assert str(scene) in err and "action 1" in err and "forward_m" in err
     assert not bad_out.exists()
 
@@ -290,7 +285,7 @@ def test_bad_scene_file_is_one_line(tmp_path, capsys):
 
         load_scene_world(bad)
     assert main(["record", "--world", str(bad), "-o", str(tmp_path / "x.mcap")]) == 2
-    assert str(bad) in _one_error_line(capsys)
+    assert str(bad) in one_error_line(capsys.readouterr().err)
 
 
 @pytest.mark.parametrize(
@@ -311,21 +306,21 @@ def test_bad_scene_file_is_one_line(tmp_path, capsys):
 def test_bad_options_exit_2_with_one_line(tmp_path, capsys, option, needle):
     out = tmp_path / "x.mcap"
     assert main(["record", "-o", str(out), *option]) == 2
-    assert needle in _one_error_line(capsys)
+    assert needle in one_error_line(capsys.readouterr().err)
     assert not out.exists()
 
 
 def test_laps_on_an_open_route_file_exit_2(tmp_path, capsys):
     route = _write_json(tmp_path / "open.json", {"actions": [{"forward_m": 1}]})
     assert main(["record", "-o", str(tmp_path / "x.mcap"), "--route", str(route), "--laps", "2"]) == 2
-    assert "open" in _one_error_line(capsys)
+    assert "open" in one_error_line(capsys.readouterr().err)
 
 
 def test_existing_output_is_refused_without_force(tmp_path, capsys):
     out = tmp_path / "x.mcap"
     out.write_bytes(b"keep me")
     assert main(["record", "-o", str(out), "--size", "32x24"]) == 2
-    assert "--force" in _one_error_line(capsys)
+    assert "--force" in one_error_line(capsys.readouterr().err)
     assert out.read_bytes() == b"keep me"
 
 

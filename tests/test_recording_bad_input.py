@@ -15,10 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
-from mcap.writer import Writer as McapWriter
-from test_recording_format import (
+from conftest import (
     FRAME_NS,
     T0_NS,
     ForeignRecording,
@@ -26,6 +23,9 @@ from test_recording_format import (
     write_recording,
     write_with_corrupt_image,
 )
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from mcap.writer import Writer as McapWriter
 
 from aslam.cli.app import main
 from aslam.data_formats import ros_msgs

@@ -1,0 +1,171 @@
+"""Helpers shared by the test modules: recordings written our way and the foreign way, error checks.
+
+Test modules import them by name (``from conftest import ForeignRecording``); pytest puts this
+folder on ``sys.path``.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from mcap_ros2.writer import Writer as Ros2Writer
+
+from aslam.data_formats import ros_msgs
+from aslam.data_formats.camera import CameraIntrinsics
+from aslam.data_formats.images import EncodedImage, ImageFormat, encode_image
+from aslam.data_formats.recording_writer import RecordingWriter
+
+
+def one_error_line(err: str) -> str:
+    """Assert ``err`` (captured stderr) is exactly one ``aslam: error:`` line; return it."""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("aslam: error:"), err
+    assert "Traceback" not in err
+    return lines[0]
+
+
+CAMERA = CameraIntrinsics(width_px=32, height_px=24, fov_deg=70.0)
+T0_NS = 1_700_000_000_000_000_000
+FRAME_NS = 100_000_000
+
+
+def random_frames(n: int, seed: int = 0) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
+    """``(stamp_ns, rgb, odometry_pose, ground_truth_pose)`` rows with random images and poses."""
+    rng = np.random.default_rng(seed)
+    frames = []
+    for i in range(n):
+        rgb = rng.integers(0, 256, size=(CAMERA.height_px, CAMERA.width_px, 3), dtype=np.uint8)
+        odometry = np.array([rng.uniform(-50, 50), rng.uniform(-50, 50), rng.uniform(-math.pi, math.pi)])
+        truth = np.array([rng.uniform(-50, 50), rng.uniform(-50, 50), rng.uniform(-math.pi, math.pi)])
+        frames.append((T0_NS + i * FRAME_NS, rgb, odometry, truth))
+    return frames
+
+
+def write_recording(
+    path: Path,
+    frames: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]],
+    *,
+    fmt: ImageFormat = ImageFormat.PNG,
+    metadata: dict[str, str] | None = None,
+    with_ground_truth: bool = True,
+    chunk_size_bytes: int = 1024 * 1024,
+) -> Path:
+    with RecordingWriter(
+        path,
+        camera=CAMERA,
+        metadata=metadata if metadata is not None else {"seed": "7"},
+        chunk_size_bytes=chunk_size_bytes,
+    ) as writer:
+        for stamp_ns, rgb, odometry, truth in frames:
+            writer.write(stamp_ns, encode_image(rgb, fmt), odometry, truth if with_ground_truth else None)
+    return path
+
+
+def write_with_corrupt_image(path: Path, fmt: ImageFormat) -> Path:
+    frames = random_frames(3)
+    with RecordingWriter(path, camera=CAMERA, metadata={}) as writer:
+        for i, (stamp_ns, rgb, odometry, truth) in enumerate(frames):
+            image = encode_image(rgb, fmt)
+            if i == 1:  # keep the signature, break the body
+                image = EncodedImage(fmt, image.data[:20] + bytes(len(image.data) - 20))
+            writer.write(stamp_ns, image, odometry, truth)
+    return path
+
+
+# A raw-image definition written the way ROS 2 ships it (comments and all), not ours.
+IMAGE_MSGDEF = """# This message contains an uncompressed image
+# (0, 0) is at top-left corner of image
+
+std_msgs/Header header # Header timestamp should be acquisition time of image
+
+uint32 height                # image height, that is, number of rows
+uint32 width                 # image width, that is, number of columns
+
+string encoding       # Encoding of pixels -- channel meaning, ordering, size
+
+uint8 is_bigendian    # is this data bigendian?
+uint32 step           # Full row length in bytes
+uint8[] data          # actual matrix data, size is (step * rows)
+
+================================================================================
+MSG: std_msgs/Header
+# Standard metadata for higher-level stamped data types.
+builtin_interfaces/Time stamp
+string frame_id
+
+================================================================================
+MSG: builtin_interfaces/Time
+int32 sec
+uint32 nanosec
+"""
+
+
+class ForeignRecording:
+    """A recording written message by message with mcap_ros2, for inputs our writer never makes."""
+
+    def __init__(self, path: Path) -> None:
+        self._file = path.open("wb")
+        self.writer = Ros2Writer(self._file)
+        self.schemas: dict[str, Any] = {}
+
+    def schema(self, datatype: str, msgdef: str | None = None) -> Any:
+        if datatype not in self.schemas:
+            text = msgdef if msgdef is not None else ros_msgs.message_definition(datatype)
+            self.schemas[datatype] = self.writer.register_msgdef(datatype, text)
+        return self.schemas[datatype]
+
+    def raw_image(
+        self, topic: str, stamp_ns: int, pixels: np.ndarray, encoding: str, log_time: int | None = None
+    ) -> None:
+        height, width = pixels.shape[:2]
+        channels = 1 if pixels.ndim == 2 else pixels.shape[2]
+        message = {
+            "header": ros_msgs.header_msg(stamp_ns, "camera"),
+            "height": height,
+            "width": width,
+            "encoding": encoding,
+            "is_bigendian": 0,
+            "step": width * channels,
+            "data": np.ascontiguousarray(pixels).tobytes(),
+        }
+        self.writer.write_message(
+            topic, self.schema(ros_msgs.RAW_IMAGE, IMAGE_MSGDEF), message, log_time=log_time or stamp_ns
+        )
+
+    def compressed_image(
+        self, topic: str, stamp_ns: int, data: bytes, fmt: str, log_time: int | None = None
+    ) -> None:
+        message = {"header": ros_msgs.header_msg(stamp_ns, "camera"), "format": fmt, "data": data}
+        self.writer.write_message(
+            topic, self.schema(ros_msgs.COMPRESSED_IMAGE), message, log_time=log_time or stamp_ns
+        )
+
+    def odometry(
+        self, topic: str, stamp_ns: int, x: float, y: float, yaw: float, log_time: int | None = None
+    ) -> None:
+        if math.isfinite(yaw):
+            quaternion = {"x": 0.0, "y": 0.0, "z": math.sin(yaw / 2), "w": math.cos(yaw / 2)}
+        else:  # a broken quaternion, the way a bad driver would write it
+            quaternion = {"x": 0.0, "y": 0.0, "z": yaw, "w": 1.0}
+        message = {
+            "header": ros_msgs.header_msg(stamp_ns, "odom"),
+            "child_frame_id": "base_link",
+            "pose": {"pose": {"position": {"x": x, "y": y, "z": 0.0}, "orientation": quaternion}},
+        }
+        self.writer.write_message(
+            topic, self.schema(ros_msgs.ODOMETRY), message, log_time=log_time or stamp_ns
+        )
+
+    def close(self) -> None:
+        self.writer.finish()
+        self._file.close()
+
+    def __enter__(self) -> ForeignRecording:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
