@@ -32,10 +32,8 @@ from aslam.data_formats.recording import (
     LazyImage,
     Sample,
     _Assembler,
-    _backwards,
     _header_stamp_ns,
     _lazy_image,
-    _pose,
 )
 
 TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
@@ -236,6 +234,24 @@ def _image(path: Path, topic: str, datatype: str, msg: Any, stamp_ns: int) -> La
         height=int(msg.height),
         step=int(msg.step),
         is_bigendian=bool(msg.is_bigendian),
+    )
+
+
+def _pose(path: Path, what: str, topic: str, datatype: str, msg: Any, stamp_ns: int) -> np.ndarray:
+    try:
+        pose = ros_msgs.pose_of_message(datatype, msg)
+    except (AttributeError, TypeError, ValueError) as err:
+        raise BagError(f"{what} message on '{topic}' at stamp {stamp_ns} ns has no pose", path=path) from err
+    if not np.all(np.isfinite(pose)):
+        raise BagError(
+            f"{what} pose on '{topic}' at stamp {stamp_ns} ns is not finite (NaN or infinite)", path=path
+        )
+    return pose
+
+
+def _backwards(path: Path, what: str, topic: str, stamp_ns: int, previous_ns: int) -> BagError:
+    return BagError(
+        f"{what} stamps go backwards on '{topic}': {stamp_ns} ns after {previous_ns} ns", path=path
     )
 
 
