@@ -570,3 +570,65 @@ def test_our_mcap_reader_agrees_on_the_lone_rosbag2_file(bags):
 
     topics = RecordingTopics(image=IMAGE_TOPIC, odometry="/odom", ground_truth="/ground_truth")
     assert_driver_samples(list(iter_samples(bags["rosbag2-file"], topics)))
+
+
+def test_a_sqlite3_bag_without_message_definitions_reads_with_the_latest_types(tmp_path):
+    """Bags from before ROS 2 Iron store no definitions; rosbags' own type store stands in."""
+    import sqlite3
+
+    path = write_rosbag2(tmp_path / "humble", storage="sqlite3")
+    (db,) = path.glob("*.db3")
+    with sqlite3.connect(db) as connection:
+        connection.execute("DELETE FROM message_definitions")
+    assert_driver_samples(list(iter_bag_samples(path, WITH_TRUTH)))
+
+
+def test_ros1_frames_with_a_leading_slash(tmp_path):
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    rows = bag_messages(ts, Options(odometry="tf"))
+    for _log, topic, _type, msg in rows:
+        if topic == "/tf":
+            for transform in msg.transforms:
+                transform.header.frame_id = "/" + transform.header.frame_id
+                transform.child_frame_id = "/" + transform.child_frame_id
+    path = write_rosbag2(tmp_path / "bag", messages=rows)
+    assert_driver_samples(list(iter_bag_samples(path, WITH_TRUTH)))
+
+
+def _damaged(tmp_path: Path, topic: str, change) -> Path:
+    from rosbags.typesys import Stores, get_typestore
+
+    rows = bag_messages(get_typestore(Stores.ROS2_HUMBLE))
+    matching = [msg for _log, t, _type, msg in rows if t == topic]
+    change(matching)
+    return write_rosbag2(tmp_path / "bag", messages=rows)
+
+
+def test_image_stamps_going_backwards(tmp_path):
+    def swap(msgs):
+        msgs[3].header.stamp, msgs[4].header.stamp = msgs[4].header.stamp, msgs[3].header.stamp
+
+    path = _damaged(tmp_path, IMAGE_TOPIC, swap)
+    with pytest.raises(BagError, match=f"image stamps go backwards on '{IMAGE_TOPIC}'"):
+        list(iter_bag_samples(path))
+
+
+def test_non_finite_odometry(tmp_path):
+    def poison(msgs):
+        msgs[10].pose.pose.position.x = float("nan")
+
+    path = _damaged(tmp_path, "/odom", poison)
+    with pytest.raises(BagError, match=r"odometry pose on '/odom' at stamp \d+ ns is not finite"):
+        list(iter_bag_samples(path))
+
+
+def test_unset_header_stamps_fall_back_to_the_log_time(tmp_path):
+    def unset(msgs):
+        for msg in msgs:
+            msg.header.stamp.sec, msg.header.stamp.nanosec = 0, 0
+
+    path = _damaged(tmp_path, IMAGE_TOPIC, unset)
+    samples = list(iter_bag_samples(path))
+    assert [s.stamp_ns for s in samples] == [stamp + IMAGE_LATENCY_NS for stamp in image_stamps()]
