@@ -81,9 +81,10 @@ def open_source(path: Path) -> SourceKind:
     from aslam.data_formats.files import MCAP_MAGIC
 
     if head.startswith(MCAP_MAGIC):
-        from aslam.data_formats.recording import read_metadata
+        from aslam.data_formats.mcap_io import McapSource
+        from aslam.data_formats.recording import METADATA_NAME
 
-        if read_metadata(path):
+        if McapSource(path).metadata(METADATA_NAME) is not None:  # present, even if empty
             return SourceKind.RECORDING
         _need_suffix(path, ".mcap", "an MCAP file")
         return SourceKind.ROSBAG2_FILE

@@ -533,6 +533,10 @@ def test_open_source_tells_inputs_apart(tmp_path, bags):
         writer.write(T0_NS, encode_image(np.zeros((6, 8, 3), np.uint8)), np.zeros(3), None)
     assert open_source(recording) is SourceKind.RECORDING
     assert len(list(iter_samples(recording))) == 1
+    bare = tmp_path / "bare.mcap"  # a recording whose metadata record is empty is still ours
+    with RecordingWriter(bare, camera=CameraIntrinsics(8, 6, 60.0), metadata={}) as writer:
+        writer.write(T0_NS, encode_image(np.zeros((6, 8, 3), np.uint8)), np.zeros(3), None)
+    assert open_source(bare) is SourceKind.RECORDING
     folder = tmp_path / "images"
     folder.mkdir()
     cv2.imwrite(str(folder / "0001.png"), np.zeros((4, 4), np.uint8))
