@@ -42,6 +42,7 @@ def gray_of(rgb: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
 
 
+@settings(deadline=None)
 @given(rgb=rgb_images(), padding=st.integers(0, 5))
 def test_colour_encodings_give_opencvs_grey(rgb, padding):
     bgr = rgb[:, :, ::-1]
@@ -62,6 +63,7 @@ def test_colour_encodings_give_opencvs_grey(rgb, padding):
         np.testing.assert_array_equal(raw_to_bgr(data, encoding, width, height, step, False), bgr)
 
 
+@settings(deadline=None)
 @given(rgb=rgb_images(), padding=st.integers(0, 5), bigendian=st.booleans())
 def test_16_bit_colour_scales_to_8_bit(rgb, padding, bigendian):
     height, width = rgb.shape[:2]
@@ -70,6 +72,7 @@ def test_16_bit_colour_scales_to_8_bit(rgb, padding, bigendian):
     np.testing.assert_array_equal(raw_to_gray(data, "bgr16", width, height, step, bigendian), gray_of(rgb))
 
 
+@settings(deadline=None)
 @given(
     gray=st.tuples(st.integers(1, 9), st.integers(1, 7)).flatmap(lambda s: arrays(np.uint8, (s[1], s[0]))),
     padding=st.integers(0, 5),
@@ -86,6 +89,7 @@ def test_mono_encodings_round_trip(gray, padding, bigendian):
         np.testing.assert_array_equal(raw_to_gray(data, encoding, width, height, step, bigendian), gray)
 
 
+@settings(deadline=None)
 @given(
     gray=st.tuples(st.integers(1, 9), st.integers(1, 7)).flatmap(lambda s: arrays(np.uint8, (s[1], s[0]))),
     seed=st.integers(0, 2**32 - 1),
@@ -115,7 +119,7 @@ def mosaic(rgb: np.ndarray, pattern: str) -> np.ndarray:
     return out
 
 
-@settings(max_examples=50)
+@settings(max_examples=50, deadline=None)
 @given(
     colour=st.tuples(st.integers(0, 255), st.integers(0, 255), st.integers(0, 255)),
     size=st.tuples(st.integers(4, 10), st.integers(4, 10)),

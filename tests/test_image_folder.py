@@ -9,7 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from aslam.app.importer import import_image_folder
@@ -61,6 +61,7 @@ poses = st.tuples(
 )
 
 
+@settings(deadline=None)
 @given(pose=poses, z=st.floats(-10, 10))
 def test_tum_gives_x_y_and_yaw(tmp_path_factory, pose, z):
     path = tmp_path_factory.mktemp("tum") / "poses.txt"
@@ -71,6 +72,7 @@ def test_tum_gives_x_y_and_yaw(tmp_path_factory, pose, z):
     np.testing.assert_allclose(row.pose, pose, atol=1e-9)
 
 
+@settings(deadline=None)
 @given(pose=poses)
 def test_kitti_camera_pose_becomes_the_ground_pose(tmp_path_factory, pose):
     path = tmp_path_factory.mktemp("kitti") / "00.txt"
@@ -81,6 +83,7 @@ def test_kitti_camera_pose_becomes_the_ground_pose(tmp_path_factory, pose):
     np.testing.assert_allclose(row.pose, pose, atol=1e-9)
 
 
+@settings(deadline=None)
 @given(pose=poses)
 def test_csv_is_planar_already(tmp_path_factory, pose):
     path = tmp_path_factory.mktemp("csv") / "poses.csv"
