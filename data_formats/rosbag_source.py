@@ -422,6 +422,36 @@ def _iter_bag_samples(path: Path, topics: BagTopics, warn: Callable[[str], None]
         warn(line)
 
 
+def iter_bag_ground_truth(path: Path, topic: str) -> Iterator[tuple[int, np.ndarray]]:
+    """``(stamp_ns, (x_m, y_m, yaw_rad))`` of every message on the ground-truth ``topic``, in order
+    (what ``report`` scores against, like ``recording.iter_ground_truth``)."""
+    path = Path(path)
+    check_bag_path(path)
+    return _iter_bag_ground_truth(path, topic)
+
+
+def _iter_bag_ground_truth(path: Path, topic: str) -> Iterator[tuple[int, np.ndarray]]:
+    with _open_reader(path) as reader:
+        types = _topic_types(reader)
+        if topic not in types:
+            raise BagError(
+                f"no ground-truth topic '{topic}' (topics in the bag: {_topic_list(types)})", path=path
+            )
+        if types[topic] not in ros_msgs.POSE_TYPES:
+            raise BagError(
+                f"ground-truth topic '{topic}' has type '{types[topic]}'; "
+                f"expected {' or '.join(ros_msgs.POSE_TYPES)}",
+                path=path,
+            )
+        last: int | None = None
+        for _topic, datatype, log_time, msg in _messages(path, reader, {topic}):
+            stamp_ns = _header_stamp_ns(msg, log_time)
+            if last is not None and stamp_ns < last:
+                raise _backwards(path, "ground-truth", topic, stamp_ns, last)
+            last = stamp_ns
+            yield stamp_ns, _pose(path, "ground-truth", topic, datatype, msg, stamp_ns)
+
+
 # --- describing ---------------------------------------------------------------------------------
 
 

@@ -636,3 +636,17 @@ def test_unset_header_stamps_fall_back_to_the_log_time(tmp_path):
     path = _damaged(tmp_path, IMAGE_TOPIC, unset)
     samples = list(iter_bag_samples(path))
     assert [s.stamp_ns for s in samples] == [stamp + IMAGE_LATENCY_NS for stamp in image_stamps()]
+
+
+def test_ground_truth_stream(bags):
+    from aslam.data_formats.rosbag_source import iter_bag_ground_truth
+
+    for name in ("rosbag1", "rosbag2-sqlite3"):
+        rows = list(iter_bag_ground_truth(bags[name], "/ground_truth"))
+        assert [stamp for stamp, _pose in rows] == odometry_stamps()
+        for stamp, pose in rows:
+            np.testing.assert_allclose(pose, true_pose(stamp), atol=1e-9)
+    with pytest.raises(BagError, match="no ground-truth topic '/gps'"):
+        list(iter_bag_ground_truth(bags["rosbag1"], "/gps"))
+    with pytest.raises(BagError, match="ground-truth topic '/camera/color/image_raw' has type"):
+        list(iter_bag_ground_truth(bags["rosbag1"], IMAGE_TOPIC))
