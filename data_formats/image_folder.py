@@ -1,0 +1,294 @@
+"""A folder of PNG/JPEG images with optional pose files (how Nordland, KITTI, TUM RGB-D ship), read
+as the same ``Sample`` stream a recording gives.
+
+Images are taken in file-name order, numbers compared as numbers (``2.png`` before ``10.png``;
+zero-padded names sort as usual). Each is read from disk only when its sample is yielded and
+decoded only on request, so memory does not grow with the folder.
+
+**Stamps**, the first that applies:
+
+1. a stamped pose file (TUM, CSV) with exactly one row per image gives the images its stamps
+   (the odometry file first, then the ground-truth file);
+2. ``rate_hz``: image ``i`` at ``START_STAMP_NS + i / rate_hz``;
+3. file names that are all numbers of seconds (TUM RGB-D's ``1305031102.175304.png``);
+4. otherwise 1 Hz, and the folder says so (``stamps`` = ``"default 1 Hz"``).
+
+**Poses**: a pose file with one row per image (always so for KITTI) pairs row ``i`` with image
+``i``; a stamped file with another count is interpolated to the image stamps (the recording
+reader's ``SampleAssembler``; images outside its span are dropped, with a warning). Without an odometry
+file the odometry is synthetic, one unit (``SYNTHETIC_STEP_M``) straight ahead per image, and
+``odometry_known`` is False: the frames are assumed equally spaced along the route, SeqSLAM's
+assumption, and the estimator should use its motion prior for that case rather than trust it.
+"""
+
+from __future__ import annotations
+
+import heapq
+import re
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from decimal import Decimal, InvalidOperation
+from itertools import pairwise
+from pathlib import Path
+
+import numpy as np
+
+from aslam.core.errors import InputError
+from aslam.data_formats.images import ImageFormat, LazyImage
+from aslam.data_formats.pose_files import PoseFileError, PoseFormat, detect_format, iter_poses
+from aslam.data_formats.pose_sync import Sample, SampleAssembler
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+#: Same fixed epoch as the recorder (2020-09-13T12:26:40Z): not 0, which ROS tools treat as unset.
+START_STAMP_NS = 1_600_000_000_000_000_000
+DEFAULT_RATE_HZ = 1.0
+SYNTHETIC_STEP_M = 1.0
+_PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+_JPEG_MAGIC = b"\xff\xd8\xff"
+
+
+class ImageFolderError(InputError):
+    """An image folder (or one of its files) that cannot be used; exit 2."""
+
+
+def _natural_key(path: Path) -> list[object]:
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", path.name)]
+
+
+def list_images(folder: Path) -> list[Path]:
+    """The png/jpg files of ``folder`` (not its subfolders), in natural file-name order."""
+    folder = Path(folder)
+    if not folder.exists():
+        raise ImageFolderError("no such folder", path=folder)
+    if not folder.is_dir():
+        raise ImageFolderError("is a file, not a folder of images", path=folder)
+    try:
+        images = [p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()]
+    except OSError as err:
+        raise ImageFolderError(f"cannot list: {err.strerror or err}", path=folder) from err
+    if not images:
+        raise ImageFolderError("has no .png or .jpg images", path=folder)
+    return sorted(images, key=_natural_key)
+
+
+def image_format(data: bytes, path: Path) -> ImageFormat:
+    """PNG or JPEG, from the file's first bytes (not its name)."""
+    if data.startswith(_PNG_MAGIC):
+        return ImageFormat.PNG
+    if data.startswith(_JPEG_MAGIC):
+        return ImageFormat.JPEG
+    if not data:
+        raise ImageFolderError("empty image file (0 bytes)", path=path)
+    raise ImageFolderError(f"not a PNG or JPEG file (starts with {data[:8].hex(' ')})", path=path)
+
+
+def read_image(path: Path, stamp_ns: int) -> LazyImage:
+    """The file's bytes as a LazyImage (encoding "png" or "jpeg"), decoded only on request."""
+    try:
+        data = path.read_bytes()
+    except OSError as err:
+        raise ImageFolderError(f"cannot read: {err.strerror or err}", path=path) from err
+    fmt = image_format(data, path)
+    return LazyImage(data, fmt.value, path=path, stamp_ns=stamp_ns)
+
+
+@dataclass(frozen=True)
+class PoseSource:
+    """One pose file, checked whole before any image is read."""
+
+    path: Path
+    format: PoseFormat
+    rows: int
+    stamped: bool
+    last_line: int
+    first_stamp_ns: int | None
+
+
+def _check_pose_file(path: Path, fmt: PoseFormat | str | None, what: str) -> PoseSource:
+    path = Path(path)
+    fmt = detect_format(path) if fmt is None else PoseFormat(fmt)
+    rows = 0
+    last_line = 0
+    previous: int | None = None
+    first: int | None = None
+    for row in iter_poses(path, fmt):
+        first = row.stamp_ns if rows == 0 else first
+        if row.stamp_ns is not None and previous is not None and row.stamp_ns == previous:
+            raise PoseFileError(
+                f"line {row.line}: the same stamp as the line before; {what} poses need increasing stamps",
+                path=path,
+            )
+        previous = row.stamp_ns
+        rows += 1
+        last_line = row.line
+    if rows == 0:
+        raise PoseFileError("has no pose lines", path=path)
+    return PoseSource(path, fmt, rows, fmt is not PoseFormat.KITTI, last_line, first)
+
+
+def _seconds_stamps(images: list[Path]) -> list[int] | None:
+    """Stamps from file names that are all numbers of seconds, strictly increasing; else None."""
+    stamps = []
+    for path in images:
+        try:
+            seconds = Decimal(path.stem)
+        except InvalidOperation:
+            return None
+        if not seconds.is_finite() or seconds < 0:
+            return None
+        stamps.append(int(seconds * 1_000_000_000))
+    if any(b <= a for a, b in pairwise(stamps)):
+        return None
+    return stamps
+
+
+@dataclass(frozen=True)
+class ImageFolder:
+    """An image folder ready to stream; build it with :func:`open_image_folder`."""
+
+    folder: Path
+    images: tuple[Path, ...]
+    stamps: str  # where the stamps came from: "pose file <name>", "rate 10 Hz", "file names", "default 1 Hz"
+    odometry: PoseSource | None
+    ground_truth: PoseSource | None
+    _image_stamps: tuple[int, ...] | None  # None: from the per-image pose file (read while streaming)
+    _stamp_file: PoseSource | None
+
+    @property
+    def odometry_known(self) -> bool:
+        return self.odometry is not None
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+    def samples(self, *, on_warning: Callable[[str], None] | None = None) -> Iterator[Sample]:
+        """One sample per image, in order (images outside a stamped pose file's span are dropped).
+
+        Each image is a ``LazyImage`` holding the file's bytes, its ``encoding`` ``"png"`` or
+        ``"jpeg"`` (an ``ImageFormat`` value), so the bytes can be passed on unchanged.
+        """
+        return self._samples(on_warning or (lambda _message: None))
+
+    def _stamp_stream(self) -> Iterator[int]:
+        if self._image_stamps is not None:
+            yield from self._image_stamps
+            return
+        assert self._stamp_file is not None
+        for row in iter_poses(self._stamp_file.path, self._stamp_file.format):
+            assert row.stamp_ns is not None
+            yield row.stamp_ns
+
+    def _pose_stream(
+        self, source: PoseSource | None, stamps: Iterator[int]
+    ) -> Iterator[tuple[int, np.ndarray]]:
+        """``(stamp_ns, pose)``: per image (re-stamped) when the counts match, else the file's own."""
+        if source is None:  # synthetic odometry: equally spaced, straight ahead
+            for i, stamp in enumerate(stamps):
+                yield stamp, np.array([i * SYNTHETIC_STEP_M, 0.0, 0.0])
+            return
+        rows = iter_poses(source.path, source.format)
+        if source.rows == len(self.images):
+            for stamp, row in zip(stamps, rows, strict=True):
+                yield stamp, row.pose
+            return
+        for row in rows:
+            assert row.stamp_ns is not None
+            yield row.stamp_ns, row.pose
+
+    def _samples(self, warn: Callable[[str], None]) -> Iterator[Sample]:
+        # Time-ordered streams merged by stamp; at equal stamps the poses come before the image.
+        def images() -> Iterator[tuple[int, int, object]]:
+            for path, stamp in zip(self.images, self._stamp_stream(), strict=True):
+                yield stamp, 2, path
+
+        def poses(source: PoseSource | None, order: int) -> Iterator[tuple[int, int, object]]:
+            for stamp, pose in self._pose_stream(source, self._stamp_stream()):
+                yield stamp, order, pose
+
+        streams = [images(), poses(self.odometry, 0)]
+        assembler = SampleAssembler(self.folder)
+        if self.ground_truth is not None:
+            streams.append(poses(self.ground_truth, 1))
+            assembler.expect_ground_truth = True
+        for stamp, order, item in heapq.merge(*streams, key=lambda row: (row[0], row[1])):
+            if order == 2:
+                assert isinstance(item, Path)
+                yield from assembler.add_image(stamp, read_image(item, stamp))
+            elif order == 0:
+                yield from assembler.add_odometry(stamp, item)  # type: ignore[arg-type]
+            else:
+                yield from assembler.add_ground_truth(stamp, item)  # type: ignore[arg-type]
+        yield from assembler.finish()
+        for line in assembler.warnings():
+            warn(line)
+
+
+def open_image_folder(
+    folder: Path,
+    *,
+    ground_truth: Path | None = None,
+    odometry: Path | None = None,
+    fmt: PoseFormat | str | None = None,
+    rate_hz: float | None = None,
+) -> ImageFolder:
+    """List the images and check the pose files whole (every bad line is an error now, not later).
+
+    ``fmt`` applies to both pose files; None detects each from its content.
+    """
+    folder = Path(folder)
+    if rate_hz is not None and not (rate_hz > 0 and np.isfinite(rate_hz)):
+        raise ImageFolderError(f"--rate must be a positive number of images per second, got {rate_hz}")
+    images = list_images(folder)
+    n = len(images)
+    odo = None if odometry is None else _check_pose_file(odometry, fmt, "odometry")
+    truth = None if ground_truth is None else _check_pose_file(ground_truth, fmt, "ground-truth")
+    for source in (odo, truth):
+        if source is None or (source.stamped and source.rows != n) or source.rows == n:
+            continue
+        # An unstamped (KITTI) file must have one row per image.
+        raise PoseFileError(
+            f"line {source.last_line}: {source.rows} poses for {n} images in {folder} "
+            "(a KITTI file has one line per image)",
+            path=source.path,
+        )
+    stamp_file = next((s for s in (odo, truth) if s is not None and s.stamped and s.rows == n), None)
+    # A stamped file with another count is interpolated: the images need stamps on its clock.
+    interpolated = next((s for s in (odo, truth) if s is not None and s.stamped and s.rows != n), None)
+    image_stamps: tuple[int, ...] | None = None
+    if stamp_file is not None:
+        how = f"pose file {stamp_file.path.name}"
+    elif rate_hz is not None:
+        start = START_STAMP_NS if interpolated is None else interpolated.first_stamp_ns
+        assert start is not None
+        image_stamps = tuple(start + round(i * 1e9 / rate_hz) for i in range(n))
+        how = f"rate {rate_hz:g} Hz" + (
+            "" if interpolated is None else f" from the first stamp of {interpolated.path.name}"
+        )
+    elif (named := _seconds_stamps(images)) is not None:
+        image_stamps, how = tuple(named), "file names"
+    elif interpolated is not None:
+        raise PoseFileError(
+            f"{interpolated.rows} poses for {n} images in {folder}, and the images have no stamps: give "
+            "--rate HZ (the images then start at this file's first stamp) or one pose per image",
+            path=interpolated.path,
+        )
+    else:
+        image_stamps = tuple(START_STAMP_NS + round(i * 1e9 / DEFAULT_RATE_HZ) for i in range(n))
+        how = f"default {DEFAULT_RATE_HZ:g} Hz"
+    if image_stamps is not None and any(b <= a for a, b in pairwise(image_stamps)):
+        raise ImageFolderError(f"--rate {rate_hz:g} Hz is too fast to give {n} distinct nanosecond stamps")
+    return ImageFolder(folder, tuple(images), how, odo, truth, image_stamps, stamp_file)
+
+
+def iter_folder_samples(
+    folder: Path,
+    *,
+    ground_truth: Path | None = None,
+    odometry: Path | None = None,
+    fmt: PoseFormat | str | None = None,
+    rate_hz: float | None = None,
+    on_warning: Callable[[str], None] | None = None,
+) -> Iterator[Sample]:
+    """``open_image_folder(...).samples()``: the folder as a ``Sample`` stream."""
+    source = open_image_folder(folder, ground_truth=ground_truth, odometry=odometry, fmt=fmt, rate_hz=rate_hz)
+    return source.samples(on_warning=on_warning)

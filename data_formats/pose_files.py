@@ -1,0 +1,171 @@
+"""Pose files as datasets ship them, read line by line into planar poses ``(x_m, y_m, yaw_rad)``.
+
+- TUM: ``t x y z qx qy qz qw`` (seconds, metres, unit quaternion) in a z-up frame: the planar
+  pose is x, y and the yaw about z (REP 103).
+- KITTI: 12 numbers, a row-major 3×4 ``[R | t]`` per line, one line per image, no stamp.
+- CSV: ``t,x,y,yaw`` (seconds, metres, radians), planar already; an optional header line.
+
+KITTI poses are camera poses (x right, y down, z forward) in the first camera's frame; the planar
+pose is the one on the ground plane a robot would use: forward ``z`` → ``x_m``, left ``−x`` →
+``y_m``, and the heading of the optical axis as ``yaw_rad``.
+
+Lines starting with ``#`` and blank lines are skipped. Stamps are parsed as decimals, so
+``1305031102.175304`` becomes exactly ``1305031102175304000`` ns. The format is detected from the
+first pose line when not given. Hand-written rather than through evo because every malformed line
+must be reported with its file and line number, and the rows are streamed.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from decimal import Decimal, InvalidOperation
+from enum import StrEnum
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from aslam.core.errors import InputError
+from aslam.data_formats import ros_msgs
+
+
+class PoseFileError(InputError):
+    """A pose file that cannot be read; the message is ``PATH: line N: problem`` (exit 2)."""
+
+
+class PoseFormat(StrEnum):
+    TUM = "tum"
+    KITTI = "kitti"
+    CSV = "csv"
+
+
+_FIELDS = {PoseFormat.TUM: 8, PoseFormat.KITTI: 12, PoseFormat.CSV: 4}
+
+
+class PoseRow(NamedTuple):
+    line: int  # 1-based line number in the file
+    stamp_ns: int | None  # None for KITTI (one row per image, no stamps)
+    pose: np.ndarray  # (x_m, y_m, yaw_rad)
+
+
+def _lines(path: Path) -> Iterator[tuple[int, str]]:
+    """``(line number, stripped text)`` of every line that is not blank or a comment."""
+    try:
+        with path.open(encoding="utf-8") as f:
+            for number, raw in enumerate(f, start=1):
+                text = raw.strip()
+                if text and not text.startswith("#"):
+                    yield number, text
+    except FileNotFoundError as err:
+        raise PoseFileError("no such file", path=path) from err
+    except IsADirectoryError as err:
+        raise PoseFileError("is a folder, not a pose file", path=path) from err
+    except UnicodeDecodeError as err:
+        raise PoseFileError(f"not a text file (byte {err.start} is not UTF-8)", path=path) from err
+    except OSError as err:
+        raise PoseFileError(f"cannot read: {err.strerror or err}", path=path) from err
+
+
+def _split(text: str) -> list[str]:
+    return [part.strip() for part in text.split(",")] if "," in text else text.split()
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def detect_format(path: Path) -> PoseFormat:
+    """The format of ``path`` from its first pose line (a CSV header line is skipped)."""
+    path = Path(path)
+    for number, text in _lines(path):
+        fields = _split(text)
+        if "," in text and not all(_is_number(f) for f in fields):
+            continue  # a CSV header such as "t,x,y,yaw"
+        if "," in text and len(fields) == 4:
+            return PoseFormat.CSV
+        if "," not in text and len(fields) == 8:
+            return PoseFormat.TUM
+        if "," not in text and len(fields) == 12:
+            return PoseFormat.KITTI
+        raise PoseFileError(
+            f"line {number}: cannot tell the format from {len(fields)} fields; expected 8 numbers (TUM "
+            "'t x y z qx qy qz qw'), 12 (KITTI 3×4 rows) or 4 comma-separated (CSV 't,x,y,yaw')",
+            path=path,
+        )
+    raise PoseFileError("has no pose lines", path=path)
+
+
+def _stamp_ns(text: str, path: Path, number: int) -> int:
+    try:
+        seconds = Decimal(text)
+    except InvalidOperation as err:
+        raise PoseFileError(f"line {number}: stamp '{text}' is not a number", path=path) from err
+    if not seconds.is_finite() or seconds < 0:
+        raise PoseFileError(f"line {number}: stamp '{text}' is not a finite, non-negative time", path=path)
+    return int(seconds * 1_000_000_000)
+
+
+def _planar(fmt: PoseFormat, values: list[float]) -> np.ndarray:
+    if fmt is PoseFormat.CSV:
+        _t, x, y, yaw = values
+        return np.array([x, y, math.remainder(yaw, 2 * math.pi)])
+    if fmt is PoseFormat.TUM:
+        _t, x, y, _z, qx, qy, qz, qw = values
+        return np.array([x, y, ros_msgs.yaw_of_quaternion(qx, qy, qz, qw)])
+    m = np.array(values).reshape(3, 4)
+    # Camera axes (x right, y down, z forward) → ground plane (x forward, y left).
+    return np.array([m[2, 3], -m[0, 3], math.atan2(-m[0, 2], m[2, 2])])
+
+
+def iter_poses(path: Path, fmt: PoseFormat | str | None = None) -> Iterator[PoseRow]:
+    """Every pose of ``path``, in file order; a malformed line is a PoseFileError naming it.
+
+    Stamps must not go backwards (TUM and CSV). The format is detected when ``fmt`` is None.
+    """
+    path = Path(path)
+    fmt = detect_format(path) if fmt is None else PoseFormat(fmt)
+    return _iter_poses(path, fmt)
+
+
+def _iter_poses(path: Path, fmt: PoseFormat) -> Iterator[PoseRow]:
+    expected = _FIELDS[fmt]
+    previous: int | None = None
+    first = True
+    for number, text in _lines(path):
+        fields = _split(text) if fmt is PoseFormat.CSV else text.split()
+        if first and fmt is PoseFormat.CSV and not all(_is_number(f) for f in fields):
+            first = False
+            continue  # the header line
+        first = False
+        if len(fields) != expected:
+            raise PoseFileError(
+                f"line {number}: {len(fields)} fields, a {fmt.value.upper()} line has {expected}", path=path
+            )
+        try:
+            values = [float(f) for f in fields]
+        except ValueError as err:
+            bad = next(f for f in fields if not _is_number(f))
+            raise PoseFileError(f"line {number}: '{bad}' is not a number", path=path) from err
+        if not all(math.isfinite(v) for v in values):
+            raise PoseFileError(f"line {number}: not finite (NaN or infinite)", path=path)
+        stamp = None
+        if fmt is not PoseFormat.KITTI:
+            stamp = _stamp_ns(fields[0], path, number)
+            if previous is not None and stamp < previous:
+                raise PoseFileError(
+                    f"line {number}: stamp {fields[0]} s is before the previous line's", path=path
+                )
+            previous = stamp
+        if fmt is PoseFormat.TUM and math.isclose(sum(v * v for v in values[4:]), 0.0):
+            raise PoseFileError(f"line {number}: the quaternion is zero", path=path)
+        yield PoseRow(number, stamp, _planar(fmt, values))
+
+
+def count_poses(path: Path, fmt: PoseFormat | str | None = None) -> int:
+    """How many pose rows ``path`` has (the whole file is checked on the way)."""
+    return sum(1 for _row in iter_poses(path, fmt))

@@ -1,0 +1,648 @@
+"""ROS bags as robots write them: rosbag2 folders (mcap or sqlite3 storage, split or zstd-compressed
+files), single rosbag2 storage files and ROS 1 ``.bag`` files, read through ``rosbags``.
+
+:func:`iter_bag_samples` yields the same ``Sample`` stream as ``recording.iter_samples`` (one per
+camera image, poses interpolated to its stamp by the same ``SampleAssembler``), so everything downstream
+is unchanged. Topics are found rather than configured: the only image topic, the only
+``nav_msgs/Odometry`` topic or else the ``odom → base`` transforms on ``/tf``. Message types come
+from the bag's own definitions (rosbags' ``AnyReader``); a rosbag2 bag written before ROS 2 Iron
+carries none, and is read with rosbags' latest ROS 2 type store.
+
+:func:`open_source` tells the kinds of input apart, :func:`summarize_bag` lists a bag's topics
+without reading its messages, :func:`describe_bag` reads it all for ``aslam info``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from enum import StrEnum
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from aslam.core.errors import InputError
+from aslam.data_formats import ros_msgs
+from aslam.data_formats.camera import CameraIntrinsics
+from aslam.data_formats.image_encodings import is_raw_encoding, raw_to_bgr, raw_to_gray
+from aslam.data_formats.images import LazyImage
+from aslam.data_formats.pose_sync import Sample, SampleAssembler
+from aslam.data_formats.recording import _header_stamp_ns, _lazy_image
+
+TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
+IMAGE_FILE_SUFFIXES = (".png", ".jpg", ".jpeg")
+_BAG1_MAGIC = b"#ROSBAG V2.0"
+_SQLITE_MAGIC = b"SQLite format 3\x00"
+_ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
+
+
+class BagError(InputError):
+    """A bag that cannot be read; the message is ``PATH: problem`` (exit 2)."""
+
+
+class SourceKind(StrEnum):
+    """What a path given to ``estimate``/``info``/``report`` holds."""
+
+    RECORDING = "recording"  # our MCAP recording (carries the ``aslam.recording`` metadata)
+    ROSBAG2 = "rosbag2"  # a rosbag2 folder (metadata.yaml + storage files)
+    ROSBAG2_FILE = "rosbag2-file"  # one rosbag2 storage file (.mcap or .db3) on its own
+    ROSBAG1 = "rosbag1"  # a ROS 1 .bag file
+    IMAGE_FOLDER = "image-folder"  # a folder of png/jpg images (``aslam import``)
+
+
+BAG_KINDS = (SourceKind.ROSBAG2, SourceKind.ROSBAG2_FILE, SourceKind.ROSBAG1)
+
+
+def open_source(path: Path) -> SourceKind:
+    """Tell by content (not only the name) what ``path`` is; BagError for anything unreadable."""
+    path = Path(path)
+    if not path.exists():
+        raise BagError("no such file or folder", path=path)
+    if path.is_dir():
+        if (path / "metadata.yaml").is_file():
+            return SourceKind.ROSBAG2
+        if any(p.suffix.lower() in IMAGE_FILE_SUFFIXES for p in path.iterdir() if p.is_file()):
+            return SourceKind.IMAGE_FOLDER
+        raise BagError("is a folder with neither a rosbag2 metadata.yaml nor png/jpg images", path=path)
+    try:
+        with path.open("rb") as f:
+            head = f.read(len(_SQLITE_MAGIC))
+    except OSError as err:
+        raise BagError(f"cannot read: {err.strerror or err}", path=path) from err
+    if not head:
+        raise BagError("empty file (0 bytes)", path=path)
+    from aslam.data_formats.files import MCAP_MAGIC
+
+    if head.startswith(MCAP_MAGIC):
+        from aslam.data_formats.mcap_file import McapFile
+        from aslam.data_formats.recording import METADATA_NAME
+
+        if McapFile(path).metadata(METADATA_NAME) is not None:  # present, even if empty
+            return SourceKind.RECORDING
+        _need_suffix(path, ".mcap", "an MCAP file")
+        return SourceKind.ROSBAG2_FILE
+    if head.startswith(_BAG1_MAGIC):
+        _need_suffix(path, ".bag", "a ROS 1 bag")
+        return SourceKind.ROSBAG1
+    if head == _SQLITE_MAGIC:
+        _need_suffix(path, ".db3", "a rosbag2 sqlite3 file")
+        return SourceKind.ROSBAG2_FILE
+    if head.startswith(_ZSTD_MAGIC):
+        raise BagError(
+            "is a zstd-compressed file; pass the rosbag2 folder that holds it and its metadata.yaml",
+            path=path,
+        )
+    raise BagError("not a recording or a bag (neither MCAP, rosbag2 sqlite3 nor ROS 1 bag)", path=path)
+
+
+def _need_suffix(path: Path, suffix: str, what: str) -> None:
+    # rosbags picks its reader by file name; a renamed file would be read as something else.
+    if path.suffix.lower() != suffix:
+        raise BagError(f"is {what} but its name does not end in '{suffix}'; rename it", path=path)
+
+
+# --- topics -------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class BagTopics:
+    """Which topics to read; None means "find it" (see :func:`resolve_topics`)."""
+
+    image: str | None = None
+    odometry: str | None = None  # an Odometry/PoseStamped topic; None: the only Odometry, else /tf
+    ground_truth: str | None = None  # read only when named
+    tf: str = "/tf"
+    odom_frame: str = "odom"
+    base_frame: str | None = None  # None: the first child frame of odom_frame met on /tf
+
+
+@dataclass(frozen=True)
+class ResolvedTopics:
+    image: str
+    odometry: str | None  # None: poses from the odom → base transforms on ``tf``
+    ground_truth: str | None
+    tf: str | None
+    types: dict[str, str] = field(default_factory=dict)  # topic → message type, for the ones above
+
+    def describe_odometry(self, base_frame: str | None, odom_frame: str) -> str:
+        if self.odometry is not None:
+            return self.odometry
+        return f"{self.tf} ({odom_frame} → {base_frame or 'first child frame'})"
+
+
+def _topic_list(types: dict[str, str]) -> str:
+    return ", ".join(f"{topic} ({datatype})" for topic, datatype in sorted(types.items())) or "none"
+
+
+def resolve_topics(path: Path, types: dict[str, str], topics: BagTopics) -> ResolvedTopics:
+    """The topics to read, given the bag's ``topic → type``; BagError naming the choices if ambiguous."""
+
+    def named(what: str, topic: str, accepted: tuple[str, ...]) -> str:
+        if topic not in types:
+            raise BagError(f"no {what} topic '{topic}' (topics in the bag: {_topic_list(types)})", path=path)
+        if types[topic] not in accepted:
+            raise BagError(
+                f"{what} topic '{topic}' has type '{types[topic]}'; expected {' or '.join(accepted)}",
+                path=path,
+            )
+        return topic
+
+    def only(what: str, accepted: tuple[str, ...], option: str) -> str | None:
+        found = sorted(t for t, datatype in types.items() if datatype in accepted)
+        if len(found) > 1:
+            listed = ", ".join(f"{t} ({types[t]})" for t in found)
+            raise BagError(f"{len(found)} {what} topics: {listed}; choose one with {option}", path=path)
+        return found[0] if found else None
+
+    if topics.image is not None:
+        image = named("image", topics.image, ros_msgs.IMAGE_TYPES)
+    else:
+        found = only("image", ros_msgs.IMAGE_TYPES, "--image-topic")
+        if found is None:
+            raise BagError(
+                "no sensor_msgs/msg/Image or CompressedImage topic "
+                f"(topics in the bag: {_topic_list(types)})",
+                path=path,
+            )
+        image = found
+    tf = None
+    if topics.odometry is not None:
+        odometry: str | None = named("odometry", topics.odometry, ros_msgs.POSE_TYPES)
+    else:
+        odometry = only("odometry", (ros_msgs.ODOMETRY,), "--odometry-topic")
+        if odometry is None:
+            if types.get(topics.tf) not in TF_TYPES:
+                raise BagError(
+                    f"no odometry: neither a nav_msgs/msg/Odometry topic nor transforms on '{topics.tf}' "
+                    f"(topics in the bag: {_topic_list(types)})",
+                    path=path,
+                )
+            tf = topics.tf
+    truth = None
+    if topics.ground_truth is not None:
+        truth = named("ground-truth", topics.ground_truth, ros_msgs.POSE_TYPES)
+    used = [t for t in (image, odometry, truth, tf) if t is not None]
+    return ResolvedTopics(image, odometry, truth, tf, {t: types[t] for t in used})
+
+
+# --- reading ------------------------------------------------------------------------------------
+
+
+class RawLazyImage(LazyImage):
+    """A raw ``sensor_msgs/Image`` in any encoding of ``image_encodings`` (LazyImage reads three)."""
+
+    __slots__ = ("is_bigendian",)
+
+    def __init__(self, *args: Any, is_bigendian: bool = False, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.is_bigendian = is_bigendian
+
+    def _fields(self) -> tuple[bytes, str, int, int, int, bool]:
+        return self.data, self.encoding, self.width, self.height, self.step, self.is_bigendian
+
+    def decode_gray(self) -> np.ndarray:
+        return raw_to_gray(*self._fields(), stamp_ns=self.stamp_ns, path=self.path)
+
+    def decode_bgr(self) -> np.ndarray:
+        return raw_to_bgr(*self._fields(), stamp_ns=self.stamp_ns, path=self.path)
+
+
+def _image(path: Path, topic: str, datatype: str, msg: Any, stamp_ns: int) -> LazyImage:
+    if datatype == ros_msgs.COMPRESSED_IMAGE:
+        return _lazy_image(path, topic, datatype, msg, stamp_ns)
+    encoding = str(msg.encoding)
+    if not is_raw_encoding(encoding):
+        from aslam.data_formats.image_encodings import RAW_ENCODINGS
+
+        raise BagError(
+            f"unknown image encoding '{encoding}' on '{topic}' at stamp {stamp_ns} ns "
+            f"(accepted: {', '.join(sorted(RAW_ENCODINGS))})",
+            path=path,
+        )
+    return RawLazyImage(
+        np.asarray(msg.data, dtype=np.uint8).tobytes(),
+        encoding,
+        path=path,
+        stamp_ns=stamp_ns,
+        width=int(msg.width),
+        height=int(msg.height),
+        step=int(msg.step),
+        is_bigendian=bool(msg.is_bigendian),
+    )
+
+
+def _pose(path: Path, what: str, topic: str, datatype: str, msg: Any, stamp_ns: int) -> np.ndarray:
+    try:
+        pose = ros_msgs.pose_of_message(datatype, msg)
+    except (AttributeError, TypeError, ValueError) as err:
+        raise BagError(f"{what} message on '{topic}' at stamp {stamp_ns} ns has no pose", path=path) from err
+    if not np.all(np.isfinite(pose)):
+        raise BagError(
+            f"{what} pose on '{topic}' at stamp {stamp_ns} ns is not finite (NaN or infinite)", path=path
+        )
+    return pose
+
+
+def _backwards(path: Path, what: str, topic: str, stamp_ns: int, previous_ns: int) -> BagError:
+    return BagError(
+        f"{what} stamps go backwards on '{topic}': {stamp_ns} ns after {previous_ns} ns", path=path
+    )
+
+
+@contextmanager
+def _rosbags_errors(path: Path, doing: str) -> Iterator[None]:
+    """Every exception from rosbags (and the sqlite/zstd/yaml code under it) → one BagError line."""
+    try:
+        yield
+    except InputError:
+        raise
+    except Exception as err:
+        raise BagError(f"{doing}: {type(err).__name__}: {err}", path=path) from err
+
+
+@contextmanager
+def _open_reader(path: Path) -> Iterator[Any]:
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    with _rosbags_errors(path, "cannot open the bag"):
+        reader = AnyReader([path], default_typestore=get_typestore(Stores.LATEST))
+        reader.open()
+    try:
+        yield reader
+    finally:
+        with _rosbags_errors(path, "cannot close the bag"):
+            reader.close()
+
+
+def _topic_types(reader: Any) -> dict[str, str]:
+    return {topic: info.msgtype or "" for topic, info in reader.topics.items()}
+
+
+def _messages(path: Path, reader: Any, topics: set[str]) -> Iterator[tuple[str, str, int, Any]]:
+    """``(topic, type, log_time_ns, message)`` in log-time order; rosbags errors become BagErrors."""
+    connections = [c for c in reader.connections if c.topic in topics]
+    if not connections:
+        return
+    with _rosbags_errors(path, "cannot read the bag"):
+        stream = reader.messages(connections=connections)
+    while True:
+        with _rosbags_errors(path, "corrupt bag data"):
+            try:
+                connection, log_time, raw = next(stream)
+            except StopIteration:
+                return
+        with _rosbags_errors(path, f"undecodable message on '{connection.topic}' at log time {log_time} ns"):
+            msg = reader.deserialize(raw, connection.msgtype)
+        yield connection.topic, connection.msgtype, log_time, msg
+
+
+def _frame(name: str) -> str:
+    return str(name).lstrip("/")  # ROS 1 frames may carry a leading slash
+
+
+class _TfOdometry:
+    """Planar poses of ``base`` in ``odom`` from TFMessages; locks onto the first child of ``odom``."""
+
+    def __init__(self, odom_frame: str, base_frame: str | None, warn: Callable[[str], None], path: Path):
+        self.odom_frame = _frame(odom_frame)
+        self.base_frame = None if base_frame is None else _frame(base_frame)
+        self._warn = warn
+        self._path = path
+        self.pairs_seen: set[tuple[str, str]] = set()
+
+    def poses(self, msg: Any, log_time: int) -> Iterator[tuple[int, np.ndarray]]:
+        for transform in msg.transforms:
+            parent, child = _frame(transform.header.frame_id), _frame(transform.child_frame_id)
+            if len(self.pairs_seen) < 64:
+                self.pairs_seen.add((parent, child))
+            if parent != self.odom_frame:
+                continue
+            if self.base_frame is None:
+                self.base_frame = child
+                self._warn(f"{self._path}: odometry from /tf: {parent} → {child}")
+            if child != self.base_frame:
+                continue
+            stamp_ns = _header_stamp_ns(transform, log_time)
+            t, q = transform.transform.translation, transform.transform.rotation
+            values = (float(t.x), float(t.y), float(q.x), float(q.y), float(q.z), float(q.w))
+            if not all(math.isfinite(v) for v in values):
+                raise BagError(
+                    f"odometry transform {parent} → {child} at stamp {stamp_ns} ns is not finite",
+                    path=self._path,
+                )
+            yield stamp_ns, np.array([values[0], values[1], ros_msgs.yaw_of_quaternion(*values[2:])])
+
+
+def check_bag_path(path: Path) -> SourceKind:
+    kind = open_source(path)
+    if kind not in BAG_KINDS:
+        raise BagError(f"is a {kind.value}, not a ROS bag", path=path)
+    return kind
+
+
+def iter_bag_samples(
+    path: Path,
+    topics: BagTopics = BagTopics(),
+    *,
+    on_warning: Callable[[str], None] | None = None,
+) -> Iterator[Sample]:
+    """One ``Sample`` per camera image of a bag, in time order, with poses interpolated to its stamp.
+
+    Streams (rosbags reads chunk by chunk; only images waiting for the next odometry message are
+    held). The path is checked at once; topic problems surface on the first ``next``. Warnings
+    (dropped images, odometry taken from /tf) go to ``on_warning``, one line each.
+    """
+    path = Path(path)
+    check_bag_path(path)
+    return _iter_bag_samples(path, topics, on_warning or (lambda _message: None))
+
+
+def _iter_bag_samples(path: Path, topics: BagTopics, warn: Callable[[str], None]) -> Iterator[Sample]:
+    with _open_reader(path) as reader:
+        types = _topic_types(reader)
+        resolved = resolve_topics(path, types, topics)
+        counts = {topic: info.msgcount for topic, info in reader.topics.items()}
+        assembler = SampleAssembler(path)
+        assembler.expect_ground_truth = (
+            resolved.ground_truth is not None and counts[resolved.ground_truth] != 0
+        )
+        tf = _TfOdometry(topics.odom_frame, topics.base_frame, warn, path) if resolved.tf else None
+        last_odometry_ns: int | None = None
+        last_truth_ns: int | None = None
+        wanted = {t for t in (resolved.image, resolved.odometry, resolved.ground_truth, resolved.tf) if t}
+        for topic, datatype, log_time, msg in _messages(path, reader, wanted):
+            if topic == resolved.image:
+                stamp_ns = _header_stamp_ns(msg, log_time)
+                if assembler.last_image_ns is not None and stamp_ns < assembler.last_image_ns:
+                    raise _backwards(path, "image", topic, stamp_ns, assembler.last_image_ns)
+                yield from assembler.add_image(stamp_ns, _image(path, topic, datatype, msg, stamp_ns))
+            elif topic == resolved.odometry:
+                stamp_ns = _header_stamp_ns(msg, log_time)
+                if last_odometry_ns is not None and stamp_ns < last_odometry_ns:
+                    raise _backwards(path, "odometry", topic, stamp_ns, last_odometry_ns)
+                last_odometry_ns = stamp_ns
+                yield from assembler.add_odometry(
+                    stamp_ns, _pose(path, "odometry", topic, datatype, msg, stamp_ns)
+                )
+            elif topic == resolved.tf and tf is not None:
+                for stamp_ns, pose in tf.poses(msg, log_time):
+                    if last_odometry_ns is not None and stamp_ns <= last_odometry_ns:
+                        if stamp_ns == last_odometry_ns:
+                            continue  # the same transform published twice
+                        raise _backwards(
+                            path, "odometry", f"{topic} {tf.odom_frame}", stamp_ns, last_odometry_ns
+                        )
+                    last_odometry_ns = stamp_ns
+                    yield from assembler.add_odometry(stamp_ns, pose)
+            else:
+                stamp_ns = _header_stamp_ns(msg, log_time)
+                if last_truth_ns is not None and stamp_ns < last_truth_ns:
+                    raise _backwards(path, "ground-truth", topic, stamp_ns, last_truth_ns)
+                last_truth_ns = stamp_ns
+                pose = _pose(path, "ground-truth", topic, datatype, msg, stamp_ns)
+                yield from assembler.add_ground_truth(stamp_ns, pose)
+        if tf is not None and last_odometry_ns is None:
+            pairs = ", ".join(f"{p} → {c}" for p, c in sorted(tf.pairs_seen)) or "none"
+            raise BagError(
+                f"no transform from frame '{tf.odom_frame}'"
+                + (f" to '{tf.base_frame}'" if tf.base_frame else "")
+                + f" on '{resolved.tf}' (transforms seen: {pairs}); name the frames or an odometry topic",
+                path=path,
+            )
+        yield from assembler.finish()
+    for line in assembler.warnings():
+        warn(line)
+
+
+def iter_bag_ground_truth(path: Path, topic: str) -> Iterator[tuple[int, np.ndarray]]:
+    """``(stamp_ns, (x_m, y_m, yaw_rad))`` of every message on the ground-truth ``topic``, in order
+    (what ``report`` scores against, like ``recording.iter_ground_truth``)."""
+    path = Path(path)
+    check_bag_path(path)
+    return _iter_bag_ground_truth(path, topic)
+
+
+def _iter_bag_ground_truth(path: Path, topic: str) -> Iterator[tuple[int, np.ndarray]]:
+    with _open_reader(path) as reader:
+        types = _topic_types(reader)
+        if topic not in types:
+            raise BagError(
+                f"no ground-truth topic '{topic}' (topics in the bag: {_topic_list(types)})", path=path
+            )
+        if types[topic] not in ros_msgs.POSE_TYPES:
+            raise BagError(
+                f"ground-truth topic '{topic}' has type '{types[topic]}'; "
+                f"expected {' or '.join(ros_msgs.POSE_TYPES)}",
+                path=path,
+            )
+        last: int | None = None
+        for _topic, datatype, log_time, msg in _messages(path, reader, {topic}):
+            stamp_ns = _header_stamp_ns(msg, log_time)
+            if last is not None and stamp_ns < last:
+                raise _backwards(path, "ground-truth", topic, stamp_ns, last)
+            last = stamp_ns
+            yield stamp_ns, _pose(path, "ground-truth", topic, datatype, msg, stamp_ns)
+
+
+# --- describing ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class BagTopic:
+    topic: str
+    datatype: str
+    messages: int
+
+
+@dataclass(frozen=True)
+class BagSummary:
+    """What a bag's index says (no message read): ``summarize_bag``."""
+
+    path: str
+    kind: SourceKind
+    storage: str  # "mcap", "sqlite3" or "rosbag1"
+    files: tuple[str, ...]  # the storage files, in order (several when the bag was split)
+    compression: str | None  # e.g. "zstd (file)"; None when uncompressed
+    ros_distro: str | None
+    messages: int
+    start_ns: int | None
+    end_ns: int | None
+    topics: tuple[BagTopic, ...]
+    resolved: ResolvedTopics | None  # the topics iter_bag_samples would read
+    problem: str | None  # why it could not resolve them (e.g. two image topics)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "path": self.path,
+            "kind": self.kind.value,
+            "storage": self.storage,
+            "files": list(self.files),
+            "compression": self.compression,
+            "ros_distro": self.ros_distro,
+            "messages": self.messages,
+            "start_ns": self.start_ns,
+            "end_ns": self.end_ns,
+            "topics": [{"topic": t.topic, "type": t.datatype, "messages": t.messages} for t in self.topics],
+            "image_topic": None if self.resolved is None else self.resolved.image,
+            "odometry_topic": None if self.resolved is None else (self.resolved.odometry or self.resolved.tf),
+            "ground_truth_topic": None if self.resolved is None else self.resolved.ground_truth,
+            "problem": self.problem,
+        }
+
+
+def summarize_bag(path: Path, topics: BagTopics = BagTopics()) -> BagSummary:
+    """Topics, types and message counts from the bag's index or metadata; reads no message."""
+    path = Path(path)
+    kind = check_bag_path(path)
+    with _open_reader(path) as reader, _rosbags_errors(path, "cannot read the bag's index"):
+        types = _topic_types(reader)
+        infos = reader.topics
+        bag_topics = tuple(BagTopic(t, types[t], int(infos[t].msgcount)) for t in sorted(types))
+        storage, files, compression, distro = _storage(reader, kind, path)
+        messages = int(reader.message_count)
+        start = int(reader.start_time) if messages else None
+        end = int(reader.end_time) - 1 if messages else None
+    try:
+        resolved, problem = resolve_topics(path, types, topics), None
+    except BagError as err:
+        resolved, problem = None, err.problem
+    return BagSummary(
+        str(path),
+        kind,
+        storage,
+        files,
+        compression,
+        distro,
+        messages,
+        start,
+        end,
+        bag_topics,
+        resolved,
+        problem,
+    )
+
+
+def _storage(
+    reader: Any, kind: SourceKind, path: Path
+) -> tuple[str, tuple[str, ...], str | None, str | None]:
+    """(storage, files, compression, ros_distro) of an open AnyReader."""
+    if kind is SourceKind.ROSBAG1:
+        return "rosbag1", (path.name,), None, None
+    inner = reader.readers[0]
+    if kind is SourceKind.ROSBAG2_FILE:
+        return ("mcap" if path.suffix.lower() == ".mcap" else "sqlite3"), (path.name,), None, None
+    directory = inner.storage  # rosbags' DirectoryReader
+    metadata = directory.metadata
+    import ruamel.yaml
+
+    info = ruamel.yaml.YAML(typ="safe").load((path / "metadata.yaml").read_text())[
+        "rosbag2_bagfile_information"
+    ]
+    files = tuple(Path(p).name for p in info.get("relative_file_paths", []))
+    compression = None
+    if metadata.compression_mode:
+        compression = f"{metadata.compression_format} ({metadata.compression_mode})"
+    return str(info.get("storage_identifier", "")), files, compression, metadata.ros_distro
+
+
+def describe_bag(
+    path: Path,
+    topics: BagTopics = BagTopics(),
+    *,
+    on_warning: Callable[[str], None] | None = None,
+    on_sample: Callable[[int], None] | None = None,
+) -> Any:
+    """Read the whole bag, decoding every image, and say what it holds, as ``describe_recording``
+    does for a recording (same ``RecordingInfo`` type, so ``aslam info`` prints both alike).
+
+    The bag's own facts (kind, storage, files, compression, the topics read) go in ``metadata``.
+    """
+    from aslam.data_formats.recording_info import RecordingInfo, TopicInfo
+
+    path = Path(path)
+    summary = summarize_bag(path, topics)
+    if summary.problem is not None:
+        raise BagError(summary.problem, path=path)
+    warnings: list[str] = []
+
+    def warn(message: str) -> None:
+        warnings.append(message)
+        if on_warning is not None:
+            on_warning(message)
+
+    samples = with_truth = 0
+    first = last = None
+    encodings: dict[str, int] = {}
+    sizes: dict[str, int] = {}
+    distance = 0.0
+    previous_xy = None
+    for sample in iter_bag_samples(path, topics, on_warning=warn):
+        gray = sample.image.decode_gray()
+        size = f"{gray.shape[1]}x{gray.shape[0]}"
+        sizes[size] = sizes.get(size, 0) + 1
+        encodings[sample.image.encoding] = encodings.get(sample.image.encoding, 0) + 1
+        first = sample.stamp_ns if first is None else first
+        last = sample.stamp_ns
+        with_truth += sample.ground_truth_pose is not None
+        xy = sample.odometry_pose[:2]
+        if previous_xy is not None:
+            distance += math.hypot(float(xy[0] - previous_xy[0]), float(xy[1] - previous_xy[1]))
+        previous_xy = xy
+        samples += 1
+        if on_sample is not None:
+            on_sample(samples)
+    resolved = summary.resolved
+    assert resolved is not None
+    metadata = {
+        "kind": summary.kind.value,
+        "storage": summary.storage,
+        "files": ", ".join(summary.files),
+        "compression": summary.compression or "none",
+        "ros_distro": summary.ros_distro or "unknown",
+        "image_topic": resolved.image,
+        "odometry": resolved.describe_odometry(topics.base_frame, topics.odom_frame),
+        "ground_truth_topic": resolved.ground_truth or "none",
+    }
+    return RecordingInfo(
+        path=str(path),
+        size_bytes=_size(path),
+        topics=tuple(TopicInfo(t.topic, t.datatype, t.messages) for t in summary.topics),
+        samples=samples,
+        first_stamp_ns=first,
+        last_stamp_ns=last,
+        image_encodings=encodings,
+        image_sizes=sizes,
+        samples_with_ground_truth=with_truth,
+        odometry_distance_m=distance,
+        camera=read_bag_camera_intrinsics(path),
+        metadata=metadata,
+        truncated=False,
+        warnings=tuple(warnings),
+    )
+
+
+def _size(path: Path) -> int:
+    if path.is_dir():
+        return sum(p.stat().st_size for p in path.iterdir() if p.is_file())
+    return path.stat().st_size
+
+
+def read_bag_camera_intrinsics(path: Path) -> CameraIntrinsics | None:
+    """The intrinsics of the first message of the bag's only CameraInfo topic, or None."""
+    path = Path(path)
+    check_bag_path(path)
+    with _open_reader(path) as reader:
+        infos = [t for t, datatype in _topic_types(reader).items() if datatype == ros_msgs.CAMERA_INFO]
+        if len(infos) != 1:
+            return None
+        for _topic, _datatype, _log_time, msg in _messages(path, reader, {infos[0]}):
+            k = msg.k if hasattr(msg, "k") else msg.K  # ROS 1 spells it K
+            fx = float(k[0])
+            if msg.width > 0 and msg.height > 0 and math.isfinite(fx) and fx > 0:
+                return CameraIntrinsics.from_camera_info(int(msg.width), int(msg.height), fx)
+            return None
+    return None

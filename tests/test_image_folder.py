@@ -1,0 +1,344 @@
+"""Image folders with pose files (TUM, KITTI, CSV): pose-file parsing, stamps, pairing, and
+``import_image_folder`` into a recording that ``Recording.samples`` reads back unchanged."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from aslam.app.importer import import_image_folder
+from aslam.core.errors import InputError
+from aslam.data_formats.image_folder import START_STAMP_NS, SYNTHETIC_STEP_M, open_image_folder
+from aslam.data_formats.pose_files import PoseFileError, PoseFormat, detect_format, iter_poses
+from aslam.data_formats.recording import Recording
+
+W, H = 16, 12
+
+
+def write_images(folder: Path, n: int, name=lambda i: f"frame-{i:04d}.png", size=(W, H)) -> list[Path]:
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for i in range(n):
+        rng = np.random.default_rng(i)
+        path = folder / name(i)
+        image = rng.integers(0, 256, size=(size[1], size[0], 3), dtype=np.uint8)
+        ok = cv2.imwrite(str(path), image, [cv2.IMWRITE_JPEG_QUALITY, 95] if path.suffix == ".jpg" else [])
+        assert ok
+        paths.append(path)
+    return paths
+
+
+def tum_line(t: float, pose: tuple[float, float, float], z: float = 0.0) -> str:
+    x, y, yaw = pose
+    return f"{t:.6f} {x!r} {y!r} {z!r} 0 0 {math.sin(yaw / 2)!r} {math.cos(yaw / 2)!r}"
+
+
+def kitti_line(pose: tuple[float, float, float]) -> str:
+    """The camera pose (x right, y down, z forward) of a robot at ``pose`` on the ground."""
+    x, y, yaw = pose
+    c, s = math.cos(-yaw), math.sin(-yaw)  # a rotation by yaw to the left is -yaw about camera y (down)
+    rotation = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+    matrix = np.hstack([rotation, np.array([[-y], [0.0], [x]])])
+    return " ".join(repr(float(v)) for v in matrix.reshape(-1))
+
+
+def csv_line(t: float, pose: tuple[float, float, float]) -> str:
+    return f"{t!r},{pose[0]!r},{pose[1]!r},{pose[2]!r}"
+
+
+def route(i: int) -> tuple[float, float, float]:
+    return (0.5 * i, 0.1 * i * i, math.remainder(0.3 * i, 2 * math.pi))
+
+
+poses = st.tuples(
+    st.floats(-1e3, 1e3, allow_nan=False), st.floats(-1e3, 1e3, allow_nan=False), st.floats(-3.14, 3.14)
+)
+
+
+@settings(deadline=None)
+@given(pose=poses, z=st.floats(-10, 10))
+def test_tum_gives_x_y_and_yaw(tmp_path_factory, pose, z):
+    path = tmp_path_factory.mktemp("tum") / "poses.txt"
+    path.write_text(f"# timestamp tx ty tz qx qy qz qw\n{tum_line(12.5, pose, z)}\n")
+    assert detect_format(path) is PoseFormat.TUM
+    (row,) = iter_poses(path)
+    assert row.line == 2 and row.stamp_ns == 12_500_000_000
+    np.testing.assert_allclose(row.pose, pose, atol=1e-9)
+
+
+@settings(deadline=None)
+@given(pose=poses)
+def test_kitti_camera_pose_becomes_the_ground_pose(tmp_path_factory, pose):
+    path = tmp_path_factory.mktemp("kitti") / "00.txt"
+    path.write_text(kitti_line(pose) + "\n")
+    assert detect_format(path) is PoseFormat.KITTI
+    (row,) = iter_poses(path)
+    assert row.stamp_ns is None
+    np.testing.assert_allclose(row.pose, pose, atol=1e-9)
+
+
+@settings(deadline=None)
+@given(pose=poses)
+def test_csv_is_planar_already(tmp_path_factory, pose):
+    path = tmp_path_factory.mktemp("csv") / "poses.csv"
+    path.write_text("t,x,y,yaw\n" + csv_line(3.0, pose) + "\n")
+    assert detect_format(path) is PoseFormat.CSV
+    (row,) = iter_poses(path)
+    assert row.stamp_ns == 3_000_000_000
+    np.testing.assert_allclose(row.pose, pose, atol=1e-9)
+
+
+def test_stamps_are_exact_decimals(tmp_path):
+    path = tmp_path / "gt.txt"
+    path.write_text("1305031102.175304 0 0 0 0 0 0 1\n")
+    assert next(iter_poses(path)).stamp_ns == 1305031102_175304000
+
+
+@pytest.mark.parametrize(
+    ("text", "fmt", "needle"),
+    [
+        ("1 0 0 0 0 0 0 1\n2 0 0 0 0 0 1\n", None, "line 2: 7 fields, a TUM line has 8"),
+        ("1 0 0 0 0 0 0 1\n\n# c\n2 0 0 0 0 zero 0 1\n", None, "line 4: 'zero' is not a number"),
+        ("2 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 1\n", None, "line 2: stamp 1 s is before the previous line's"),
+        ("1 0 0 0 0 0 0 1\n2 nan 0 0 0 0 0 1\n", None, "line 2: not finite"),
+        ("1 0 0 0 0 0 0 0\n", None, "line 1: the quaternion is zero"),
+        ("t,x,y,yaw\n0,0,0,0\n1,0,0\n", None, "line 3: 3 fields, a CSV line has 4"),
+        ("1 2 3\n", None, "line 1: cannot tell the format from 3 fields"),
+        ("# only a comment\n", None, "has no pose lines"),
+        ("1 0 0 0 0 0 0 1\n", "kitti", "line 1: 8 fields, a KITTI line has 12"),
+    ],
+)
+def test_a_malformed_pose_file_is_one_line_naming_file_and_line(tmp_path, text, fmt, needle):
+    path = tmp_path / "poses.txt"
+    path.write_text(text)
+    with pytest.raises(PoseFileError) as caught:
+        list(iter_poses(path, fmt))
+    message = str(caught.value)
+    assert isinstance(caught.value, InputError)
+    assert message.startswith(f"{path}: ") and needle in message and "\n" not in message
+
+
+# --- folders ------------------------------------------------------------------------------------
+
+
+def gray(path: Path) -> np.ndarray:
+    return cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+
+
+def test_no_poses_synthetic_odometry_and_rate_stamps(tmp_path):
+    paths = write_images(tmp_path / "imgs", 5)
+    folder = open_image_folder(tmp_path / "imgs", rate_hz=4.0)
+    assert not folder.odometry_known and folder.stamps == "rate 4 Hz"
+    samples = list(folder.samples())
+    assert [s.stamp_ns for s in samples] == [START_STAMP_NS + i * 250_000_000 for i in range(5)]
+    for i, (sample, path) in enumerate(zip(samples, paths, strict=True)):
+        np.testing.assert_array_equal(sample.odometry_pose, [i * SYNTHETIC_STEP_M, 0, 0])
+        assert sample.ground_truth_pose is None
+        assert sample.image.data == path.read_bytes()  # the file's bytes, untouched
+        np.testing.assert_array_equal(sample.image.decode_gray(), gray(path))
+
+
+def test_natural_order_and_stamps_from_file_names(tmp_path):
+    names = ["2.5.png", "10.25.png", "3.png"]
+    for name in names:
+        write_images(tmp_path / "imgs", 1, name=lambda _i, name=name: name)
+    folder = open_image_folder(tmp_path / "imgs")
+    assert [p.name for p in folder.images] == ["2.5.png", "3.png", "10.25.png"]
+    assert folder.stamps == "file names"
+    assert [s.stamp_ns for s in folder.samples()] == [2_500_000_000, 3_000_000_000, 10_250_000_000]
+
+
+def test_default_stamps_without_anything(tmp_path):
+    write_images(tmp_path / "imgs", 2, name=lambda i: f"img_{i}.jpg")
+    folder = open_image_folder(tmp_path / "imgs")
+    assert folder.stamps == "default 1 Hz"
+    samples = list(folder.samples())
+    assert [s.stamp_ns for s in samples] == [START_STAMP_NS, START_STAMP_NS + 1_000_000_000]
+    assert {s.image.encoding for s in samples} == {"jpeg"}
+
+
+@pytest.mark.parametrize("fmt", ["tum", "kitti", "csv"])
+def test_one_pose_per_image_in_each_format(tmp_path, fmt):
+    n = 6
+    write_images(tmp_path / "imgs", n)
+    stamps = [100.0 + 0.5 * i for i in range(n)]
+    line = {
+        "tum": lambda i: tum_line(stamps[i], route(i)),
+        "kitti": lambda i: kitti_line(route(i)),
+        "csv": lambda i: csv_line(stamps[i], route(i)),
+    }[fmt]
+    truth = tmp_path / "truth.txt"
+    truth.write_text("\n".join(line(i) for i in range(n)) + "\n")
+    folder = open_image_folder(tmp_path / "imgs", ground_truth=truth, rate_hz=2.0)
+    samples = list(folder.samples())
+    assert len(samples) == n
+    if fmt == "kitti":
+        assert folder.stamps == "rate 2 Hz"
+    else:  # the file's stamps win over --rate
+        assert folder.stamps == "pose file truth.txt"
+        assert [s.stamp_ns for s in samples] == [round(t * 1e9) for t in stamps]
+    for i, sample in enumerate(samples):
+        np.testing.assert_allclose(sample.ground_truth_pose, route(i), atol=1e-9)
+        np.testing.assert_array_equal(sample.odometry_pose, [i, 0, 0])
+
+
+def test_a_faster_pose_file_is_interpolated_to_the_images(tmp_path):
+    """Ground truth at 10 Hz, images at 2 Hz from its first stamp: linear motion interpolates exactly."""
+    write_images(tmp_path / "imgs", 4)
+    truth = tmp_path / "gt.csv"
+    truth.write_text(
+        "\n".join(csv_line(50 + 0.1 * k, (0.3 * k, -0.2 * k, 0.01 * k)) for k in range(16)) + "\n"
+    )
+    odometry = tmp_path / "odom.txt"
+    odometry.write_text("\n".join(tum_line(50 + 0.05 * k, (0.1 * k, 0.0, 0.0)) for k in range(40)) + "\n")
+    warnings: list[str] = []
+    folder = open_image_folder(tmp_path / "imgs", ground_truth=truth, odometry=odometry, rate_hz=2.0)
+    assert folder.odometry_known
+    samples = list(folder.samples(on_warning=warnings.append))
+    assert [s.stamp_ns for s in samples] == [50_000_000_000 + i * 500_000_000 for i in range(4)]
+    for i, sample in enumerate(samples):
+        k = 5 * i  # 0.5 s is 5 ground-truth rows and 10 odometry rows
+        np.testing.assert_allclose(sample.ground_truth_pose, (0.3 * k, -0.2 * k, 0.01 * k), atol=1e-9)
+        np.testing.assert_allclose(sample.odometry_pose, (0.1 * 2 * k, 0, 0), atol=1e-9)
+    assert warnings == []
+
+
+def test_images_outside_the_odometry_span_are_dropped_with_a_warning(tmp_path):
+    write_images(tmp_path / "imgs", 5)
+    odometry = tmp_path / "odom.csv"
+    odometry.write_text("\n".join(csv_line(10 + 0.5 * k, (k, 0, 0)) for k in range(4)) + "\n")  # 1.5 s
+    folder = open_image_folder(tmp_path / "imgs", odometry=odometry, rate_hz=1.0)  # 4 s of images
+    warnings: list[str] = []
+    assert [s.stamp_ns for s in folder.samples(on_warning=warnings.append)] == [
+        10_000_000_000,
+        11_000_000_000,
+    ]
+    assert any("3 image(s) stamped after the last odometry message" in w for w in warnings)
+
+
+def test_stamped_file_of_another_count_needs_image_stamps(tmp_path):
+    write_images(tmp_path / "imgs", 3)
+    truth = tmp_path / "gt.txt"
+    truth.write_text("\n".join(tum_line(k, (k, 0, 0)) for k in range(5)) + "\n")
+    with pytest.raises(PoseFileError, match=r"5 poses for 3 images .* give --rate HZ"):
+        open_image_folder(tmp_path / "imgs", ground_truth=truth)
+
+
+@pytest.mark.parametrize(("rows", "line"), [(4, 4), (6, 6)])
+def test_kitti_count_mismatch_names_file_and_line(tmp_path, rows, line):
+    write_images(tmp_path / "imgs", 5)
+    poses_file = tmp_path / "00.txt"
+    poses_file.write_text("\n".join(kitti_line(route(i)) for i in range(rows)) + "\n")
+    with pytest.raises(PoseFileError) as caught:
+        open_image_folder(tmp_path / "imgs", odometry=poses_file)
+    message = str(caught.value)
+    assert message.startswith(f"{poses_file}: line {line}: {rows} poses for 5 images")
+    assert "\n" not in message
+
+
+def test_duplicate_stamps_in_a_per_image_file(tmp_path):
+    write_images(tmp_path / "imgs", 3)
+    truth = tmp_path / "gt.txt"
+    truth.write_text("\n".join(tum_line(t, (0, 0, 0)) for t in (1, 2, 2)) + "\n")
+    with pytest.raises(PoseFileError, match=r"gt.txt: line 3: the same stamp as the line before"):
+        open_image_folder(tmp_path / "imgs", ground_truth=truth)
+
+
+def test_folder_problems(tmp_path):
+    with pytest.raises(InputError, match="no such folder"):
+        open_image_folder(tmp_path / "missing")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(InputError, match=r"has no \.png or \.jpg images"):
+        open_image_folder(tmp_path / "empty")
+    write_images(tmp_path / "imgs", 1)
+    with pytest.raises(InputError, match="--rate must be a positive number"):
+        open_image_folder(tmp_path / "imgs", rate_hz=0.0)
+
+
+# --- import -------------------------------------------------------------------------------------
+
+
+def test_import_writes_a_recording_read_back_unchanged(tmp_path):
+    paths = write_images(tmp_path / "imgs", 7)
+    truth = tmp_path / "truth.txt"
+    truth.write_text("\n".join(kitti_line(route(i)) for i in range(7)) + "\n")
+    progress: list[tuple[int, int]] = []
+    out = tmp_path / "rec.mcap"
+    result = import_image_folder(
+        tmp_path / "imgs",
+        out,
+        ground_truth=truth,
+        rate_hz=5.0,
+        on_progress=lambda d, t: progress.append((d, t)),
+    )
+    assert (result.frames, result.images, result.width_px, result.height_px) == (7, 7, W, H)
+    assert not result.odometry_known and result.ground_truth
+    assert progress[-1] == (7, 7) and len(progress) == 7
+    samples = list(Recording(out).samples())
+    assert [s.stamp_ns for s in samples] == [START_STAMP_NS + i * 200_000_000 for i in range(7)]
+    for i, (sample, path) in enumerate(zip(samples, paths, strict=True)):
+        assert sample.image.data == path.read_bytes() and sample.image.encoding == "png"
+        np.testing.assert_array_equal(sample.image.decode_gray(), gray(path))
+        np.testing.assert_allclose(sample.odometry_pose, [i, 0, 0], atol=1e-12)
+        np.testing.assert_allclose(sample.ground_truth_pose, route(i), atol=1e-9)
+    metadata = Recording(out).metadata()
+    assert metadata["odometry_known"] == "false" and metadata["odometry_step_m"] == "1"
+    assert metadata["source"] == "image-folder" and metadata["stamps"] == "rate 5 Hz"
+    # Same arguments, same bytes.
+    again = tmp_path / "again.mcap"
+    import_image_folder(tmp_path / "imgs", again, ground_truth=truth, rate_hz=5.0)
+    assert again.read_bytes() == out.read_bytes()
+
+
+def test_import_with_odometry_says_it_is_known(tmp_path):
+    write_images(tmp_path / "imgs", 3, name=lambda i: f"{i}.jpg")
+    odometry = tmp_path / "odom.csv"
+    odometry.write_text(
+        "stamp_s,x_m,y_m,yaw_rad\n" + "\n".join(csv_line(1 + i, route(i)) for i in range(3)) + "\n"
+    )
+    out = tmp_path / "rec.mcap"
+    result = import_image_folder(tmp_path / "imgs", out, odometry=odometry, fov_deg=90.0)
+    assert result.odometry_known and result.stamps == "pose file odom.csv"
+    metadata = Recording(out).metadata()
+    assert metadata["odometry_known"] == "true" and "odometry_step_m" not in metadata
+    samples = list(Recording(out).samples())
+    assert [s.image.encoding for s in samples] == ["jpeg"] * 3
+    np.testing.assert_allclose(samples[2].odometry_pose, route(2), atol=1e-12)
+
+
+@pytest.mark.parametrize("damage", ["corrupt", "not-an-image", "other-size", "empty"])
+def test_a_bad_image_fails_the_import_naming_the_file(tmp_path, damage):
+    paths = write_images(tmp_path / "imgs", 4)
+    bad = paths[2]
+    if damage == "corrupt":
+        data = bad.read_bytes()
+        bad.write_bytes(data[:40] + bytes(len(data) - 40))
+    elif damage == "not-an-image":
+        bad.write_text("hello")
+    elif damage == "empty":
+        bad.write_bytes(b"")
+    else:
+        write_images(tmp_path / "imgs", 1, name=lambda _i: bad.name, size=(W + 2, H))
+    out = tmp_path / "rec.mcap"
+    with pytest.raises(InputError) as caught:
+        import_image_folder(tmp_path / "imgs", out)
+    message = str(caught.value)
+    assert message.startswith(f"{bad}: ") and "\n" not in message
+    assert not out.exists() and list(tmp_path.glob(".rec.mcap*")) == []
+
+
+def test_import_refuses_to_overwrite(tmp_path):
+    write_images(tmp_path / "imgs", 1)
+    out = tmp_path / "rec.mcap"
+    out.write_text("keep me")
+    with pytest.raises(InputError, match="already exists"):
+        import_image_folder(tmp_path / "imgs", out)
+    assert out.read_text() == "keep me"
+    import_image_folder(tmp_path / "imgs", out, force=True)
+    assert len(list(Recording(out).samples())) == 1

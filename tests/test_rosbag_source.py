@@ -1,0 +1,654 @@
+"""ROS bags as a robot driver writes them, written here with rosbags' own writers: raw bgr8 images on
+``/camera/color/image_raw`` at 10 Hz, odometry at 5× the camera rate and out of phase, messages
+logged a little after their stamps. The same messages as a rosbag2 folder (mcap, sqlite3, split,
+zstd-compressed), a lone rosbag2 .mcap file and a ROS 1 bag must give the same samples.
+
+Also holds the bag builders other tests import.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+
+from aslam.core.errors import InputError
+from aslam.data_formats.images import encode_image
+from aslam.data_formats.recording import Recording
+from aslam.data_formats.recording_writer import RecordingWriter
+from aslam.data_formats.rosbag_source import (
+    BagError,
+    BagTopics,
+    SourceKind,
+    describe_bag,
+    iter_bag_samples,
+    open_source,
+    summarize_bag,
+)
+
+T0_NS = 1_700_000_000_000_000_000
+CAMERA_PERIOD_NS = 100_000_000  # 10 Hz
+ODOMETRY_PERIOD_NS = CAMERA_PERIOD_NS // 5
+ODOMETRY_PHASE_NS = -7_000_000  # odometry starts 7 ms before the first image, and stays out of phase
+IMAGE_LATENCY_NS = 30_000_000  # images are logged 30 ms after their stamp (odometry 1 ms)
+WIDTH, HEIGHT = 24, 16
+IMAGE_TOPIC = "/camera/color/image_raw"
+N_IMAGES = 12
+
+
+def true_pose(stamp_ns: int) -> np.ndarray:
+    """A constant-velocity arc: linear interpolation between odometry messages is exact."""
+    t = (stamp_ns - T0_NS) / 1e9
+    return np.array([0.8 * t, 0.3 * t, math.remainder(0.5 * t + 3.0, 2 * math.pi)])
+
+
+def odometry_pose(stamp_ns: int) -> np.ndarray:
+    t = (stamp_ns - T0_NS) / 1e9
+    return np.array([1.0 + 0.75 * t, -2.0 + 0.35 * t, math.remainder(0.45 * t - 3.0, 2 * math.pi)])
+
+
+def bgr_image(i: int) -> np.ndarray:
+    rng = np.random.default_rng(i)
+    return rng.integers(0, 256, size=(HEIGHT, WIDTH, 3), dtype=np.uint8)
+
+
+def image_stamps() -> list[int]:
+    return [T0_NS + i * CAMERA_PERIOD_NS for i in range(N_IMAGES)]
+
+
+def odometry_stamps() -> list[int]:
+    end = T0_NS + N_IMAGES * CAMERA_PERIOD_NS
+    return list(range(T0_NS + ODOMETRY_PHASE_NS, end, ODOMETRY_PERIOD_NS))
+
+
+# --- messages, for either ROS version ------------------------------------------------------------
+
+
+def _time(ts: Any, stamp_ns: int) -> Any:
+    sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+    return ts.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec)
+
+
+def _header(ts: Any, stamp_ns: int, frame: str) -> Any:
+    header = ts.types["std_msgs/msg/Header"]
+    if "seq" in header.__dataclass_fields__:  # ROS 1
+        return header(seq=0, stamp=_time(ts, stamp_ns), frame_id=frame)
+    return header(stamp=_time(ts, stamp_ns), frame_id=frame)
+
+
+def _pose_msg(ts: Any, pose: np.ndarray) -> Any:
+    t = ts.types
+    half = 0.5 * float(pose[2])
+    return t["geometry_msgs/msg/Pose"](
+        position=t["geometry_msgs/msg/Point"](x=float(pose[0]), y=float(pose[1]), z=0.0),
+        orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(half), w=math.cos(half)),
+    )
+
+
+def odometry_msg(ts: Any, stamp_ns: int, pose: np.ndarray) -> Any:
+    t = ts.types
+    zero = t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
+    return t["nav_msgs/msg/Odometry"](
+        header=_header(ts, stamp_ns, "odom"),
+        child_frame_id="base_link",
+        pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=_pose_msg(ts, pose), covariance=np.zeros(36)),
+        twist=t["geometry_msgs/msg/TwistWithCovariance"](
+            twist=t["geometry_msgs/msg/Twist"](linear=zero, angular=zero), covariance=np.zeros(36)
+        ),
+    )
+
+
+def pose_stamped_msg(ts: Any, stamp_ns: int, pose: np.ndarray) -> Any:
+    return ts.types["geometry_msgs/msg/PoseStamped"](
+        header=_header(ts, stamp_ns, "world"), pose=_pose_msg(ts, pose)
+    )
+
+
+def tf_msg(ts: Any, stamp_ns: int, transforms: list[tuple[str, str, np.ndarray]]) -> Any:
+    t = ts.types
+    items = []
+    for parent, child, pose in transforms:
+        half = 0.5 * float(pose[2])
+        items.append(
+            t["geometry_msgs/msg/TransformStamped"](
+                header=_header(ts, stamp_ns, parent),
+                child_frame_id=child,
+                transform=t["geometry_msgs/msg/Transform"](
+                    translation=t["geometry_msgs/msg/Vector3"](x=float(pose[0]), y=float(pose[1]), z=0.0),
+                    rotation=t["geometry_msgs/msg/Quaternion"](
+                        x=0.0, y=0.0, z=math.sin(half), w=math.cos(half)
+                    ),
+                ),
+            )
+        )
+    return t["tf2_msgs/msg/TFMessage"](transforms=items)
+
+
+def raw_image_msg(ts: Any, stamp_ns: int, bgr: np.ndarray, encoding: str = "bgr8", padding: int = 0) -> Any:
+    """A raw Image as a driver fills it; rows padded with ``padding`` bytes (``step`` > row)."""
+    if encoding == "bgr8":
+        pixels = bgr
+    elif encoding == "bgra8":
+        pixels = cv2.cvtColor(bgr, cv2.COLOR_BGR2BGRA)
+    elif encoding == "mono8":
+        pixels = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+    elif encoding == "mono16":
+        pixels = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY).astype("<u2") * 257
+    else:
+        raise ValueError(encoding)
+    rows = np.ascontiguousarray(pixels).view(np.uint8).reshape(pixels.shape[0], -1)
+    rows = np.concatenate([rows, np.zeros((rows.shape[0], padding), np.uint8)], axis=1)
+    return ts.types["sensor_msgs/msg/Image"](
+        header=_header(ts, stamp_ns, "camera_color_optical_frame"),
+        height=bgr.shape[0],
+        width=bgr.shape[1],
+        encoding=encoding,
+        is_bigendian=0,
+        step=rows.shape[1],
+        data=rows.reshape(-1),
+    )
+
+
+def compressed_image_msg(ts: Any, stamp_ns: int, bgr: np.ndarray) -> Any:
+    ok, png = cv2.imencode(".png", bgr)
+    assert ok
+    return ts.types["sensor_msgs/msg/CompressedImage"](
+        header=_header(ts, stamp_ns, "camera"), format="png", data=png.reshape(-1)
+    )
+
+
+def camera_info_msg(ts: Any, stamp_ns: int) -> Any:
+    fields = ts.types["sensor_msgs/msg/CameraInfo"].__dataclass_fields__
+    names = ("d", "k", "r", "p") if "k" in fields else ("D", "K", "R", "P")  # ROS 1 spells them upper case
+    roi = ts.types["sensor_msgs/msg/RegionOfInterest"](
+        x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+    )
+    values = dict(
+        zip(
+            names,
+            (
+                np.zeros(5),
+                np.array([20.0, 0, 11.5, 0, 20.0, 7.5, 0, 0, 1]),
+                np.eye(3).reshape(-1),
+                np.zeros(12),
+            ),
+            strict=True,
+        )
+    )
+    return ts.types["sensor_msgs/msg/CameraInfo"](
+        header=_header(ts, stamp_ns, "camera"),
+        height=HEIGHT,
+        width=WIDTH,
+        distortion_model="plumb_bob",
+        binning_x=0,
+        binning_y=0,
+        roi=roi,
+        **values,
+    )
+
+
+@dataclass(frozen=True)
+class Options:
+    """What goes into a test bag."""
+
+    encoding: str = "bgr8"
+    padding: int = 0
+    odometry: str = "odometry"  # "odometry" (nav_msgs/Odometry on /odom), "tf", or "none"
+    ground_truth: bool = True
+    extra_image_topic: bool = False
+    compressed: bool = False  # CompressedImage PNGs instead of raw images
+    camera_info: bool = True
+
+
+def bag_messages(ts: Any, options: Options = Options()) -> list[tuple[int, str, str, Any]]:
+    """``(log_time_ns, topic, type, message)`` in log-time order."""
+    out: list[tuple[int, str, str, Any]] = []
+    for stamp in odometry_stamps():
+        log = stamp + 1_000_000
+        if options.odometry == "odometry":
+            out.append((log, "/odom", "nav_msgs/msg/Odometry", odometry_msg(ts, stamp, odometry_pose(stamp))))
+        elif options.odometry == "tf":
+            transforms = [("odom", "base_footprint", odometry_pose(stamp)), ("map", "odom", np.zeros(3))]
+            out.append((log, "/tf", "tf2_msgs/msg/TFMessage", tf_msg(ts, stamp, transforms)))
+        if options.ground_truth:
+            out.append(
+                (
+                    log,
+                    "/ground_truth",
+                    "geometry_msgs/msg/PoseStamped",
+                    pose_stamped_msg(ts, stamp, true_pose(stamp)),
+                )
+            )
+    for i, stamp in enumerate(image_stamps()):
+        log = stamp + IMAGE_LATENCY_NS
+        if options.compressed:
+            out.append(
+                (
+                    log,
+                    "/camera/color/image_raw/compressed",
+                    "sensor_msgs/msg/CompressedImage",
+                    compressed_image_msg(ts, stamp, bgr_image(i)),
+                )
+            )
+        else:
+            msg = raw_image_msg(ts, stamp, bgr_image(i), options.encoding, options.padding)
+            out.append((log, IMAGE_TOPIC, "sensor_msgs/msg/Image", msg))
+        if options.extra_image_topic:
+            depth = raw_image_msg(ts, stamp, bgr_image(i), "mono16")
+            out.append((log, "/camera/depth/image_rect_raw", "sensor_msgs/msg/Image", depth))
+        if options.camera_info and i == 0:
+            out.append(
+                (log, "/camera/color/camera_info", "sensor_msgs/msg/CameraInfo", camera_info_msg(ts, stamp))
+            )
+    out.sort(key=lambda row: row[0])
+    return out
+
+
+def write_rosbag2(
+    path: Path,
+    options: Options = Options(),
+    *,
+    storage: str = "mcap",
+    compression: str | None = None,
+    messages: list[tuple[int, str, str, Any]] | None = None,
+) -> Path:
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    rows = bag_messages(ts, options) if messages is None else messages
+    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    writer = Writer(path, version=9, storage_plugin=plugin)
+    if compression is not None:
+        writer.set_compression(CompressionMode[compression.upper()], CompressionFormat.ZSTD)
+    with writer:
+        connections: dict[str, Any] = {}
+        for log, topic, msgtype, msg in rows:
+            if topic not in connections:
+                connections[topic] = writer.add_connection(topic, msgtype, typestore=ts)
+            writer.write(connections[topic], log, ts.serialize_cdr(msg, msgtype))
+    return path
+
+
+def write_rosbag1(path: Path, options: Options = Options()) -> Path:
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    # rosbags' Noetic store has no tf2_msgs; the definition is ROS's own.
+    ts.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage"))
+    with Writer(path) as writer:
+        connections: dict[str, Any] = {}
+        for log, topic, msgtype, msg in bag_messages(ts, options):
+            if topic not in connections:
+                connections[topic] = writer.add_connection(topic, msgtype, typestore=ts)
+            writer.write(connections[topic], log, ts.serialize_ros1(msg, msgtype))
+    return path
+
+
+def write_split_rosbag2(path: Path, options: Options = Options()) -> Path:
+    """A rosbag2 folder split in two files (what ``ros2 bag record --max-bag-size`` leaves)."""
+    from rosbags.typesys import Stores, get_typestore
+    from ruamel.yaml import YAML
+
+    rows = bag_messages(get_typestore(Stores.ROS2_HUMBLE), options)
+    half = len(rows) // 2
+    first = write_rosbag2(path, messages=rows[:half])
+    second = write_rosbag2(path.with_name(path.name + "-second"), messages=rows[half:])
+    yaml = YAML(typ="safe")
+    meta_first = yaml.load((first / "metadata.yaml").read_text())
+    meta_second = yaml.load((second / "metadata.yaml").read_text())
+    info, other = meta_first["rosbag2_bagfile_information"], meta_second["rosbag2_bagfile_information"]
+    second_file = other["relative_file_paths"][0]
+    moved = f"{path.name}_1.mcap"
+    shutil.move(second / second_file, first / moved)
+    shutil.rmtree(second)
+    info["relative_file_paths"].append(moved)
+    counts = {t["topic_metadata"]["name"]: t for t in info["topics_with_message_count"]}
+    for topic in other["topics_with_message_count"]:
+        name = topic["topic_metadata"]["name"]
+        if name in counts:
+            counts[name]["message_count"] += topic["message_count"]
+        else:
+            info["topics_with_message_count"].append(topic)
+    info["message_count"] += other["message_count"]
+    end = other["starting_time"]["nanoseconds_since_epoch"] + other["duration"]["nanoseconds"]
+    info["duration"]["nanoseconds"] = end - info["starting_time"]["nanoseconds_since_epoch"]
+    info["files"].append({**other["files"][0], "path": moved})
+    with (first / "metadata.yaml").open("w") as f:
+        yaml.dump(meta_first, f)
+    return first
+
+
+# --- expectations ---------------------------------------------------------------------------------
+
+
+def expected_gray(i: int) -> np.ndarray:
+    return cv2.cvtColor(bgr_image(i), cv2.COLOR_BGR2GRAY)
+
+
+def assert_driver_samples(samples: list, *, ground_truth: bool = True, gray_tolerance: int = 0) -> None:
+    """Every image has odometry around it (odometry starts first, ends after), so all come out.
+
+    PNG decoding to grey (libpng's own conversion) may round differently from OpenCV's: ±1.
+    """
+    assert [s.stamp_ns for s in samples] == image_stamps()
+    for i, sample in enumerate(samples):
+        np.testing.assert_allclose(sample.odometry_pose, odometry_pose(sample.stamp_ns), atol=1e-9)
+        if ground_truth:
+            np.testing.assert_allclose(sample.ground_truth_pose, true_pose(sample.stamp_ns), atol=1e-9)
+        else:
+            assert sample.ground_truth_pose is None
+        difference = sample.image.decode_gray().astype(int) - expected_gray(i)
+        assert np.abs(difference).max() <= gray_tolerance
+
+
+WITH_TRUTH = BagTopics(ground_truth="/ground_truth")
+
+
+# --- tests ---------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def bags(tmp_path_factory) -> dict[str, Path]:
+    root = tmp_path_factory.mktemp("bags")
+    out = {
+        "rosbag2-mcap": write_rosbag2(root / "mcap_bag", storage="mcap"),
+        "rosbag2-sqlite3": write_rosbag2(root / "sqlite_bag", storage="sqlite3"),
+        "rosbag2-mcap-zstd-file": write_rosbag2(root / "zstd_bag", storage="mcap", compression="file"),
+        "rosbag2-sqlite3-zstd-message": write_rosbag2(
+            root / "zmsg_bag", storage="sqlite3", compression="message"
+        ),
+        "rosbag2-split": write_split_rosbag2(root / "split_bag"),
+        "rosbag1": write_rosbag1(root / "driver.bag"),
+    }
+    lone = root / "lone.mcap"
+    shutil.copy(next((root / "mcap_bag").glob("*.mcap")), lone)
+    out["rosbag2-file"] = lone
+    return out
+
+
+KINDS = {
+    "rosbag2-mcap": SourceKind.ROSBAG2,
+    "rosbag2-sqlite3": SourceKind.ROSBAG2,
+    "rosbag2-mcap-zstd-file": SourceKind.ROSBAG2,
+    "rosbag2-sqlite3-zstd-message": SourceKind.ROSBAG2,
+    "rosbag2-split": SourceKind.ROSBAG2,
+    "rosbag1": SourceKind.ROSBAG1,
+    "rosbag2-file": SourceKind.ROSBAG2_FILE,
+}
+
+
+@pytest.mark.parametrize("name", sorted(KINDS))
+def test_every_bag_kind_gives_the_same_samples(bags, name):
+    path = bags[name]
+    assert open_source(path) is KINDS[name]
+    warnings: list[str] = []
+    samples = list(iter_bag_samples(path, WITH_TRUTH, on_warning=warnings.append))
+    assert_driver_samples(samples)
+    assert warnings == []
+
+
+def test_without_a_named_ground_truth_topic_there_is_none(bags):
+    assert_driver_samples(list(iter_bag_samples(bags["rosbag2-mcap"])), ground_truth=False)
+
+
+def test_the_split_bag_really_has_two_files(bags):
+    summary = summarize_bag(bags["rosbag2-split"])
+    assert len(summary.files) == 2
+    assert summary.storage == "mcap"
+
+
+def test_summary_lists_topics_types_and_counts(bags):
+    for name in ("rosbag2-sqlite3", "rosbag1", "rosbag2-mcap-zstd-file"):
+        summary = summarize_bag(bags[name])
+        topics = {t.topic: (t.datatype, t.messages) for t in summary.topics}
+        assert topics == {
+            "/camera/color/camera_info": ("sensor_msgs/msg/CameraInfo", 1),
+            IMAGE_TOPIC: ("sensor_msgs/msg/Image", N_IMAGES),
+            "/odom": ("nav_msgs/msg/Odometry", len(odometry_stamps())),
+            "/ground_truth": ("geometry_msgs/msg/PoseStamped", len(odometry_stamps())),
+        }, name
+        assert summary.problem is None
+        assert summary.resolved is not None and summary.resolved.image == IMAGE_TOPIC
+        assert summary.resolved.odometry == "/odom"
+        assert summary.messages == 1 + N_IMAGES + 2 * len(odometry_stamps())
+    assert summarize_bag(bags["rosbag2-mcap-zstd-file"]).compression == "zstd (file)"
+    assert summarize_bag(bags["rosbag1"]).storage == "rosbag1"
+
+
+def test_describe_bag_reads_every_sample(bags):
+    info = describe_bag(bags["rosbag1"], WITH_TRUTH)
+    assert info.samples == N_IMAGES
+    assert info.samples_with_ground_truth == N_IMAGES
+    assert info.image_encodings == {"bgr8": N_IMAGES}
+    assert info.image_sizes == {f"{WIDTH}x{HEIGHT}": N_IMAGES}
+    assert info.camera is not None and info.camera.width_px == WIDTH
+    assert info.metadata["image_topic"] == IMAGE_TOPIC and info.metadata["kind"] == "rosbag1"
+    assert info.as_dict()["samples"] == N_IMAGES
+    span = odometry_pose(image_stamps()[-1])[:2] - odometry_pose(image_stamps()[0])[:2]
+    assert info.odometry_distance_m == pytest.approx(float(np.hypot(*span)))
+
+
+@pytest.mark.parametrize(("encoding", "padding"), [("bgra8", 0), ("mono16", 3), ("mono8", 5), ("bgr8", 2)])
+def test_raw_encodings_and_padded_rows(tmp_path, encoding, padding):
+    path = write_rosbag2(tmp_path / "bag", Options(encoding=encoding, padding=padding), storage="mcap")
+    assert_driver_samples(list(iter_bag_samples(path, WITH_TRUTH)))
+
+
+def test_compressed_images(tmp_path):
+    path = write_rosbag1(tmp_path / "c.bag", Options(compressed=True))
+    assert_driver_samples(list(iter_bag_samples(path, WITH_TRUTH)), gray_tolerance=1)
+
+
+@pytest.mark.parametrize("writer", ["rosbag2", "rosbag1"])
+def test_odometry_from_tf_when_there_is_no_odometry_topic(tmp_path, writer):
+    options = Options(odometry="tf")
+    path = (
+        write_rosbag1(tmp_path / "t.bag", options)
+        if writer == "rosbag1"
+        else write_rosbag2(tmp_path / "t", options)
+    )
+    warnings: list[str] = []
+    assert_driver_samples(list(iter_bag_samples(path, WITH_TRUTH, on_warning=warnings.append)))
+    assert any("odom → base_footprint" in w for w in warnings)
+
+
+def test_tf_without_the_odom_frame_names_the_frames_seen(tmp_path):
+    path = write_rosbag2(tmp_path / "t", Options(odometry="tf"))
+    with pytest.raises(BagError, match="transforms seen: map → odom, odom → base_footprint"):
+        list(iter_bag_samples(path, BagTopics(odom_frame="odom", base_frame="base_link")))
+
+
+def test_two_image_topics_is_one_error_listing_them(tmp_path):
+    path = write_rosbag2(tmp_path / "two", Options(extra_image_topic=True), storage="sqlite3")
+    with pytest.raises(BagError) as caught:
+        next(iter_bag_samples(path))
+    message = str(caught.value)
+    assert message.startswith(f"{path}: 2 image topics: ")
+    assert "/camera/color/image_raw (sensor_msgs/msg/Image)" in message
+    assert "/camera/depth/image_rect_raw (sensor_msgs/msg/Image)" in message
+    assert "--image-topic" in message and "\n" not in message
+    # Naming one resolves it.
+    assert_driver_samples(
+        list(iter_bag_samples(path, BagTopics(image=IMAGE_TOPIC, ground_truth="/ground_truth")))
+    )
+    assert summarize_bag(path).problem == message.split(": ", 1)[1]
+
+
+@pytest.mark.parametrize(
+    ("options", "topics", "needle"),
+    [
+        (Options(odometry="none"), BagTopics(), "no odometry: neither a nav_msgs/msg/Odometry topic nor"),
+        (Options(), BagTopics(ground_truth="/gps"), "no ground-truth topic '/gps' (topics in the bag: "),
+        (Options(), BagTopics(odometry=IMAGE_TOPIC), f"odometry topic '{IMAGE_TOPIC}' has type"),
+        (Options(), BagTopics(image="/odom"), "image topic '/odom' has type 'nav_msgs/msg/Odometry'"),
+    ],
+)
+def test_topic_problems_are_one_line(tmp_path, options, topics, needle):
+    path = write_rosbag2(tmp_path / "bag", options)
+    with pytest.raises(BagError) as caught:
+        list(iter_bag_samples(path, topics))
+    assert needle in str(caught.value) and "\n" not in str(caught.value)
+
+
+def test_unknown_encoding_names_topic_and_stamp(tmp_path):
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    rows = bag_messages(ts)
+    for _log, topic, _type, msg in rows:
+        if topic == IMAGE_TOPIC:
+            msg.encoding = "hsv8"
+    path = write_rosbag2(tmp_path / "bag", messages=rows)
+    with pytest.raises(
+        BagError, match=f"unknown image encoding 'hsv8' on '{IMAGE_TOPIC}' at stamp {T0_NS} ns"
+    ):
+        list(iter_bag_samples(path))
+
+
+def test_truncated_image_data_names_the_stamp(tmp_path):
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    rows = bag_messages(ts)
+    for _log, topic, _type, msg in rows:
+        if topic == IMAGE_TOPIC:
+            msg.data = msg.data[:-1]
+    path = write_rosbag2(tmp_path / "bag", messages=rows)
+    sample = next(iter_bag_samples(path))
+    with pytest.raises(InputError, match=rf"image at stamp {T0_NS} ns: {WIDTH * HEIGHT * 3 - 1} bytes"):
+        sample.image.decode_gray()
+
+
+def test_open_source_tells_inputs_apart(tmp_path, bags):
+    recording = tmp_path / "ours.mcap"
+    from aslam.data_formats.camera import CameraIntrinsics
+
+    with RecordingWriter(recording, camera=CameraIntrinsics(8, 6, 60.0), metadata={"seed": "1"}) as writer:
+        writer.write(T0_NS, encode_image(np.zeros((6, 8, 3), np.uint8)), np.zeros(3), None)
+    assert open_source(recording) is SourceKind.RECORDING
+    assert len(list(Recording(recording).samples())) == 1
+    bare = tmp_path / "bare.mcap"  # a recording whose metadata record is empty is still ours
+    with RecordingWriter(bare, camera=CameraIntrinsics(8, 6, 60.0), metadata={}) as writer:
+        writer.write(T0_NS, encode_image(np.zeros((6, 8, 3), np.uint8)), np.zeros(3), None)
+    assert open_source(bare) is SourceKind.RECORDING
+    folder = tmp_path / "images"
+    folder.mkdir()
+    cv2.imwrite(str(folder / "0001.png"), np.zeros((4, 4), np.uint8))
+    assert open_source(folder) is SourceKind.IMAGE_FOLDER
+    renamed = tmp_path / "driver.dat"
+    shutil.copy(bags["rosbag1"], renamed)
+    cases = {
+        tmp_path / "missing.bag": "no such file or folder",
+        tmp_path: "neither a rosbag2 metadata.yaml nor png/jpg images",
+        renamed: "is a ROS 1 bag but its name does not end in '.bag'",
+        next(bags["rosbag2-mcap-zstd-file"].glob("*.zstd")): "pass the rosbag2 folder",
+    }
+    (tmp_path / "notes.txt").write_text("hello")
+    cases[tmp_path / "notes.txt"] = "not a recording or a bag"
+    for path, needle in cases.items():
+        with pytest.raises(BagError) as caught:
+            open_source(path)
+        assert needle in str(caught.value), path
+    with pytest.raises(BagError, match="is a recording, not a ROS bag"):
+        iter_bag_samples(recording)
+
+
+def test_damaged_metadata_is_one_line(tmp_path):
+    path = write_rosbag2(tmp_path / "bag")
+    (path / "metadata.yaml").write_text("rosbag2_bagfile_information: {version: 9}\n")
+    with pytest.raises(BagError) as caught:
+        list(iter_bag_samples(path))
+    assert str(caught.value).startswith(f"{path}: cannot open the bag: ")
+    assert "\n" not in str(caught.value)
+
+
+def test_our_mcap_reader_agrees_on_the_lone_rosbag2_file(bags):
+    """Two independent readers (mcap + mcap_ros2 vs rosbags) of one file: the same samples."""
+    from aslam.data_formats.recording import RecordingTopics
+
+    topics = RecordingTopics(image=IMAGE_TOPIC, odometry="/odom", ground_truth="/ground_truth")
+    assert_driver_samples(list(Recording(bags["rosbag2-file"]).samples(topics)))
+
+
+def test_a_sqlite3_bag_without_message_definitions_reads_with_the_latest_types(tmp_path):
+    """Bags from before ROS 2 Iron store no definitions; rosbags' own type store stands in."""
+    import sqlite3
+
+    path = write_rosbag2(tmp_path / "humble", storage="sqlite3")
+    (db,) = path.glob("*.db3")
+    with sqlite3.connect(db) as connection:
+        connection.execute("DELETE FROM message_definitions")
+    assert_driver_samples(list(iter_bag_samples(path, WITH_TRUTH)))
+
+
+def test_ros1_frames_with_a_leading_slash(tmp_path):
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    rows = bag_messages(ts, Options(odometry="tf"))
+    for _log, topic, _type, msg in rows:
+        if topic == "/tf":
+            for transform in msg.transforms:
+                transform.header.frame_id = "/" + transform.header.frame_id
+                transform.child_frame_id = "/" + transform.child_frame_id
+    path = write_rosbag2(tmp_path / "bag", messages=rows)
+    assert_driver_samples(list(iter_bag_samples(path, WITH_TRUTH)))
+
+
+def _damaged(tmp_path: Path, topic: str, change) -> Path:
+    from rosbags.typesys import Stores, get_typestore
+
+    rows = bag_messages(get_typestore(Stores.ROS2_HUMBLE))
+    matching = [msg for _log, t, _type, msg in rows if t == topic]
+    change(matching)
+    return write_rosbag2(tmp_path / "bag", messages=rows)
+
+
+def test_image_stamps_going_backwards(tmp_path):
+    def swap(msgs):
+        msgs[3].header.stamp, msgs[4].header.stamp = msgs[4].header.stamp, msgs[3].header.stamp
+
+    path = _damaged(tmp_path, IMAGE_TOPIC, swap)
+    with pytest.raises(BagError, match=f"image stamps go backwards on '{IMAGE_TOPIC}'"):
+        list(iter_bag_samples(path))
+
+
+def test_non_finite_odometry(tmp_path):
+    def poison(msgs):
+        msgs[10].pose.pose.position.x = float("nan")
+
+    path = _damaged(tmp_path, "/odom", poison)
+    with pytest.raises(BagError, match=r"odometry pose on '/odom' at stamp \d+ ns is not finite"):
+        list(iter_bag_samples(path))
+
+
+def test_unset_header_stamps_fall_back_to_the_log_time(tmp_path):
+    def unset(msgs):
+        for msg in msgs:
+            msg.header.stamp.sec, msg.header.stamp.nanosec = 0, 0
+
+    path = _damaged(tmp_path, IMAGE_TOPIC, unset)
+    samples = list(iter_bag_samples(path))
+    assert [s.stamp_ns for s in samples] == [stamp + IMAGE_LATENCY_NS for stamp in image_stamps()]
+
+
+def test_ground_truth_stream(bags):
+    from aslam.data_formats.rosbag_source import iter_bag_ground_truth
+
+    for name in ("rosbag1", "rosbag2-sqlite3"):
+        rows = list(iter_bag_ground_truth(bags[name], "/ground_truth"))
+        assert [stamp for stamp, _pose in rows] == odometry_stamps()
+        for stamp, pose in rows:
+            np.testing.assert_allclose(pose, true_pose(stamp), atol=1e-9)
+    with pytest.raises(BagError, match="no ground-truth topic '/gps'"):
+        list(iter_bag_ground_truth(bags["rosbag1"], "/gps"))
+    with pytest.raises(BagError, match="ground-truth topic '/camera/color/image_raw' has type"):
+        list(iter_bag_ground_truth(bags["rosbag1"], IMAGE_TOPIC))
