@@ -15,3 +15,7 @@ class RecordingError(InputError):
 
 class EstimateError(InputError):
     """An estimate file that cannot be read or written; the message is ``PATH: problem`` (exit 2)."""
+
+
+class BagError(RecordingError):
+    """A ROS bag (rosbag2 folder or file, ROS 1 bag) that cannot be read (exit 2)."""

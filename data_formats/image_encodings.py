@@ -24,10 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from aslam.core.errors import InputError
+from aslam.data_formats.errors import RecordingError
 
 
-class ImageEncodingError(InputError):
+class ImageEncodingError(RecordingError):
     """Raw image bytes that cannot be decoded (unknown encoding, size mismatch); exit 2."""
 
 
@@ -155,36 +155,3 @@ def raw_to_gray(
         "bgra": cv2.COLOR_BGRA2GRAY,
     }[kind]
     return cv2.cvtColor(np.ascontiguousarray(_to_8bit(values)), code)
-
-
-def raw_to_bgr(
-    data: bytes,
-    encoding: str,
-    width: int,
-    height: int,
-    step: int,
-    is_bigendian: bool,
-    *,
-    stamp_ns: int | None = None,
-    path: Path | str | None = None,
-) -> np.ndarray:
-    """BGR uint8 ``(height, width, 3)`` (OpenCV's channel order) of one raw image message."""
-    import cv2
-
-    values, layout = _pixels(data, encoding, width, height, step, is_bigendian, stamp_ns, path)
-    kind = layout.kind
-    if kind == "gray":
-        return cv2.cvtColor(np.ascontiguousarray(_to_8bit(values)), cv2.COLOR_GRAY2BGR)
-    if kind in ("uyvy", "yuyv"):
-        pixels = np.ascontiguousarray(values)
-        if width % 2:  # 4:2:2 pairs pixels; OpenCV needs an even width, so repeat the last column
-            pixels = np.ascontiguousarray(np.concatenate([pixels, pixels[:, -1:]], axis=1))
-        code = cv2.COLOR_YUV2BGR_UYVY if kind == "uyvy" else cv2.COLOR_YUV2BGR_YUY2
-        return np.ascontiguousarray(cv2.cvtColor(pixels, code)[:, :width])
-    if kind.startswith("bayer_"):
-        return _to_8bit(cv2.cvtColor(np.ascontiguousarray(values), _bayer_code(kind, "BGR")))
-    pixels = np.ascontiguousarray(_to_8bit(values))
-    if kind == "bgr":
-        return pixels
-    code = {"rgb": cv2.COLOR_RGB2BGR, "rgba": cv2.COLOR_RGBA2BGR, "bgra": cv2.COLOR_BGRA2BGR}[kind]
-    return cv2.cvtColor(pixels, code)

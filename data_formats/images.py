@@ -12,6 +12,7 @@ from typing import NamedTuple
 import numpy as np
 
 from aslam.data_formats.errors import RecordingError
+from aslam.data_formats.image_encodings import raw_to_gray
 
 
 class ImageFormat(StrEnum):
@@ -45,9 +46,6 @@ def encode_image(rgb: np.ndarray, fmt: ImageFormat = ImageFormat.PNG, jpeg_quali
     if not ok:
         raise ValueError(f"OpenCV could not encode a {rgb.shape} image as {fmt.value}")
     return EncodedImage(fmt, buf.tobytes())
-
-
-RAW_CHANNELS = {"mono8": 1, "rgb8": 3, "bgr8": 3}
 
 
 class _QuietOpenCV:
@@ -85,11 +83,12 @@ _quiet_opencv = _QuietOpenCV()
 class LazyImage:
     """One camera image as stored: encoded bytes (PNG/JPEG) or raw pixels, decoded only on request.
 
-    ``encoding`` is ``"png"``, ``"jpeg"``, ``"mono8"``, ``"rgb8"`` or ``"bgr8"``; ``width``,
-    ``height`` and ``step`` are known up front only for raw images (0 otherwise).
+    ``encoding`` is ``"png"``, ``"jpeg"`` or a raw ``sensor_msgs/Image`` encoding
+    (``image_encodings.RAW_ENCODINGS``: mono8/16, rgb8, bgra8, yuv422, Bayer, …); ``width``,
+    ``height``, ``step`` and ``is_bigendian`` are known up front only for raw images.
     """
 
-    __slots__ = ("data", "encoding", "height", "path", "stamp_ns", "step", "width")
+    __slots__ = ("data", "encoding", "height", "is_bigendian", "path", "stamp_ns", "step", "width")
 
     def __init__(
         self,
@@ -101,6 +100,7 @@ class LazyImage:
         width: int = 0,
         height: int = 0,
         step: int = 0,
+        is_bigendian: bool = False,
     ) -> None:
         self.data = data
         self.encoding = encoding
@@ -109,6 +109,7 @@ class LazyImage:
         self.width = width
         self.height = height
         self.step = step
+        self.is_bigendian = is_bigendian
 
     def __repr__(self) -> str:
         return f"LazyImage({self.encoding}, {len(self.data)} bytes, stamp_ns={self.stamp_ns})"
@@ -129,27 +130,19 @@ class LazyImage:
             raise self._error(f"corrupt {self.encoding.upper()} data ({len(self.data)} bytes)")
         return pixels
 
-    def _raw(self) -> np.ndarray:
-        channels = RAW_CHANNELS[self.encoding]
-        row = self.width * channels
-        if self.width <= 0 or self.height <= 0 or self.step < row or len(self.data) < self.step * self.height:
-            raise self._error(
-                f"{len(self.data)} bytes do not hold a {self.width}x{self.height} {self.encoding} "
-                f"image with step {self.step}"
-            )
-        rows = np.frombuffer(self.data, dtype=np.uint8, count=self.step * self.height)
-        pixels = rows.reshape(self.height, self.step)[:, :row]
-        return pixels.reshape(self.height, self.width, channels) if channels == 3 else pixels
-
     def decode_gray(self) -> np.ndarray:
         """uint8 ``(H, W)``."""
-        import cv2
+        if self.encoding in ("png", "jpeg"):
+            import cv2
 
-        if self.encoding in RAW_CHANNELS:
-            pixels = self._raw()
-            if self.encoding == "mono8":
-                return np.ascontiguousarray(pixels)
-            code = cv2.COLOR_RGB2GRAY if self.encoding == "rgb8" else cv2.COLOR_BGR2GRAY
-            return cv2.cvtColor(pixels, code)
-        pixels = self._imdecode(cv2.IMREAD_GRAYSCALE)
-        return pixels
+            return self._imdecode(cv2.IMREAD_GRAYSCALE)
+        return raw_to_gray(
+            self.data,
+            self.encoding,
+            self.width,
+            self.height,
+            self.step,
+            self.is_bigendian,
+            stamp_ns=self.stamp_ns,
+            path=self.path,
+        )

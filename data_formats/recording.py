@@ -22,7 +22,8 @@ import numpy as np
 from aslam.data_formats import ros_msgs
 from aslam.data_formats.camera import CameraIntrinsics
 from aslam.data_formats.errors import RecordingError
-from aslam.data_formats.images import RAW_CHANNELS, LazyImage
+from aslam.data_formats.image_encodings import RAW_ENCODINGS, is_raw_encoding
+from aslam.data_formats.images import LazyImage
 from aslam.data_formats.mcap_file import McapFile
 from aslam.data_formats.pose_sync import Sample, SampleAssembler
 
@@ -141,10 +142,10 @@ def _lazy_image(path: Path, topic: str, datatype: str, msg: Any, stamp_ns: int) 
             )
         return LazyImage(bytes(msg.data), kind, path=path, stamp_ns=stamp_ns)
     encoding = str(msg.encoding)
-    if encoding.lower() not in RAW_CHANNELS:
+    if not is_raw_encoding(encoding):
         raise RecordingError(
             f"unknown image encoding '{encoding}' on '{topic}' at stamp {stamp_ns} ns "
-            f"(accepted: {', '.join(RAW_CHANNELS)})",
+            f"(accepted: png, jpeg, {', '.join(sorted(RAW_ENCODINGS))})",
             path=path,
         )
     return LazyImage(
@@ -155,6 +156,7 @@ def _lazy_image(path: Path, topic: str, datatype: str, msg: Any, stamp_ns: int) 
         width=int(msg.width),
         height=int(msg.height),
         step=int(msg.step),
+        is_bigendian=bool(getattr(msg, "is_bigendian", False)),
     )
 
 

@@ -27,8 +27,7 @@ import numpy as np
 from aslam.core.errors import InputError
 from aslam.data_formats import ros_msgs
 from aslam.data_formats.camera import CameraIntrinsics
-from aslam.data_formats.image_encodings import is_raw_encoding, raw_to_bgr, raw_to_gray
-from aslam.data_formats.images import LazyImage
+from aslam.data_formats.errors import BagError
 from aslam.data_formats.pose_sync import Sample, SampleAssembler
 from aslam.data_formats.recording import _header_stamp_ns, _lazy_image
 
@@ -37,10 +36,6 @@ IMAGE_FILE_SUFFIXES = (".png", ".jpg", ".jpeg")
 _BAG1_MAGIC = b"#ROSBAG V2.0"
 _SQLITE_MAGIC = b"SQLite format 3\x00"
 _ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
-
-
-class BagError(InputError):
-    """A bag that cannot be read; the message is ``PATH: problem`` (exit 2)."""
 
 
 class SourceKind(StrEnum):
@@ -191,49 +186,6 @@ def resolve_topics(path: Path, types: dict[str, str], topics: BagTopics) -> Reso
 # --- reading ------------------------------------------------------------------------------------
 
 
-class RawLazyImage(LazyImage):
-    """A raw ``sensor_msgs/Image`` in any encoding of ``image_encodings`` (LazyImage reads three)."""
-
-    __slots__ = ("is_bigendian",)
-
-    def __init__(self, *args: Any, is_bigendian: bool = False, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self.is_bigendian = is_bigendian
-
-    def _fields(self) -> tuple[bytes, str, int, int, int, bool]:
-        return self.data, self.encoding, self.width, self.height, self.step, self.is_bigendian
-
-    def decode_gray(self) -> np.ndarray:
-        return raw_to_gray(*self._fields(), stamp_ns=self.stamp_ns, path=self.path)
-
-    def decode_bgr(self) -> np.ndarray:
-        return raw_to_bgr(*self._fields(), stamp_ns=self.stamp_ns, path=self.path)
-
-
-def _image(path: Path, topic: str, datatype: str, msg: Any, stamp_ns: int) -> LazyImage:
-    if datatype == ros_msgs.COMPRESSED_IMAGE:
-        return _lazy_image(path, topic, datatype, msg, stamp_ns)
-    encoding = str(msg.encoding)
-    if not is_raw_encoding(encoding):
-        from aslam.data_formats.image_encodings import RAW_ENCODINGS
-
-        raise BagError(
-            f"unknown image encoding '{encoding}' on '{topic}' at stamp {stamp_ns} ns "
-            f"(accepted: {', '.join(sorted(RAW_ENCODINGS))})",
-            path=path,
-        )
-    return RawLazyImage(
-        np.asarray(msg.data, dtype=np.uint8).tobytes(),
-        encoding,
-        path=path,
-        stamp_ns=stamp_ns,
-        width=int(msg.width),
-        height=int(msg.height),
-        step=int(msg.step),
-        is_bigendian=bool(msg.is_bigendian),
-    )
-
-
 def _pose(path: Path, what: str, topic: str, datatype: str, msg: Any, stamp_ns: int) -> np.ndarray:
     try:
         pose = ros_msgs.pose_of_message(datatype, msg)
@@ -379,7 +331,7 @@ def _iter_bag_samples(path: Path, topics: BagTopics, warn: Callable[[str], None]
                 stamp_ns = _header_stamp_ns(msg, log_time)
                 if assembler.last_image_ns is not None and stamp_ns < assembler.last_image_ns:
                     raise _backwards(path, "image", topic, stamp_ns, assembler.last_image_ns)
-                yield from assembler.add_image(stamp_ns, _image(path, topic, datatype, msg, stamp_ns))
+                yield from assembler.add_image(stamp_ns, _lazy_image(path, topic, datatype, msg, stamp_ns))
             elif topic == resolved.odometry:
                 stamp_ns = _header_stamp_ns(msg, log_time)
                 if last_odometry_ns is not None and stamp_ns < last_odometry_ns:

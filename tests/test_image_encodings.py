@@ -14,7 +14,6 @@ from aslam.core.errors import InputError
 from aslam.data_formats.image_encodings import (
     RAW_ENCODINGS,
     ImageEncodingError,
-    raw_to_bgr,
     raw_to_gray,
 )
 
@@ -60,7 +59,6 @@ def test_colour_encodings_give_opencvs_grey(rgb, padding):
         gray = raw_to_gray(data, encoding, width, height, step, False)
         assert gray.dtype == np.uint8 and gray.shape == (height, width)
         np.testing.assert_array_equal(gray, expected, err_msg=encoding)
-        np.testing.assert_array_equal(raw_to_bgr(data, encoding, width, height, step, False), bgr)
 
 
 @settings(deadline=None)
@@ -106,7 +104,6 @@ def test_yuv422_grey_is_the_luma_whatever_the_chroma(gray, seed, padding):
     ):
         data, step = pack(np.ascontiguousarray(pairs), padding)
         np.testing.assert_array_equal(raw_to_gray(data, encoding, width, height, step, False), gray)
-        assert raw_to_bgr(data, encoding, width, height, step, False).shape == (height, width, 3)
 
 
 def mosaic(rgb: np.ndarray, pattern: str) -> np.ndarray:
@@ -138,8 +135,6 @@ def test_bayer_of_a_uniform_colour_gives_its_grey(colour, size, padding, wide):
         data, step = pack(raw.astype(np.uint16) * 257 if wide else raw, padding)
         gray = raw_to_gray(data, encoding, width, height, step, False)
         assert np.abs(gray.astype(int) - expected).max() <= 1, encoding
-        bgr = raw_to_bgr(data, encoding, width, height, step, False)
-        assert np.abs(bgr.astype(int) - np.array(colour[::-1])).max() <= 1, encoding
 
 
 def bytes_per_pixel(encoding: str) -> int:

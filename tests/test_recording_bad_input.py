@@ -80,7 +80,7 @@ def no_odometry(path: Path) -> None:
 def unknown_raw_encoding(path: Path) -> None:
     with ForeignRecording(path) as rec:
         rec.odometry("/odom", T0_NS, 0.0, 0.0, 0.0)
-        rec.raw_image("/camera/image/compressed", T0_NS, np.zeros((24, 32, 3), np.uint8), "yuv422")
+        rec.raw_image("/camera/image/compressed", T0_NS, np.zeros((24, 32, 3), np.uint8), "32FC1")
 
 
 def unknown_compressed_format(path: Path) -> None:
@@ -160,7 +160,7 @@ BAD_FILES = {
     "empty file": (empty, ["empty file"]),
     "no image topic": (no_image_topic, ["no image topic '/camera/image/compressed'", "/odom"]),
     "no odometry": (no_odometry, ["no odometry topic '/odom'", "/camera/image/compressed"]),
-    "unknown raw encoding": (unknown_raw_encoding, ["unknown image encoding 'yuv422'"]),
+    "unknown raw encoding": (unknown_raw_encoding, ["unknown image encoding '32FC1'"]),
     "unknown compressed format": (unknown_compressed_format, ["unknown image encoding 'webp'"]),
     "corrupt PNG": (corrupt_png, ["corrupt PNG", f"stamp {T0_NS + FRAME_NS} ns"]),
     "corrupt JPEG": (corrupt_jpeg, ["corrupt JPEG", f"stamp {T0_NS + FRAME_NS} ns"]),

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from aslam.core.errors import InputError
+from aslam.data_formats.errors import RecordingError
 from aslam.data_formats.images import encode_image
 from aslam.data_formats.recording import Recording
 from aslam.data_formats.recording_writer import RecordingWriter
@@ -508,7 +509,7 @@ def test_unknown_encoding_names_topic_and_stamp(tmp_path):
             msg.encoding = "hsv8"
     path = write_rosbag2(tmp_path / "bag", messages=rows)
     with pytest.raises(
-        BagError, match=f"unknown image encoding 'hsv8' on '{IMAGE_TOPIC}' at stamp {T0_NS} ns"
+        RecordingError, match=f"unknown image encoding 'hsv8' on '{IMAGE_TOPIC}' at stamp {T0_NS} ns"
     ):
         list(iter_bag_samples(path))
 
