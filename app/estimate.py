@@ -26,7 +26,8 @@ from aslam.data_formats.estimate import (
     check_output_path,
 )
 from aslam.data_formats.provenance import tool_version
-from aslam.data_formats.recording import Recording, RecordingTopics
+from aslam.data_formats.rosbag_source import open_source
+from aslam.data_formats.sources import TopicChoice, iter_source_samples, source_files, source_image_count
 
 PROGRESS_INTERVAL_S = 0.1
 
@@ -62,14 +63,16 @@ class EstimateSummary:
 
 
 class FileHasher:
-    """SHA-256 of a file, computed in a background thread while the estimate runs.
+    """SHA-256 of a recording's files (one file, or a bag folder's files in name order), computed in
+    a background thread while the estimate runs.
 
-    A second, sequential read of the file (mostly from the page cache); hashlib releases the GIL
-    on large buffers, so it costs the pipeline little. ``result()`` joins.
+    A second, sequential read (mostly from the page cache); hashlib releases the GIL on large
+    buffers, so it costs the pipeline little. ``result()`` joins.
     """
 
     def __init__(self, path: Path) -> None:
         self.path = path
+        self.files = source_files(path)
         self._digest: str | None = None
         self._error: OSError | None = None
         self._stop = threading.Event()
@@ -79,12 +82,13 @@ class FileHasher:
     def _run(self) -> None:
         sha = hashlib.sha256()
         try:
-            with self.path.open("rb") as f:
-                while not self._stop.is_set():
-                    block = f.read(4 * 1024 * 1024)
-                    if not block:
-                        break
-                    sha.update(block)
+            for file in self.files:
+                with file.open("rb") as f:
+                    while not self._stop.is_set():
+                        block = f.read(4 * 1024 * 1024)
+                        if not block:
+                            break
+                        sha.update(block)
         except OSError as err:
             self._error = err
             return
@@ -107,7 +111,7 @@ def estimate(
     output: Path,
     config: EstimatorConfig,
     *,
-    topics: RecordingTopics = RecordingTopics(),
+    topics: TopicChoice = TopicChoice(),
     force: bool = False,
     timing: bool = True,
     workers: int = DEFAULT_WORKERS,
@@ -116,8 +120,10 @@ def estimate(
 ) -> EstimateSummary:
     """Run the estimator over ``recording`` and write the hypotheses and the map to ``output``.
 
-    Streams the recording. ``output`` appears only when complete; any failure or interrupt leaves
-    nothing under it. With ``timing=False`` the same inputs give a byte-identical file.
+    ``recording`` is one of our MCAP recordings or a ROS bag (rosbag2 folder or file, ROS 1
+    ``.bag``); topics left None are the recording's standard ones or found in the bag. Streams.
+    ``output`` appears only when complete; any failure or interrupt leaves nothing under it. With
+    ``timing=False`` the same inputs give a byte-identical file.
     """
     if workers < 1:
         raise InputError(f"--workers must be at least 1, got {workers}")
@@ -127,8 +133,9 @@ def estimate(
         raise InputError("the output would overwrite the recording", path=output)
     check_output_path(output, force=force)
     warn = on_warning or (lambda _line: None)
-    source = Recording(recording, on_warning=warn)
-    total = source.image_count(topics)
+    kind = open_source(recording)
+    samples = iter_source_samples(recording, topics, on_warning=warn)
+    total = source_image_count(recording, topics)
     estimator = Estimator(config)
     counts = PipelineCounts()
     hasher = FileHasher(recording)
@@ -142,7 +149,7 @@ def estimate(
     try:
         with (
             EstimateWriter(output, tool_version=tool_version(), force=force) as writer,
-            closing(run_estimate(source.samples(topics), estimator, counts=counts, workers=workers)) as steps,
+            closing(run_estimate(samples, estimator, counts=counts, workers=workers)) as steps,
         ):
             last_update = 0.0
             for step in steps:
@@ -158,8 +165,8 @@ def estimate(
             metadata = EstimateMetadata(
                 tool_version=tool_version(),
                 config=asdict(config),
-                recording=RecordingIdentity(str(recording), source.size_bytes, hasher.result()),
-                topics=asdict(topics),
+                recording=RecordingIdentity(str(recording), _size_bytes(hasher.files), hasher.result()),
+                topics=topics.stored(kind),
             )
             run_timing = None
             if timing:
@@ -185,3 +192,7 @@ def estimate(
         wall_s=time.perf_counter() - start,
         slam_s=counts.slam_s,
     )
+
+
+def _size_bytes(files: list[Path]) -> int:
+    return sum(file.stat().st_size for file in files)

@@ -16,7 +16,6 @@ import json
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 from aslam.data_formats.image_folder import (
@@ -27,6 +26,7 @@ from aslam.data_formats.image_folder import (
     read_image,
 )
 from aslam.data_formats.pose_files import PoseFormat
+from aslam.data_formats.provenance import tool_version
 
 #: Horizontal field of view written when none is given (image folders rarely say); the metadata
 #: records that it was assumed. The estimator's histograms do not use it.
@@ -47,13 +47,6 @@ class ImportResult:
     ground_truth: bool
     seconds: float
     warnings: tuple[str, ...]
-
-
-def _tool_version() -> str:
-    try:
-        return version("aslam")
-    except PackageNotFoundError:
-        return "0+unknown"
 
 
 def import_image_folder(
@@ -114,7 +107,7 @@ def import_image_folder(
             },
             separators=(",", ":"),
         ),
-        "tool_version": _tool_version(),
+        "tool_version": tool_version(),
     }
     if not source.odometry_known:
         metadata["odometry_step_m"] = f"{SYNTHETIC_STEP_M:g}"

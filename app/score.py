@@ -21,7 +21,7 @@ from aslam.core.metrics import Evaluation, evaluate
 from aslam.data_formats.errors import RecordingError
 from aslam.data_formats.estimate import EstimateFile, iter_keyframes, read_estimate
 from aslam.data_formats.graph_json import build_graph_json
-from aslam.data_formats.recording import Recording, RecordingTopics
+from aslam.data_formats.sources import TopicChoice, iter_source_ground_truth, source_files
 
 # --- ground truth ----------------------------------------------------------------------------------
 
@@ -198,7 +198,7 @@ def score(
     recording_path = _find_recording(recording, info, warn)
     true_poses = None
     if recording_path is not None:
-        topics = RecordingTopics.given(**info.metadata.topics)
+        topics = TopicChoice.from_record(info.metadata.topics)
         true_poses = _ground_truth(recording_path, topics, stamps, warn)
     evaluation = evaluate(steps, true_poses, radius_m=radius_m, heading_deg=heading_deg)
     if not evaluation.has_ground_truth:
@@ -224,25 +224,25 @@ def score(
 def _find_recording(given: Path | None, info: EstimateFile, warn: Callable[[str], None]) -> Path | None:
     """The recording to take ground truth from, or None (with one warning line) if it is missing."""
     if given is not None:
-        if not given.is_file():
+        if not given.exists():
             raise InputError("no such recording", path=given)
         return given.absolute()
     named, size_bytes = info.metadata.recording.path, info.metadata.recording.size_bytes
     path = Path(named)
-    if not path.is_file():
+    if not path.exists():
         warn(f"recording {named} (named in the estimate) not found; reporting without ground truth")
         return None
-    if path.stat().st_size != size_bytes:
-        size = path.stat().st_size
+    size = sum(file.stat().st_size for file in source_files(path))
+    if size != size_bytes:
         warn(f"recording {named} has changed since the estimate ({size} bytes, was {size_bytes})")
     return path
 
 
 def _ground_truth(
-    path: Path, topics: RecordingTopics, stamps: list[int], warn: Callable[[str], None]
+    path: Path, topics: TopicChoice, stamps: list[int], warn: Callable[[str], None]
 ) -> np.ndarray | None:
     try:
-        with closing(Recording(path, on_warning=warn).ground_truth(topics)) as truth:  # type: ignore[arg-type]
+        with closing(iter_source_ground_truth(path, topics, on_warning=warn)) as truth:  # type: ignore[arg-type]
             poses = truth_at_stamps(stamps, truth)
     except RecordingError as err:
         warn(f"{err}; reporting without ground truth")

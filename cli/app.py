@@ -60,7 +60,7 @@ def _root(
 
 
 def _register_commands() -> None:
-    from aslam.cli import estimate, info, record, report  # noqa: F401  (registers the commands)
+    from aslam.cli import estimate, import_folder, info, record, report  # noqa: F401  (registers the commands)
 
 
 def error_line(message: str) -> None:

@@ -44,11 +44,11 @@ def estimate(**options: Any) -> None:
     from aslam.app.config_file import build_config
     from aslam.app.estimate import EstimateProgress
     from aslam.app.estimate import estimate as run_estimate
-    from aslam.data_formats.recording import RecordingTopics
+    from aslam.data_formats.sources import TopicChoice
 
     fixed = {name: options.pop(name) for name in _FIXED}
     terminal = Terminal(quiet=fixed["quiet"], verbose=fixed["verbose"])
-    topics = RecordingTopics.given(
+    topics = TopicChoice(
         image=fixed["image_topic"], odometry=fixed["odometry_topic"], ground_truth=fixed["ground_truth_topic"]
     )
     config = build_config(
@@ -102,7 +102,11 @@ _MISSING = inspect.Parameter.empty
 _FIXED: dict[str, tuple[Any, Any]] = {
     "recording": (
         Annotated[
-            Path, typer.Argument(help="The recording (.mcap) to read.", dir_okay=False, show_default=False)
+            Path,
+            typer.Argument(
+                help="The recording to read: our .mcap, a rosbag2 folder or file, a ROS 1 .bag.",
+                show_default=False,
+            ),
         ],
         _MISSING,
     ),

@@ -18,7 +18,13 @@ if TYPE_CHECKING:
 
 @app.command()
 def info(
-    recording: Annotated[Path, typer.Argument(help="The recording (.mcap) to read.", show_default=False)],
+    recording: Annotated[
+        Path,
+        typer.Argument(
+            help="The recording to read: our .mcap, a rosbag2 folder or file, a ROS 1 .bag.",
+            show_default=False,
+        ),
+    ],
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object to stdout.")] = False,
     image_topic: output.ImageTopicOption = None,
     odometry_topic: output.OdometryTopicOption = None,
@@ -26,19 +32,16 @@ def info(
     quiet: output.QuietOption = False,
     verbose: output.VerboseOption = False,
 ) -> None:
-    """Read a recording, decoding every image, and print its topics, counts, duration and metadata.
+    """Read a recording or a ROS bag, decoding every image; print its topics, counts, duration, metadata.
 
     Exit code 0 when the whole recording reads (warnings, e.g. a truncated file, go to stderr),
     2 when it cannot be used.
     """
-    from aslam.data_formats.recording import RecordingTopics
-    from aslam.data_formats.recording_info import describe_recording
+    from aslam.data_formats.sources import TopicChoice, describe_source
 
     terminal = output.Terminal(quiet=quiet, verbose=verbose)
-    topics = RecordingTopics.given(
-        image=image_topic, odometry=odometry_topic, ground_truth=ground_truth_topic
-    )
-    result = describe_recording(recording, topics, on_warning=terminal.warning)
+    topics = TopicChoice(image=image_topic, odometry=odometry_topic, ground_truth=ground_truth_topic)
+    result = describe_source(recording, topics, on_warning=terminal.warning)
     if as_json:
         sys.stdout.write(json.dumps(result.as_dict(), indent=2, sort_keys=False) + "\n")
         return

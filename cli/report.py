@@ -25,8 +25,7 @@ def report(
     recording: Annotated[
         Path | None,
         typer.Option(
-            help="Recording with the ground truth. \\[default: the one named in the estimate]",
-            dir_okay=False,
+            help="Recording (or bag) with the ground truth. \\[default: the one named in the estimate]",
         ),
     ] = None,
     graph: Annotated[

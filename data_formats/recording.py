@@ -41,11 +41,6 @@ class RecordingTopics:
     ground_truth: str = "/ground_truth/pose"
     camera_info: str = "/camera/camera_info"
 
-    @classmethod
-    def given(cls, **topics: str | None) -> RecordingTopics:
-        """The defaults, overridden by the topics given (None: not given)."""
-        return cls(**{name: topic for name, topic in topics.items() if topic is not None})
-
 
 class _MessageDecoder:
     """CDR → message objects, one decoder per channel, every failure a RecordingError."""

@@ -156,10 +156,10 @@ def wrong_image_type(path: Path) -> None:
 
 
 BAD_FILES = {
-    "not an MCAP file": (not_mcap, ["not an MCAP file"]),
+    "not an MCAP file": (not_mcap, ["not a recording or a bag"]),
     "empty file": (empty, ["empty file"]),
-    "no image topic": (no_image_topic, ["no image topic '/camera/image/compressed'", "/odom"]),
-    "no odometry": (no_odometry, ["no odometry topic '/odom'", "/camera/image/compressed"]),
+    "no image topic": (no_image_topic, ["no sensor_msgs/msg/Image or CompressedImage topic", "/odom"]),
+    "no odometry": (no_odometry, ["no odometry", "/camera/image/compressed"]),
     "unknown raw encoding": (unknown_raw_encoding, ["unknown image encoding '32FC1'"]),
     "unknown compressed format": (unknown_compressed_format, ["unknown image encoding 'webp'"]),
     "corrupt PNG": (corrupt_png, ["corrupt PNG", f"stamp {T0_NS + FRAME_NS} ns"]),
@@ -171,8 +171,8 @@ BAD_FILES = {
     ),
     "image stamps backwards": (image_stamps_backwards, ["image stamps go backwards"]),
     "odometry stamps backwards": (odometry_stamps_backwards, ["odometry stamps go backwards"]),
-    "undecodable CDR": (undecodable_cdr, ["undecodable CDR message"]),
-    "wrong image type": (wrong_image_type, ["has type 'nav_msgs/msg/Odometry'"]),
+    "undecodable CDR": (undecodable_cdr, ["undecodable message on '/camera/image/compressed'"]),
+    "wrong image type": (wrong_image_type, ["no sensor_msgs/msg/Image or CompressedImage topic"]),
 }
 
 
@@ -194,7 +194,9 @@ def test_missing_path(tmp_path, capfd):
 def test_directory(tmp_path, capfd):
     folder = tmp_path / "rec.mcap"
     folder.mkdir()
-    assert_one_error_line(folder, capfd, "is a directory")
+    assert_one_error_line(
+        folder, capfd, "is a folder with neither a rosbag2 metadata.yaml nor png/jpg images"
+    )
 
 
 def test_truncated_file_is_read_up_to_the_damage(tmp_path, capfd):

@@ -57,3 +57,42 @@ def test_an_image_folder_must_be_imported_first(tmp_path):
     cv2.imwrite(str(tmp_path / "imgs" / "1.png"), np.zeros((4, 4), np.uint8))
     with pytest.raises(BagError, match="make it a recording first: aslam import"):
         iter_source_samples(tmp_path / "imgs")
+
+
+def test_estimate_gives_the_same_result_from_a_recording_and_its_bags(tmp_path, capsys):
+    """`aslam estimate` on the bag folders (mcap, sqlite3), a ROS 1 bag and a recording of the same
+    messages (grey, lossless): the same keyframes and hypotheses; `info` and `report` read them too."""
+    import cv2
+
+    from aslam.cli.app import main
+    from aslam.data_formats.estimate import iter_keyframes
+
+    sources = {
+        "mcap": write_rosbag2(tmp_path / "bag-mcap", storage="mcap"),
+        "sqlite3": write_rosbag2(tmp_path / "bag-sqlite3", storage="sqlite3"),
+        "ros1": write_rosbag1(tmp_path / "bag.bag"),
+    }
+    recording = tmp_path / "rec.mcap"
+    with RecordingWriter(recording, camera=CameraIntrinsics(24, 16, 60.0), metadata={}) as writer:
+        for sample in iter_source_samples(sources["mcap"], TopicChoice(ground_truth="/ground_truth")):
+            ok, png = cv2.imencode(".png", sample.image.decode_gray())
+            assert ok
+            writer.write(
+                sample.stamp_ns,
+                EncodedImage(ImageFormat.PNG, png.tobytes()),
+                sample.odometry_pose,
+                sample.ground_truth_pose,
+            )
+    sources["recording"] = recording
+    results = {}
+    for name, path in sources.items():
+        out = tmp_path / f"{name}.est.mcap"
+        args = ["estimate", str(path), "-o", str(out), "--step-m", "0.15", "--turn-deg", "10", "-q"]
+        assert main(args) == 0, capsys.readouterr().err
+        results[name] = [(k.stamp_ns, k.action, k.hypotheses) for k in iter_keyframes(out)]
+        assert main(["info", str(path), "--json"]) == 0
+        assert main(["report", str(out), "--json", "-", "-q"]) == 0
+        capsys.readouterr()
+    assert len(results["recording"]) > 3
+    for name in ("mcap", "sqlite3", "ros1"):
+        assert results[name] == results["recording"], name

@@ -1,0 +1,81 @@
+"""`aslam import FOLDER -o REC.mcap`: a folder of images (and pose files) into a recording.
+
+The work is :func:`aslam.app.importer.import_image_folder`; this module parses and shows progress.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from aslam.cli.app import app
+from aslam.cli.output import ForceOption, QuietOption, Terminal, VerboseOption
+from aslam.data_formats.pose_files import PoseFormat
+
+
+@app.command("import")
+def import_folder(
+    folder: Annotated[
+        Path, typer.Argument(help="Folder of .png/.jpg images, read in file-name order.", show_default=False)
+    ],
+    output: Annotated[
+        Path, typer.Option("-o", "--output", help="Recording (.mcap) to write.", dir_okay=False)
+    ],
+    ground_truth: Annotated[
+        Path | None, typer.Option(help="Pose file with the true poses (TUM, KITTI or CSV t,x,y,yaw).")
+    ] = None,
+    odometry: Annotated[
+        Path | None,
+        typer.Option(help="Pose file with the odometry. Without it: equal steps of unknown length."),
+    ] = None,
+    pose_format: Annotated[
+        PoseFormat | None, typer.Option("--format", help="Pose-file format. \\[default: detected]")
+    ] = None,
+    rate_hz: Annotated[
+        float | None, typer.Option("--rate", help="Images per second, for stamps when no pose file has them.")
+    ] = None,
+    fov_deg: Annotated[
+        float | None,
+        typer.Option(help="Horizontal field of view, degrees. \\[default: 60, recorded as assumed]"),
+    ] = None,
+    force: ForceOption = False,
+    quiet: QuietOption = False,
+    verbose: VerboseOption = False,
+) -> None:
+    """Import an image-folder dataset (Nordland, KITTI, TUM RGB-D, St Lucia…) as a recording."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from aslam.app.importer import import_image_folder
+
+    terminal = Terminal(quiet=quiet, verbose=verbose)
+    progress = Progress(
+        TextColumn("import"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+        console=terminal.console,
+        disable=not terminal.shows_progress,
+        transient=True,
+    )
+    task = progress.add_task("import", total=None)
+    with progress:
+        result = import_image_folder(
+            folder,
+            output,
+            ground_truth=ground_truth,
+            odometry=odometry,
+            fmt=pose_format,
+            rate_hz=rate_hz,
+            fov_deg=fov_deg,
+            force=force,
+            on_progress=lambda done, total: progress.update(task, completed=done, total=total),
+            on_warning=terminal.warning,
+        )
+    odometry_note = "odometry" if result.odometry_known else "no odometry (equal steps assumed)"
+    terminal.info(
+        f"wrote {result.output} ({result.frames} of {result.images} images, "
+        f"{result.width_px}x{result.height_px}, {odometry_note}"
+        f"{', ground truth' if result.ground_truth else ''}; stamps {result.stamps}; {result.seconds:.1f} s)"
+    )
