@@ -1,0 +1,1 @@
+"""The application layer: whole jobs (embed, score, …) built from core, data_formats and recorder."""
