@@ -17,6 +17,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -168,7 +169,9 @@ def embed(actions: np.ndarray, assignment: np.ndarray, options: EmbedOptions | N
     initial = gtsam.Values()
     if n:
         graph.add(
-            gtsam.PriorFactorPose2(0, gtsam.Pose2(0.0, 0.0, 0.0), gtsam.noiseModel.Isotropic.Sigma(3, PRIOR_SIGMA))
+            gtsam.PriorFactorPose2(
+                0, gtsam.Pose2(0.0, 0.0, 0.0), gtsam.noiseModel.Isotropic.Sigma(3, PRIOR_SIGMA)
+            )
         )
     for k in range(n):
         initial.insert(k, gtsam.Pose2(*odometry[k]))
@@ -190,7 +193,9 @@ def embed(actions: np.ndarray, assignment: np.ndarray, options: EmbedOptions | N
             gtsam.noiseModel.mEstimator.Huber.Create(options.kernel_width), closure_noise
         )
     revisits = np.flatnonzero(assignment != np.arange(n))
-    closures = np.stack([assignment[revisits], revisits], axis=1) if len(revisits) else np.zeros((0, 2), np.int64)
+    closures = (
+        np.stack([assignment[revisits], revisits], axis=1) if len(revisits) else np.zeros((0, 2), np.int64)
+    )
     for place, k in closures.tolist():
         graph.add(gtsam.BetweenFactorPose2(place, k, gtsam.Pose2(0.0, 0.0, 0.0), closure_noise))
 
@@ -199,7 +204,9 @@ def embed(actions: np.ndarray, assignment: np.ndarray, options: EmbedOptions | N
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
     initial_error = graph.error(initial) if n else 0.0
     result = optimizer.optimize() if n else initial
-    poses = np.array([[p.x(), p.y(), p.theta()] for p in (result.atPose2(k) for k in range(n))]).reshape(-1, 3)
+    poses = np.array([[p.x(), p.y(), p.theta()] for p in (result.atPose2(k) for k in range(n))]).reshape(
+        -1, 3
+    )
 
     sigmas = np.array([revisit.x_m, revisit.y_m, revisit.yaw_rad])
     if len(closures):
@@ -270,21 +277,6 @@ class MetricScores:
     odometry: TrajectoryScores
 
 
-def evo_trajectory(poses: np.ndarray, stamps_ns: Sequence[int] | np.ndarray) -> Any:
-    """An ``evo.core.trajectory.PoseTrajectory3D`` of SE(2) poses in the z = 0 plane (REP 103)."""
-    from evo.core.trajectory import PoseTrajectory3D
-
-    poses = np.asarray(poses, dtype=float).reshape(-1, 3)
-    n = len(poses)
-    xyz = np.zeros((n, 3))
-    xyz[:, :2] = poses[:, :2]
-    quat_wxyz = np.zeros((n, 4))
-    quat_wxyz[:, 0] = np.cos(poses[:, 2] / 2.0)
-    quat_wxyz[:, 3] = np.sin(poses[:, 2] / 2.0)
-    stamps_s = np.asarray(stamps_ns, dtype=np.int64) / 1e9
-    return PoseTrajectory3D(positions_xyz=xyz, orientations_quat_wxyz=quat_wxyz, timestamps=stamps_s)
-
-
 def _stats(metric: Any) -> ErrorStats:
     from evo.core.metrics import StatisticsType
 
@@ -308,6 +300,8 @@ def score_trajectory(
     import copy
 
     from evo.core import metrics
+
+    from aslam.data_formats.trajectory import evo_trajectory
 
     poses = np.asarray(poses, dtype=float).reshape(-1, 3)
     truth = np.asarray(truth, dtype=float).reshape(-1, 3)
@@ -335,3 +329,83 @@ def score(embedding: Embedding, truth: np.ndarray, stamps_ns: Sequence[int] | np
         optimised=score_trajectory(embedding.poses, truth, stamps_ns),
         odometry=score_trajectory(embedding.odometry, truth, stamps_ns),
     )
+
+
+# --- from an estimate file -----------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class BestPath:
+    """What the embedding needs from an estimate file: per keyframe a stamp, an action, a state."""
+
+    stamps_ns: np.ndarray
+    actions: np.ndarray
+    assignment: np.ndarray
+    """From the final graph: the best hypothesis's state of every keyframe."""
+    config: EstimatorConfig
+    topics: dict[str, str]
+    recording_path: str
+
+
+def read_best_path(path: Path) -> BestPath:
+    """Read an estimate file's keyframes (streamed) and its best hypothesis's map.
+
+    EstimateError (naming the file) when the map does not assign every keyframe exactly once.
+    """
+    from contextlib import closing
+    from dataclasses import fields
+
+    from aslam.core.config import EstimatorConfig
+    from aslam.core.errors import ConfigError
+    from aslam.data_formats.estimate import EstimateError, iter_keyframes, read_estimate
+
+    path = Path(path)
+    info = read_estimate(path)
+    stamps: list[int] = []
+    actions: list[tuple[float, float, float]] = []
+    with closing(iter_keyframes(path)) as keyframes:
+        for keyframe in keyframes:
+            stamps.append(keyframe.stamp_ns)
+            actions.append(keyframe.action)
+    try:
+        states = [(int(s["id"]), [int(k) for k in s["keyframes"]]) for s in info.graph["states"]]
+        assignment = assignment_from_states(states, len(stamps))
+    except (KeyError, TypeError, ValueError) as err:
+        raise EstimateError(f"inconsistent '/aslam/graph' map ({err})", path=path) from err
+    problems = check_assignment(assignment)
+    if problems:
+        raise EstimateError(f"inconsistent '/aslam/graph' map ({'; '.join(problems)})", path=path)
+    known = {f.name for f in fields(EstimatorConfig)}
+    try:
+        config = EstimatorConfig(**{k: v for k, v in info.metadata.config.items() if k in known})
+    except (ConfigError, TypeError) as err:
+        raise EstimateError(f"unusable estimator configuration ({err})", path=path) from err
+    return BestPath(
+        stamps_ns=_frozen(np.array(stamps, dtype=np.int64)),
+        actions=_frozen(np.array(actions, dtype=float).reshape(-1, 3)),
+        assignment=_frozen(assignment),
+        config=config,
+        topics=dict(info.metadata.topics),
+        recording_path=info.metadata.recording.path,
+    )
+
+
+def truth_for(best: BestPath, recording: Path) -> np.ndarray:
+    """(n, 3) true poses at the keyframe stamps (NaN where unknown), from the recording.
+
+    RecordingError when the recording has no ground truth.
+    """
+    from contextlib import closing
+
+    from aslam.data_formats.recording import RecordingTopics, iter_ground_truth
+    from aslam.data_formats.report import truth_at_stamps
+
+    defaults = RecordingTopics()
+    topics = RecordingTopics(
+        image=best.topics.get("image", defaults.image),
+        odometry=best.topics.get("odometry", defaults.odometry),
+        ground_truth=best.topics.get("ground_truth", defaults.ground_truth),
+        camera_info=best.topics.get("camera_info", defaults.camera_info),
+    )
+    with closing(iter_ground_truth(recording, topics)) as truth:  # type: ignore[arg-type]
+        return truth_at_stamps(best.stamps_ns.tolist(), truth)
