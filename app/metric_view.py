@@ -27,6 +27,11 @@ from aslam.core.motion import MotionNoise, action_covariance
 
 if TYPE_CHECKING:
     from aslam.core.config import EstimatorConfig
+    from aslam.data_formats.foxglove import MetricScene
+
+OUTVOTED_SIGMA = 5.0
+"""A closure this many σ (Mahalanobis, of the revisit tolerance) from agreeing at the solution was
+outvoted by the rest of the graph: reported as probably wrong, drawn red in Foxglove."""
 
 PRIOR_SIGMA = 1e-6
 """σ (m and rad) pinning keyframe 0 at the origin: the view's frame is the odometry's start."""
@@ -111,6 +116,13 @@ class Embedding:
     @property
     def keyframes(self) -> int:
         return len(self.poses)
+
+    @property
+    def outvoted(self) -> np.ndarray:
+        """(n,) True for the keyframes whose closure the graph outvoted (see ``OUTVOTED_SIGMA``)."""
+        mask = np.zeros(self.keyframes, bool)
+        mask[self.closures[self.closure_sigmas > OUTVOTED_SIGMA, 1]] = True
+        return mask
 
 
 def check_assignment(assignment: np.ndarray) -> list[str]:
@@ -328,6 +340,19 @@ def score(embedding: Embedding, truth: np.ndarray, stamps_ns: Sequence[int] | np
     return MetricScores(
         optimised=score_trajectory(embedding.poses, truth, stamps_ns),
         odometry=score_trajectory(embedding.odometry, truth, stamps_ns),
+    )
+
+
+def metric_scene(embedding: Embedding, stamps_ns: Sequence[int] | np.ndarray) -> MetricScene:
+    """What Foxglove draws of an embedding (see ``aslam.data_formats.foxglove.write_scene``)."""
+    from aslam.data_formats.foxglove import MetricScene
+
+    return MetricScene(
+        stamps_ns=np.asarray(stamps_ns, dtype=np.int64),
+        poses=embedding.poses,
+        assignment=embedding.assignment,
+        odometry=embedding.odometry,
+        outvoted=embedding.outvoted,
     )
 
 
