@@ -219,3 +219,20 @@ def test_rendered_paper_route_embeds_within_the_target(rendered):
     assert scores.optimised.ape_m.rmse <= 0.15  # the issue's target
     assert scores.optimised.ape_m.rmse < 0.5 * scores.odometry.ape_m.rmse
     assert scores.optimised.rpe_m.rmse <= scores.odometry.rpe_m.rmse + 0.01
+
+
+def test_metric_modules_import_no_heavy_library():
+    """GTSAM, evo (pandas, scipy) and protobuf load only when an embedding or export is made."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "import aslam.cli.app, aslam.app.metric_view\n"
+        "import aslam.data_formats.trajectory, aslam.data_formats.foxglove\n"
+        "heavy = ('gtsam', 'evo', 'pandas', 'scipy', 'matplotlib', 'foxglove_schemas_protobuf',"
+        " 'google.protobuf')\n"
+        "loaded = [m for m in heavy if m in sys.modules]\n"
+        "assert not loaded, loaded\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, capture_output=True)
