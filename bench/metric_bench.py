@@ -127,7 +127,8 @@ def measure(name: str, record_args: list[str], work: Path, lap: int | None) -> d
         result["wrong_closure"] = wrong_closure(best, truth, lap)
     log(
         f"  APE RMSE optimised {scores.optimised.ape_m.rmse:.3f} m,"
-        f" odometry {scores.odometry.ape_m.rmse:.3f} m (drift max {result['odometry_drift_m']['max']:.2f} m); embed {min(times) * 1000:.0f} ms"
+        f" odometry {scores.odometry.ape_m.rmse:.3f} m"
+        f" (drift max {result['odometry_drift_m']['max']:.2f} m); embed {min(times) * 1000:.0f} ms"
     )
     return result
 
