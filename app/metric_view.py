@@ -356,6 +356,46 @@ def metric_scene(embedding: Embedding, stamps_ns: Sequence[int] | np.ndarray) ->
     )
 
 
+def export_trajectories(
+    path: Path,
+    embedding: Embedding,
+    stamps_ns: Sequence[int] | np.ndarray,
+    truth: np.ndarray | None = None,
+    fmt: str = "tum",
+    *,
+    force: bool = False,
+) -> dict[str, Path]:
+    """Write the optimised trajectory to ``path``, and beside it ``*.odometry.*`` and ``*.truth.*``.
+
+    The truth is written where known: in TUM the keyframes without truth are left out (evo pairs
+    poses by stamp); KITTI has no stamps, so its truth file is written only when every keyframe has
+    truth. Every path is checked before anything is written. Returns ``{"optimised": …, …}``.
+    """
+    from aslam.data_formats import files
+    from aslam.data_formats.trajectory import (
+        TrajectoryError,
+        TrajectoryFormat,
+        sibling_paths,
+        write_trajectory,
+    )
+
+    fmt = TrajectoryFormat(fmt)
+    paths = sibling_paths(path)
+    stamps = np.asarray(stamps_ns, dtype=np.int64)
+    known = np.zeros(len(stamps), bool) if truth is None else np.isfinite(truth).all(axis=1)
+    with_truth = known.all() if fmt is TrajectoryFormat.KITTI else known.any()
+    targets = {"optimised": paths.optimised, "odometry": paths.odometry}
+    if with_truth:
+        targets["truth"] = paths.truth
+    for target in targets.values():
+        files.check_output_path(target, force=force, error=TrajectoryError)
+    write_trajectory(paths.optimised, embedding.poses, stamps, fmt)
+    write_trajectory(paths.odometry, embedding.odometry, stamps, fmt)
+    if with_truth and truth is not None:
+        write_trajectory(paths.truth, truth[known], stamps[known], fmt)
+    return targets
+
+
 # --- from an estimate file -----------------------------------------------------------------------
 
 

@@ -152,10 +152,11 @@ def test_scene_appends_to_a_writer_that_carries_other_channels(tmp_path: Path):
 
 
 def test_same_input_same_bytes(tmp_path: Path):
-    embedding, stamps = square_run()
+    """Determinism end to end: two embeddings of the same run, two scene files, the same bytes."""
     a, b = tmp_path / "a.mcap", tmp_path / "b.mcap"
-    write_scene(a, metric_scene(embedding, stamps), tool_version="0")
-    write_scene(b, metric_scene(embedding, stamps), tool_version="0")
+    for path in (a, b):
+        embedding, stamps = square_run(wrong=True)
+        write_scene(path, metric_scene(embedding, stamps), tool_version="0")
     assert a.read_bytes() == b.read_bytes()
 
 

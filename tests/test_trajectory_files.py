@@ -175,3 +175,24 @@ def test_evo_ape_scores_an_exported_embedding(tmp_path: Path):
     write_trajectory(paths.truth, truth, stamps)
     ape = evo("evo_ape", "tum", str(paths.truth), str(paths.optimised), "-a", home=tmp_path)
     assert statistic(ape, "rmse") == pytest.approx(ours.ape_m.rmse, abs=2e-6)
+
+
+def test_export_writes_three_files_evo_can_pair(tmp_path: Path):
+    from aslam.app.metric_view import export_trajectories
+
+    truth, stamps = random_walk(30, seed=7)
+    actions = np.vstack([np.zeros(3), se2.between(truth[:-1], truth[1:]) * [1.02, 1.0, 1.0]])
+    embedding = embed(actions, np.arange(30), EmbedOptions())
+    partial = truth.copy()
+    partial[[0, 10]] = np.nan  # keyframes without truth are left out of the TUM truth file
+    written = export_trajectories(tmp_path / "run.tum", embedding, stamps, partial)
+    assert sorted(p.name for p in written.values()) == ["run.odometry.tum", "run.truth.tum", "run.tum"]
+    assert len(read_tum(written["truth"])[0]) == 28
+    same_poses(read_tum(written["odometry"])[1], embedding.odometry)
+    ape = evo("evo_ape", "tum", str(written["truth"]), str(written["optimised"]), "-a", home=tmp_path)
+    ours = score_trajectory(embedding.poses, partial, stamps)
+    assert statistic(ape, "rmse") == pytest.approx(ours.ape_m.rmse, abs=2e-6)
+    with pytest.raises(TrajectoryError, match="already exists"):
+        export_trajectories(tmp_path / "run.tum", embedding, stamps, partial)
+    kitti = export_trajectories(tmp_path / "run.kitti", embedding, stamps, partial, "kitti")
+    assert set(kitti) == {"optimised", "odometry"}  # no stamps: a partial truth cannot be paired
