@@ -14,6 +14,8 @@ Topics (all in frame ``map``, the embedding's frame: keyframe 0 at the origin, R
 * ``/aslam/metric/scene`` ``foxglove.SceneUpdate``: places as spheres at their first visit's
   embedded pose, links as lines (exploration grey, loop closures green), and closures the
   robust kernel outvoted as red lines from the revisiting keyframe to the place it claimed;
+  one message per keyframe that added a place or a link (the map growing, drawn at the final
+  embedded poses), and the complete map at the last keyframe;
 * ``/aslam/metric/trajectory`` and ``/aslam/metric/odometry`` ``foxglove.PosesInFrame``: the
   optimised and the odometry-only keyframe poses;
 * ``/aslam/metric/tf`` ``foxglove.FrameTransform``: ``map`` → ``base_link`` at every keyframe.
@@ -119,11 +121,17 @@ def _lines(entity: Any, segments: Sequence[tuple[np.ndarray, np.ndarray]], rgba:
             point.x, point.y, point.z = float(p[0]), float(p[1]), 0.0
 
 
-def scene_update(scene: MetricScene, stamp_ns: int) -> Any:
-    """One ``foxglove.SceneUpdate`` holding the whole map (it replaces the previous one by entity id)."""
+def scene_update(scene: MetricScene, stamp_ns: int, upto: int | None = None) -> Any:
+    """One ``foxglove.SceneUpdate`` holding the map as of keyframe ``upto - 1`` (default: all of it).
+
+    It replaces the previous update entity by entity (same ids), so a viewer shows the latest one.
+    Outvoted closures are drawn in the complete map only.
+    """
     from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
-    poses, assignment = np.asarray(scene.poses, float), np.asarray(scene.assignment, np.int64)
+    n = len(scene.assignment)
+    upto = n if upto is None else upto
+    poses, assignment = np.asarray(scene.poses, float), np.asarray(scene.assignment[:upto], np.int64)
     update = SceneUpdate()
     places = np.flatnonzero(assignment == np.arange(len(assignment)))
 
@@ -154,7 +162,7 @@ def scene_update(scene: MetricScene, stamp_ns: int) -> Any:
     _lines(entity("links"), exploration, LINK_RGBA)
     _lines(entity("loop_closures"), loops, LOOP_RGBA)
     outvoted = []
-    if scene.outvoted is not None:
+    if scene.outvoted is not None and upto == n:
         for k in np.flatnonzero(np.asarray(scene.outvoted, bool)).tolist():
             outvoted.append((poses[k], poses[assignment[k]]))
     _lines(entity("outvoted_closures"), outvoted, OUTVOTED_RGBA)
@@ -221,10 +229,27 @@ class SceneChannels:
         )
         self._sequence[topic] += 1
 
-    def write_transforms(self, scene: MetricScene) -> None:
-        """``map`` → ``base_link`` at each keyframe, so the robot moves through the embedded map."""
-        for stamp_ns, pose in zip(scene.stamps_ns.tolist(), scene.poses, strict=True):
+    def write_keyframes(self, scene: MetricScene, *, growth: bool = True) -> None:
+        """Per keyframe, in time order: ``map`` → ``base_link`` (the robot moving through the
+        embedded map) and, with ``growth``, the map as of that keyframe when it added a place or a
+        link (drawn at the final embedded poses). Keyframes that only revisit known places and links
+        add no scene, so scene messages are bounded by the map's size, not the run's length. The
+        last keyframe's scene is left to :meth:`write_map`."""
+        seen: set[tuple[int, int]] = set()
+        assignment = np.asarray(scene.assignment, np.int64).tolist()
+        stamps = scene.stamps_ns.tolist()
+        for k, (stamp_ns, pose) in enumerate(zip(stamps, scene.poses, strict=True)):
             self._add(TF_TOPIC, stamp_ns, frame_transform(pose, stamp_ns))
+            if not growth or k == len(assignment) - 1:
+                continue
+            grew = assignment[k] == k
+            if k:
+                link = (min(assignment[k - 1], assignment[k]), max(assignment[k - 1], assignment[k]))
+                if link[0] != link[1] and link not in seen:
+                    seen.add(link)
+                    grew = True
+            if grew:
+                self._add(SCENE_TOPIC, stamp_ns, scene_update(scene, stamp_ns, upto=k + 1))
 
     def write_map(self, scene: MetricScene, stamp_ns: int) -> None:
         """The whole scene and the trajectories as they stand at ``stamp_ns``."""
@@ -234,29 +259,32 @@ class SceneChannels:
             self._add(ODOMETRY_TOPIC, stamp_ns, poses_in_frame(scene.odometry, stamp_ns))
 
 
-def write_scene(target: Any, scene: MetricScene, *, force: bool = False, tool_version: str = "") -> None:
+def write_scene(
+    target: Any, scene: MetricScene, *, growth: bool = True, force: bool = False, tool_version: str = ""
+) -> None:
     """Write the metric view: into ``target``, an ``mcap.writer.Writer`` already started (its owner
     finishes it), or into a new MCAP file at ``target`` (a path; written atomically).
 
-    Transforms at every keyframe, then the map and trajectories once, at the last keyframe's stamp.
+    Transforms at every keyframe; with ``growth`` the map at each keyframe that extended it; then
+    the complete map and the trajectories at the last keyframe's stamp.
     """
     if isinstance(target, str | Path):
-        _write_file(Path(target), scene, force=force, tool_version=tool_version)
+        _write_file(Path(target), scene, growth=growth, force=force, tool_version=tool_version)
         return
     channels = SceneChannels(target)
-    channels.write_transforms(scene)
+    channels.write_keyframes(scene, growth=growth)
     if len(scene.stamps_ns):
         channels.write_map(scene, int(scene.stamps_ns[-1]))
 
 
-def _write_file(path: Path, scene: MetricScene, *, force: bool, tool_version: str) -> None:
+def _write_file(path: Path, scene: MetricScene, *, growth: bool, force: bool, tool_version: str) -> None:
     from mcap.writer import CompressionType, Writer
 
     output = files.AtomicFile(path, force=force, error=SceneError)
     try:
         writer = Writer(output.file, chunk_size=CHUNK_SIZE_BYTES, compression=CompressionType.ZSTD)
         writer.start(profile="", library=f"aslam {tool_version}".strip())
-        write_scene(writer, scene)
+        write_scene(writer, scene, growth=growth)
     except BaseException:
         output.abort()
         raise

@@ -88,9 +88,13 @@ def test_scene_file_decodes_and_validates(tmp_path: Path):
     assert len(messages[TF_TOPIC]) == len(stamps)
     assert [m.log_time for m, _ in messages[TF_TOPIC]] == stamps.tolist()
 
-    ((message, decoded),) = messages[SCENE_TOPIC]
+    # The map as it grew (lap 1: a place and a link per keyframe, then 15 → 0), then all of it.
+    scenes = messages[SCENE_TOPIC]
+    assert [m.log_time for m, _ in scenes] == [*stamps[:17].tolist(), stamps[-1]]
+    early = {e.id: e for e in as_package(scenes[4][1], SceneUpdate).entities}
+    assert len(early["places"].spheres) == 5 and len(early["links"].lines[0].points) == 2 * 4
+    _, decoded = scenes[-1]
     scene = as_package(decoded, SceneUpdate)
-    assert message.log_time == stamps[-1]
     entities = {e.id: e for e in scene.entities}
     assert set(entities) == {"places", "links", "loop_closures", "outvoted_closures"}
     assert all(e.frame_id == "map" for e in entities.values())
@@ -121,8 +125,11 @@ def test_an_outvoted_closure_is_drawn_red(tmp_path: Path):
     assert embedding.outvoted.sum() == 1 and embedding.outvoted[16 + 9]
     path = tmp_path / "scene.mcap"
     write_scene(path, metric_scene(embedding, stamps))
-    ((_, decoded),) = read_all(path)[SCENE_TOPIC]
-    entities = {e.id: e for e in as_package(decoded, SceneUpdate).entities}
+    scenes = read_all(path)[SCENE_TOPIC]
+    assert all(  # drawn in the complete map only
+        not e.lines for _, d in scenes[:-1] for e in d.entities if e.id == "outvoted_closures"
+    )
+    entities = {e.id: e for e in as_package(scenes[-1][1], SceneUpdate).entities}
     points = entities["outvoted_closures"].lines[0].points
     assert len(points) == 2
     assert math.dist((points[0].x, points[0].y), (points[1].x, points[1].y)) > 2.0  # left apart
@@ -148,7 +155,14 @@ def test_scene_appends_to_a_writer_that_carries_other_channels(tmp_path: Path):
         topics = [c.topic for _s, c, _m in reader.iter_messages()]
     assert topics.count("/aslam/keyframe") == len(stamps)
     messages = read_all(path)
-    assert len(messages[SCENE_TOPIC]) == 1 and len(messages[TF_TOPIC]) == len(stamps)
+    assert len(messages[SCENE_TOPIC]) == 18 and len(messages[TF_TOPIC]) == len(stamps)
+
+
+def test_without_growth_one_scene(tmp_path: Path):
+    embedding, stamps = square_run()
+    path = tmp_path / "scene.mcap"
+    write_scene(path, metric_scene(embedding, stamps), growth=False)
+    assert len(read_all(path)[SCENE_TOPIC]) == 1
 
 
 def test_same_input_same_bytes(tmp_path: Path):
