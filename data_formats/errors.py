@@ -19,3 +19,11 @@ class EstimateError(InputError):
 
 class BagError(RecordingError):
     """A ROS bag (rosbag2 folder or file, ROS 1 bag) that cannot be read (exit 2)."""
+
+
+class SceneError(InputError):
+    """A Foxglove scene file that cannot be written; the message is ``PATH: problem`` (exit 2)."""
+
+
+class TrajectoryError(InputError):
+    """A trajectory file that cannot be read or written; the message is ``PATH: problem`` (exit 2)."""

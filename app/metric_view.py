@@ -1,0 +1,477 @@
+"""A metric view of the map: the best hypothesis's keyframes embedded in one frame, and scored.
+
+The estimator keeps no global frame (the paper's design); this view is derived, never the state.
+The best hypothesis says which keyframes revisit which place; with the odometry between keyframes
+that is a pose graph, which GTSAM optimises (``Pose2`` per keyframe, ``BetweenFactorPose2`` per
+odometry step with the motion model's covariance, and per revisit an identity ``BetweenFactorPose2``
+from the place's first visit with the revisit tolerance). Closures go through a robust kernel, so
+one wrong closure is outvoted instead of folding the map. Scores (APE, RPE) come from evo's library
+with evo's alignment, so they are the numbers ``evo_ape``/``evo_rpe`` print for the exported files.
+
+GTSAM and evo are imported inside the functions that need them: ``aslam --help`` stays instant.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from enum import StrEnum
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from aslam.core import se2
+from aslam.core.motion import MotionNoise, action_covariance
+
+if TYPE_CHECKING:
+    from aslam.core.config import EstimatorConfig
+    from aslam.data_formats.foxglove import MetricScene
+
+OUTVOTED_SIGMA = 5.0
+"""A closure this many σ (Mahalanobis, of the revisit tolerance) from agreeing at the solution was
+outvoted by the rest of the graph: reported as probably wrong, drawn red in Foxglove."""
+
+PRIOR_SIGMA = 1e-6
+"""σ (m and rad) pinning keyframe 0 at the origin: the view's frame is the odometry's start."""
+
+
+class Kernel(StrEnum):
+    """How a loop closure's residual is weighed (the odometry is always Gaussian)."""
+
+    CAUCHY = "cauchy"
+    """Weight 1/(1+(r/k)²): a closure many σ away pulls with almost no force (default)."""
+    HUBER = "huber"
+    """Quadratic up to k σ, linear beyond: convex, but a wrong closure still pulls."""
+    GAUSSIAN = "gaussian"
+    """No kernel: every closure is believed; one wrong closure folds the map (for comparison)."""
+
+
+@dataclass(frozen=True)
+class RevisitTolerance:
+    """σ of "two visits of one place are at the same pose": the closure factors' noise."""
+
+    x_m: float = 0.2
+    y_m: float = 0.2
+    yaw_rad: float = math.radians(10.0)
+
+    def __post_init__(self) -> None:
+        for name in ("x_m", "y_m", "yaw_rad"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"RevisitTolerance.{name} must be positive, got {value!r}")
+
+    @classmethod
+    def from_config(cls, config: EstimatorConfig) -> RevisitTolerance:
+        """The tolerance the estimator itself used to accept the revisits."""
+        return cls(config.place_radius_m, config.place_radius_m, math.radians(config.place_heading_deg))
+
+
+@dataclass(frozen=True)
+class EmbedOptions:
+    """How :func:`embed` builds and solves the pose graph."""
+
+    noise: MotionNoise = field(default_factory=MotionNoise)
+    """The estimator's motion model: covariance of each odometry factor."""
+    revisit: RevisitTolerance = field(default_factory=RevisitTolerance)
+    kernel: Kernel = Kernel.CAUCHY
+    kernel_width: float = 1.0
+    """The kernel's k, in σ of the closure's noise."""
+    max_iterations: int = 100
+
+    @classmethod
+    def from_config(cls, config: EstimatorConfig, **overrides: Any) -> EmbedOptions:
+        """Options matching an estimator configuration (its motion noise and place tolerance)."""
+        return cls(
+            **{"noise": config.motion_noise, "revisit": RevisitTolerance.from_config(config), **overrides}
+        )
+
+
+def _frozen(array: np.ndarray) -> np.ndarray:
+    array = np.ascontiguousarray(array)
+    array.setflags(write=False)
+    return array
+
+
+@dataclass(frozen=True, eq=False)
+class Embedding:
+    """One pose per keyframe in the frame of keyframe 0, optimised and from odometry alone."""
+
+    poses: np.ndarray
+    """(n, 3) optimised ``(x_m, y_m, yaw_rad)`` per keyframe."""
+    odometry: np.ndarray
+    """(n, 3) dead reckoning: the keyframe actions composed (the optimiser's starting point)."""
+    assignment: np.ndarray
+    """(n,) state (first-visit keyframe) of each keyframe, as given."""
+    closures: np.ndarray
+    """(m, 2) ``(first-visit keyframe, revisiting keyframe)`` of every closure factor."""
+    closure_sigmas: np.ndarray
+    """(m,) each closure's Mahalanobis distance at the solution (in σ of the revisit tolerance):
+    a closure far beyond the kernel's width was outvoted, i.e. probably wrong."""
+    iterations: int
+    initial_error: float
+    final_error: float
+
+    @property
+    def keyframes(self) -> int:
+        return len(self.poses)
+
+    @property
+    def outvoted(self) -> np.ndarray:
+        """(n,) True for the keyframes whose closure the graph outvoted (see ``OUTVOTED_SIGMA``)."""
+        mask = np.zeros(self.keyframes, bool)
+        mask[self.closures[self.closure_sigmas > OUTVOTED_SIGMA, 1]] = True
+        return mask
+
+
+def check_assignment(assignment: np.ndarray) -> list[str]:
+    """Every reason ``assignment`` is not a keyframe → first-visit-keyframe map (empty when it is)."""
+    problems = []
+    n = len(assignment)
+    if n and assignment[0] != 0:
+        problems.append(f"keyframe 0 must be state 0, got {assignment[0]}")
+    bad_range = np.flatnonzero((assignment < 0) | (assignment > np.arange(n)))
+    if len(bad_range):
+        k = int(bad_range[0])
+        problems.append(f"keyframe {k} is assigned state {assignment[k]}, not an earlier keyframe")
+    else:
+        not_first = np.flatnonzero(assignment[assignment] != assignment)
+        if len(not_first):
+            k = int(not_first[0])
+            problems.append(
+                f"keyframe {k} revisits state {assignment[k]}, whose own keyframe is assigned"
+                f" state {assignment[assignment[k]]} (states are first-visit keyframes)"
+            )
+    return problems
+
+
+def dead_reckoning(actions: np.ndarray) -> np.ndarray:
+    """(n, 3) poses from composing keyframe actions from the origin (the first action is ignored)."""
+    poses = np.zeros((len(actions), 3))
+    for k in range(1, len(actions)):
+        poses[k] = se2.compose(poses[k - 1], actions[k])
+    return poses
+
+
+def embed(actions: np.ndarray, assignment: np.ndarray, options: EmbedOptions | None = None) -> Embedding:
+    """Optimise the best hypothesis's keyframes as a pose graph (Levenberg–Marquardt, GTSAM).
+
+    ``actions`` (n, 3) are the keyframe-to-keyframe odometry actions (the first is the start's and
+    ignored); ``assignment`` (n,) the state of each keyframe, where a state is the keyframe of its
+    first visit, so keyframe k with ``assignment[k] != k`` revisits the place of keyframe
+    ``assignment[k]``. The result is in the frame of keyframe 0. ValueError on inconsistent input.
+    """
+    import gtsam
+
+    options = options or EmbedOptions()
+    actions = np.asarray(actions, dtype=float).reshape(-1, 3)
+    assignment = np.asarray(assignment).astype(np.int64, copy=False)
+    n = len(actions)
+    if assignment.shape != (n,):
+        raise ValueError(f"assignment has shape {assignment.shape}, expected ({n},) like the actions")
+    if not np.isfinite(actions).all():
+        raise ValueError("actions contain NaN or infinity")
+    problems = check_assignment(assignment)
+    if problems:
+        raise ValueError("; ".join(problems))
+
+    odometry = dead_reckoning(actions)
+    graph = gtsam.NonlinearFactorGraph()
+    initial = gtsam.Values()
+    if n:
+        graph.add(
+            gtsam.PriorFactorPose2(
+                0, gtsam.Pose2(0.0, 0.0, 0.0), gtsam.noiseModel.Isotropic.Sigma(3, PRIOR_SIGMA)
+            )
+        )
+    for k in range(n):
+        initial.insert(k, gtsam.Pose2(*odometry[k]))
+        if k:
+            covariance = action_covariance(actions[k], options.noise)
+            graph.add(
+                gtsam.BetweenFactorPose2(
+                    k - 1, k, gtsam.Pose2(*actions[k]), gtsam.noiseModel.Gaussian.Covariance(covariance)
+                )
+            )
+    revisit = options.revisit
+    closure_noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([revisit.x_m, revisit.y_m, revisit.yaw_rad]))
+    if options.kernel is Kernel.CAUCHY:
+        closure_noise = gtsam.noiseModel.Robust.Create(
+            gtsam.noiseModel.mEstimator.Cauchy.Create(options.kernel_width), closure_noise
+        )
+    elif options.kernel is Kernel.HUBER:
+        closure_noise = gtsam.noiseModel.Robust.Create(
+            gtsam.noiseModel.mEstimator.Huber.Create(options.kernel_width), closure_noise
+        )
+    revisits = np.flatnonzero(assignment != np.arange(n))
+    closures = (
+        np.stack([assignment[revisits], revisits], axis=1) if len(revisits) else np.zeros((0, 2), np.int64)
+    )
+    for place, k in closures.tolist():
+        graph.add(gtsam.BetweenFactorPose2(place, k, gtsam.Pose2(0.0, 0.0, 0.0), closure_noise))
+
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(options.max_iterations)
+    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
+    initial_error = graph.error(initial) if n else 0.0
+    result = optimizer.optimize() if n else initial
+    poses = np.array([[p.x(), p.y(), p.theta()] for p in (result.atPose2(k) for k in range(n))]).reshape(
+        -1, 3
+    )
+
+    sigmas = np.array([revisit.x_m, revisit.y_m, revisit.yaw_rad])
+    if len(closures):
+        residual = se2.between(poses[closures[:, 0]], poses[closures[:, 1]])
+        closure_sigmas = np.sqrt(((residual / sigmas) ** 2).sum(axis=1))
+    else:
+        closure_sigmas = np.zeros(0)
+    return Embedding(
+        poses=_frozen(poses),
+        odometry=_frozen(odometry),
+        assignment=_frozen(assignment.copy()),
+        closures=_frozen(closures.astype(np.int64)),
+        closure_sigmas=_frozen(closure_sigmas),
+        iterations=int(optimizer.iterations()) if n else 0,
+        initial_error=float(initial_error),
+        final_error=float(graph.error(result)) if n else 0.0,
+    )
+
+
+def assignment_from_states(states: Sequence[tuple[int, Sequence[int]]], keyframes: int) -> np.ndarray:
+    """(n,) state per keyframe from the map's ``(state id, keyframes assigned to it)`` pairs.
+
+    ValueError when a keyframe has no state or two.
+    """
+    assignment = np.full(keyframes, -1, np.int64)
+    for state, members in states:
+        for k in members:
+            if not 0 <= k < keyframes:
+                raise ValueError(f"state {state} lists keyframe {k}, outside 0..{keyframes - 1}")
+            if assignment[k] >= 0:
+                raise ValueError(f"keyframe {k} is in states {assignment[k]} and {state}")
+            assignment[k] = state
+    missing = np.flatnonzero(assignment < 0)
+    if len(missing):
+        raise ValueError(f"keyframe {int(missing[0])} has no state ({len(missing)} keyframes without one)")
+    return assignment
+
+
+# --- scores (evo) --------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ErrorStats:
+    """Summary of one error series, as evo reports it."""
+
+    rmse: float
+    mean: float
+    median: float
+    max: float
+
+
+@dataclass(frozen=True)
+class TrajectoryScores:
+    """evo's APE (translation, after SE(3) Umeyama alignment) and RPE (per keyframe step)."""
+
+    ape_m: ErrorStats
+    rpe_m: ErrorStats
+    """Translation error of each keyframe-to-keyframe motion."""
+    rpe_deg: ErrorStats
+    """Rotation error of each keyframe-to-keyframe motion."""
+    keyframes: int
+    """Keyframes scored (those with ground truth)."""
+
+
+@dataclass(frozen=True)
+class MetricScores:
+    optimised: TrajectoryScores
+    odometry: TrajectoryScores
+
+
+def _stats(metric: Any) -> ErrorStats:
+    from evo.core.metrics import StatisticsType
+
+    return ErrorStats(
+        rmse=float(metric.get_statistic(StatisticsType.rmse)),
+        mean=float(metric.get_statistic(StatisticsType.mean)),
+        median=float(metric.get_statistic(StatisticsType.median)),
+        max=float(metric.get_statistic(StatisticsType.max)),
+    )
+
+
+def score_trajectory(
+    poses: np.ndarray, truth: np.ndarray, stamps_ns: Sequence[int] | np.ndarray
+) -> TrajectoryScores:
+    """Score ``poses`` (n, 3) against ``truth`` (n, 3; NaN rows = unknown) at the same stamps.
+
+    Keyframes without truth are dropped. APE aligns the estimate to the truth with evo's Umeyama
+    SE(3) alignment (no scale), as ``evo_ape -a``; RPE compares consecutive scored keyframes.
+    ValueError when fewer than two keyframes have truth.
+    """
+    import copy
+
+    from evo.core import metrics
+
+    from aslam.data_formats.trajectory import evo_trajectory
+
+    poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+    truth = np.asarray(truth, dtype=float).reshape(-1, 3)
+    stamps = np.asarray(stamps_ns, dtype=np.int64)
+    if not (len(poses) == len(truth) == len(stamps)):
+        raise ValueError(f"{len(poses)} poses, {len(truth)} true poses and {len(stamps)} stamps")
+    known = np.isfinite(truth).all(axis=1)
+    if known.sum() < 2:
+        raise ValueError(f"only {int(known.sum())} keyframes have ground truth; need 2 to score")
+    reference = evo_trajectory(truth[known], stamps[known])
+    estimate = copy.deepcopy(evo_trajectory(poses[known], stamps[known]))
+    estimate.align(reference, correct_scale=False)
+    ape = metrics.APE(metrics.PoseRelation.translation_part)
+    ape.process_data((reference, estimate))
+    rpe_m = metrics.RPE(metrics.PoseRelation.translation_part, delta=1, delta_unit=metrics.Unit.frames)
+    rpe_m.process_data((reference, estimate))
+    rpe_deg = metrics.RPE(metrics.PoseRelation.rotation_angle_deg, delta=1, delta_unit=metrics.Unit.frames)
+    rpe_deg.process_data((reference, estimate))
+    return TrajectoryScores(_stats(ape), _stats(rpe_m), _stats(rpe_deg), int(known.sum()))
+
+
+def score(embedding: Embedding, truth: np.ndarray, stamps_ns: Sequence[int] | np.ndarray) -> MetricScores:
+    """evo's scores of the optimised and of the odometry-only trajectory against the truth."""
+    return MetricScores(
+        optimised=score_trajectory(embedding.poses, truth, stamps_ns),
+        odometry=score_trajectory(embedding.odometry, truth, stamps_ns),
+    )
+
+
+def metric_scene(embedding: Embedding, stamps_ns: Sequence[int] | np.ndarray) -> MetricScene:
+    """What Foxglove draws of an embedding (see ``aslam.data_formats.foxglove.write_scene``)."""
+    from aslam.data_formats.foxglove import MetricScene
+
+    return MetricScene(
+        stamps_ns=np.asarray(stamps_ns, dtype=np.int64),
+        poses=embedding.poses,
+        assignment=embedding.assignment,
+        odometry=embedding.odometry,
+        outvoted=embedding.outvoted,
+    )
+
+
+def export_trajectories(
+    path: Path,
+    embedding: Embedding,
+    stamps_ns: Sequence[int] | np.ndarray,
+    truth: np.ndarray | None = None,
+    fmt: str = "tum",
+    *,
+    force: bool = False,
+) -> dict[str, Path]:
+    """Write the optimised trajectory to ``path``, and beside it ``*.odometry.*`` and ``*.truth.*``.
+
+    The truth is written where known: in TUM the keyframes without truth are left out (evo pairs
+    poses by stamp); KITTI has no stamps, so its truth file is written only when every keyframe has
+    truth. Every path is checked before anything is written. Returns ``{"optimised": …, …}``.
+    """
+    from aslam.data_formats import files
+    from aslam.data_formats.trajectory import (
+        TrajectoryError,
+        TrajectoryFormat,
+        sibling_paths,
+        write_trajectory,
+    )
+
+    fmt = TrajectoryFormat(fmt)
+    paths = sibling_paths(path)
+    stamps = np.asarray(stamps_ns, dtype=np.int64)
+    known = np.zeros(len(stamps), bool) if truth is None else np.isfinite(truth).all(axis=1)
+    with_truth = known.all() if fmt is TrajectoryFormat.KITTI else known.any()
+    targets = {"optimised": paths.optimised, "odometry": paths.odometry}
+    if with_truth:
+        targets["truth"] = paths.truth
+    for target in targets.values():
+        files.check_output_path(target, force=force, error=TrajectoryError)
+    write_trajectory(paths.optimised, embedding.poses, stamps, fmt)
+    write_trajectory(paths.odometry, embedding.odometry, stamps, fmt)
+    if with_truth and truth is not None:
+        write_trajectory(paths.truth, truth[known], stamps[known], fmt)
+    return targets
+
+
+# --- from an estimate file -----------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class BestPath:
+    """What the embedding needs from an estimate file: per keyframe a stamp, an action, a state."""
+
+    stamps_ns: np.ndarray
+    actions: np.ndarray
+    assignment: np.ndarray
+    """From the final graph: the best hypothesis's state of every keyframe."""
+    config: EstimatorConfig
+    topics: dict[str, str]
+    recording_path: str
+
+
+def read_best_path(path: Path) -> BestPath:
+    """Read an estimate file's keyframes (streamed) and its best hypothesis's map.
+
+    EstimateError (naming the file) when the map does not assign every keyframe exactly once.
+    """
+    from contextlib import closing
+    from dataclasses import fields
+
+    from aslam.core.config import EstimatorConfig
+    from aslam.core.errors import ConfigError
+    from aslam.data_formats.errors import EstimateError
+    from aslam.data_formats.estimate import iter_keyframes, read_estimate
+
+    path = Path(path)
+    info = read_estimate(path)
+    stamps: list[int] = []
+    actions: list[tuple[float, float, float]] = []
+    with closing(iter_keyframes(path)) as keyframes:
+        for keyframe in keyframes:
+            stamps.append(keyframe.stamp_ns)
+            actions.append(keyframe.action)
+    try:
+        states = [(state.id, state.keyframes) for state in info.graph.states]
+        assignment = assignment_from_states(states, len(stamps))
+    except (KeyError, TypeError, ValueError) as err:
+        raise EstimateError(f"inconsistent '/aslam/graph' map ({err})", path=path) from err
+    problems = check_assignment(assignment)
+    if problems:
+        raise EstimateError(f"inconsistent '/aslam/graph' map ({'; '.join(problems)})", path=path)
+    known = {f.name for f in fields(EstimatorConfig)}
+    try:
+        config = EstimatorConfig(**{k: v for k, v in info.metadata.config.items() if k in known})
+    except (ConfigError, TypeError) as err:
+        raise EstimateError(f"unusable estimator configuration ({err})", path=path) from err
+    return BestPath(
+        stamps_ns=_frozen(np.array(stamps, dtype=np.int64)),
+        actions=_frozen(np.array(actions, dtype=float).reshape(-1, 3)),
+        assignment=_frozen(assignment),
+        config=config,
+        topics=dict(info.metadata.topics),
+        recording_path=info.metadata.recording.path,
+    )
+
+
+def truth_for(best: BestPath, recording: Path) -> np.ndarray:
+    """(n, 3) true poses at the keyframe stamps (NaN where unknown), from the recording.
+
+    RecordingError when the recording has no ground truth.
+    """
+    from contextlib import closing
+
+    from aslam.app.score import truth_at_stamps
+    from aslam.data_formats.recording import Recording, RecordingTopics
+
+    defaults = RecordingTopics()
+    topics = RecordingTopics(
+        image=best.topics.get("image", defaults.image),
+        odometry=best.topics.get("odometry", defaults.odometry),
+        ground_truth=best.topics.get("ground_truth", defaults.ground_truth),
+        camera_info=best.topics.get("camera_info", defaults.camera_info),
+    )
+    with closing(Recording(recording).ground_truth(topics)) as truth:
+        return truth_at_stamps(best.stamps_ns.tolist(), truth)

@@ -1,0 +1,149 @@
+"""Trajectory files that evo and every other SLAM tool read: TUM and KITTI.
+
+* TUM: one line per pose, ``stamp_s x y z qx qy qz qw`` (seconds, metres, unit quaternion).
+* KITTI: one line per pose, the first three rows of the 4×4 pose matrix, row-major; no stamps.
+
+Both are written by evo's own ``evo.tools.file_interface`` writers, so the files are evo's format
+by construction, under a temporary name renamed when complete. Poses are SE(2) ``(x_m, y_m,
+yaw_rad)`` in the z = 0 plane (REP 103: x forward, y left, z up); the readers give them back and
+refuse trajectories that leave the plane. TUM keeps seconds as float64, so stamps come back to
+within a microsecond, not to the nanosecond.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from enum import StrEnum
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from aslam.data_formats import files
+from aslam.data_formats.errors import TrajectoryError
+
+PLANAR_TOLERANCE = 1e-6
+"""|z| (m) and roll/pitch (rad) up to which a read pose still counts as planar."""
+
+
+class TrajectoryFormat(StrEnum):
+    TUM = "tum"
+    KITTI = "kitti"
+
+
+class TrajectoryPaths(NamedTuple):
+    """Where one export puts its three trajectories."""
+
+    optimised: Path
+    odometry: Path
+    truth: Path
+
+
+def sibling_paths(path: Path) -> TrajectoryPaths:
+    """``OUT.tum`` → ``OUT.tum``, ``OUT.odometry.tum``, ``OUT.truth.tum`` (the same for any suffix)."""
+    path = Path(path)
+    return TrajectoryPaths(
+        path,
+        path.with_name(f"{path.stem}.odometry{path.suffix}"),
+        path.with_name(f"{path.stem}.truth{path.suffix}"),
+    )
+
+
+def evo_trajectory(poses: np.ndarray, stamps_ns: Sequence[int] | np.ndarray | None = None) -> Any:
+    """SE(2) poses (n, 3) as evo's ``PoseTrajectory3D`` (with stamps) or ``PosePath3D``, z = 0."""
+    from evo.core.trajectory import PosePath3D, PoseTrajectory3D
+
+    poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+    n = len(poses)
+    xyz = np.zeros((n, 3))
+    xyz[:, :2] = poses[:, :2]
+    quat_wxyz = np.zeros((n, 4))
+    quat_wxyz[:, 0] = np.cos(poses[:, 2] / 2.0)
+    quat_wxyz[:, 3] = np.sin(poses[:, 2] / 2.0)
+    if stamps_ns is None:
+        return PosePath3D(positions_xyz=xyz, orientations_quat_wxyz=quat_wxyz)
+    stamps_s = np.asarray(stamps_ns, dtype=np.int64) / 1e9
+    return PoseTrajectory3D(positions_xyz=xyz, orientations_quat_wxyz=quat_wxyz, timestamps=stamps_s)
+
+
+def _checked_poses(poses: np.ndarray, path: Path) -> np.ndarray:
+    poses = np.asarray(poses, dtype=float)
+    if poses.ndim != 2 or poses.shape[1] != 3:
+        raise TrajectoryError(f"poses must have shape (n, 3), got {poses.shape}", path=path)
+    if not np.isfinite(poses).all():
+        raise TrajectoryError("poses contain NaN or infinity (unknown poses cannot be exported)", path=path)
+    return poses
+
+
+def write_trajectory(
+    path: Path,
+    poses: np.ndarray,
+    stamps_ns: Sequence[int] | np.ndarray | None = None,
+    fmt: TrajectoryFormat = TrajectoryFormat.TUM,
+    *,
+    force: bool = True,
+) -> None:
+    """Write SE(2) ``poses`` (n, 3) as TUM (needs ``stamps_ns``) or KITTI, atomically."""
+    from evo.tools import file_interface
+
+    path = Path(path)
+    fmt = TrajectoryFormat(fmt)
+    files.check_output_path(path, force=force, error=TrajectoryError)
+    poses = _checked_poses(poses, path)
+    if fmt is TrajectoryFormat.TUM:
+        if stamps_ns is None or len(stamps_ns) != len(poses):
+            got = "no" if stamps_ns is None else len(stamps_ns)
+            raise TrajectoryError(
+                f"TUM needs one stamp per pose: {len(poses)} poses, {got} stamps", path=path
+            )
+        trajectory = evo_trajectory(poses, stamps_ns)
+        files.write_atomically(
+            path, lambda tmp: file_interface.write_tum_trajectory_file(tmp, trajectory), error=TrajectoryError
+        )
+    else:
+        trajectory = evo_trajectory(poses, None)
+        files.write_atomically(
+            path, lambda tmp: file_interface.write_kitti_poses_file(tmp, trajectory), error=TrajectoryError
+        )
+
+
+def _planar(trajectory: Any, path: Path) -> np.ndarray:
+    xyz = np.asarray(trajectory.positions_xyz)
+    quat = np.asarray(trajectory.orientations_quat_wxyz)  # w, x, y, z
+    if len(xyz) and (
+        np.abs(xyz[:, 2]).max() > PLANAR_TOLERANCE or np.abs(quat[:, 1:3]).max() > PLANAR_TOLERANCE
+    ):
+        raise TrajectoryError("not a planar trajectory (z or roll/pitch is not zero)", path=path)
+    yaw = 2.0 * np.arctan2(quat[:, 3], quat[:, 0])
+    yaw = (yaw + np.pi) % (2.0 * np.pi) - np.pi
+    return np.column_stack([xyz[:, :2], yaw]) if len(xyz) else np.zeros((0, 3))
+
+
+def _read(path: Path, read: Any) -> Any:
+    from evo import EvoException
+
+    path = Path(path)
+    if not path.is_file():
+        raise TrajectoryError("no such file" if not path.exists() else "is not a file", path=path)
+    try:
+        return read(path)
+    except (EvoException, ValueError, OSError) as err:
+        raise TrajectoryError(f"unreadable trajectory ({type(err).__name__}: {err})", path=path) from err
+
+
+def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """``(stamps_ns (n,), poses (n, 3))`` of a planar TUM file (stamps to within 1 µs)."""
+    from evo.tools import file_interface
+
+    path = Path(path)
+    trajectory = _read(path, file_interface.read_tum_trajectory_file)
+    stamps_ns = np.rint(np.asarray(trajectory.timestamps, dtype=float) * 1e9).astype(np.int64)
+    return stamps_ns, _planar(trajectory, path)
+
+
+def read_kitti(path: Path) -> np.ndarray:
+    """``poses (n, 3)`` of a planar KITTI poses file."""
+    from evo.tools import file_interface
+
+    path = Path(path)
+    return _planar(_read(path, file_interface.read_kitti_poses_file), path)
