@@ -14,6 +14,9 @@ from contextlib import closing
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import numpy as np
+
+from aslam.app.metric_view import embed_run, metric_scene
 from aslam.app.pipeline import DEFAULT_WORKERS, PipelineCounts, run_estimate
 from aslam.core.config import EstimatorConfig
 from aslam.core.errors import InputError
@@ -152,8 +155,10 @@ def estimate(
             closing(run_estimate(samples, estimator, counts=counts, workers=workers)) as steps,
         ):
             last_update = 0.0
+            actions = []
             for step in steps:
                 writer.write_keyframe(step)
+                actions.append(step.action)
                 now = time.perf_counter()
                 if now - last_update > PROGRESS_INTERVAL_S:
                     last_update = now
@@ -177,7 +182,9 @@ def estimate(
                     samples=counts.samples,
                     keyframes=keyframes,
                 )
-            writer.finish(result, metadata, run_timing)
+            embedding = embed_run(np.array(actions).reshape(-1, 3), result.states, config)
+            scene = None if embedding is None else metric_scene(embedding, result.keyframe_stamps_ns)
+            writer.finish(result, metadata, run_timing, scene)
     finally:
         hasher.cancel()
     if not result.keyframe_stamps_ns:

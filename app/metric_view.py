@@ -27,6 +27,7 @@ from aslam.core.motion import MotionNoise, action_covariance
 
 if TYPE_CHECKING:
     from aslam.core.config import EstimatorConfig
+    from aslam.core.estimator import MapState
     from aslam.data_formats.foxglove import MetricScene
 
 OUTVOTED_SIGMA = 5.0
@@ -146,14 +147,6 @@ def check_assignment(assignment: np.ndarray) -> list[str]:
     return problems
 
 
-def dead_reckoning(actions: np.ndarray) -> np.ndarray:
-    """(n, 3) poses from composing keyframe actions from the origin (the first action is ignored)."""
-    poses = np.zeros((len(actions), 3))
-    for k in range(1, len(actions)):
-        poses[k] = se2.compose(poses[k - 1], actions[k])
-    return poses
-
-
 def embed(actions: np.ndarray, assignment: np.ndarray, options: EmbedOptions | None = None) -> Embedding:
     """Optimise the best hypothesis's keyframes as a pose graph (Levenberg–Marquardt, GTSAM).
 
@@ -176,7 +169,7 @@ def embed(actions: np.ndarray, assignment: np.ndarray, options: EmbedOptions | N
     if problems:
         raise ValueError("; ".join(problems))
 
-    odometry = dead_reckoning(actions)
+    odometry = se2.dead_reckoning(actions)
     graph = gtsam.NonlinearFactorGraph()
     initial = gtsam.Values()
     if n:
@@ -325,7 +318,12 @@ def score_trajectory(
         raise ValueError(f"only {int(known.sum())} keyframes have ground truth; need 2 to score")
     reference = evo_trajectory(truth[known], stamps[known])
     estimate = copy.deepcopy(evo_trajectory(poses[known], stamps[known]))
-    estimate.align(reference, correct_scale=False)
+    from evo.core.geometry import GeometryException
+
+    try:
+        estimate.align(reference, correct_scale=False)
+    except GeometryException as err:  # e.g. every position on one line: no unique rotation
+        raise ValueError(f"the trajectory cannot be aligned to the ground truth ({err})") from err
     ape = metrics.APE(metrics.PoseRelation.translation_part)
     ape.process_data((reference, estimate))
     rpe_m = metrics.RPE(metrics.PoseRelation.translation_part, delta=1, delta_unit=metrics.Unit.frames)
@@ -396,82 +394,32 @@ def export_trajectories(
     return targets
 
 
-# --- from an estimate file -----------------------------------------------------------------------
+# --- from a run ----------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True, eq=False)
-class BestPath:
-    """What the embedding needs from an estimate file: per keyframe a stamp, an action, a state."""
+def estimator_config(config: dict[str, Any]) -> EstimatorConfig:
+    """The configuration an estimate file records, as the dataclass (unknown keys ignored).
 
-    stamps_ns: np.ndarray
-    actions: np.ndarray
-    assignment: np.ndarray
-    """From the final graph: the best hypothesis's state of every keyframe."""
-    config: EstimatorConfig
-    topics: dict[str, str]
-    recording_path: str
-
-
-def read_best_path(path: Path) -> BestPath:
-    """Read an estimate file's keyframes (streamed) and its best hypothesis's map.
-
-    EstimateError (naming the file) when the map does not assign every keyframe exactly once.
+    ValueError when the recorded values are not a valid configuration.
     """
-    from contextlib import closing
     from dataclasses import fields
 
     from aslam.core.config import EstimatorConfig
     from aslam.core.errors import ConfigError
-    from aslam.data_formats.errors import EstimateError
-    from aslam.data_formats.estimate import iter_keyframes, read_estimate
 
-    path = Path(path)
-    info = read_estimate(path)
-    stamps: list[int] = []
-    actions: list[tuple[float, float, float]] = []
-    with closing(iter_keyframes(path)) as keyframes:
-        for keyframe in keyframes:
-            stamps.append(keyframe.stamp_ns)
-            actions.append(keyframe.action)
-    try:
-        states = [(state.id, state.keyframes) for state in info.graph.states]
-        assignment = assignment_from_states(states, len(stamps))
-    except (KeyError, TypeError, ValueError) as err:
-        raise EstimateError(f"inconsistent '/aslam/graph' map ({err})", path=path) from err
-    problems = check_assignment(assignment)
-    if problems:
-        raise EstimateError(f"inconsistent '/aslam/graph' map ({'; '.join(problems)})", path=path)
     known = {f.name for f in fields(EstimatorConfig)}
     try:
-        config = EstimatorConfig(**{k: v for k, v in info.metadata.config.items() if k in known})
+        return EstimatorConfig(**{k: v for k, v in config.items() if k in known})
     except (ConfigError, TypeError) as err:
-        raise EstimateError(f"unusable estimator configuration ({err})", path=path) from err
-    return BestPath(
-        stamps_ns=_frozen(np.array(stamps, dtype=np.int64)),
-        actions=_frozen(np.array(actions, dtype=float).reshape(-1, 3)),
-        assignment=_frozen(assignment),
-        config=config,
-        topics=dict(info.metadata.topics),
-        recording_path=info.metadata.recording.path,
-    )
+        raise ValueError(f"unusable estimator configuration ({err})") from err
 
 
-def truth_for(best: BestPath, recording: Path) -> np.ndarray:
-    """(n, 3) true poses at the keyframe stamps (NaN where unknown), from the recording.
-
-    RecordingError when the recording has no ground truth.
+def embed_run(actions: np.ndarray, states: Sequence[MapState], config: EstimatorConfig) -> Embedding | None:
+    """The metric view of a run's best map (``states`` as ``Estimator.result()`` or the estimate
+    file give them), with the run's own motion noise and place tolerance; None below 2 keyframes.
     """
-    from contextlib import closing
-
-    from aslam.app.score import truth_at_stamps
-    from aslam.data_formats.recording import Recording, RecordingTopics
-
-    defaults = RecordingTopics()
-    topics = RecordingTopics(
-        image=best.topics.get("image", defaults.image),
-        odometry=best.topics.get("odometry", defaults.odometry),
-        ground_truth=best.topics.get("ground_truth", defaults.ground_truth),
-        camera_info=best.topics.get("camera_info", defaults.camera_info),
-    )
-    with closing(Recording(recording).ground_truth(topics)) as truth:
-        return truth_at_stamps(best.stamps_ns.tolist(), truth)
+    actions = np.asarray(actions, dtype=float).reshape(-1, 3)
+    if len(actions) < 2:
+        return None
+    assignment = assignment_from_states([(state.id, state.keyframes) for state in states], len(actions))
+    return embed(actions, assignment, EmbedOptions.from_config(config))

@@ -13,8 +13,9 @@ from typing import Any
 
 import numpy as np
 
-from aslam.app.score import Report, dead_reckoning
+from aslam.app.score import Report
 from aslam.core.metrics import Evaluation
+from aslam.core.se2 import dead_reckoning
 from aslam.data_formats.estimate import EstimateGraph
 from aslam.data_formats.files import write_atomically
 from aslam.data_formats.graph_json import is_loop_closure_link
@@ -45,7 +46,52 @@ def write_plots(folder: Path, report: Report) -> list[Path]:
     _save(_hypotheses_figure(report.evaluation, title), paths[0])
     _save(_errors_figure(report.evaluation, title), paths[1])
     _save(_map_figure(report.estimate.graph, report.actions, report.true_poses, title), paths[2])
+    if report.embedding is not None:
+        paths.append(folder / "trajectory.png")
+        _save(_trajectory_figure(report, title), paths[-1])
     return paths
+
+
+def _aligned(poses: np.ndarray, truth: np.ndarray, stamps_ns: np.ndarray) -> np.ndarray:
+    """``poses`` (rows where the truth is known) moved onto the truth by evo's Umeyama alignment."""
+    import copy
+
+    from aslam.data_formats.trajectory import evo_trajectory
+
+    estimate = copy.deepcopy(evo_trajectory(poses, stamps_ns))
+    estimate.align(evo_trajectory(truth, stamps_ns), correct_scale=False)
+    return np.asarray(estimate.positions_xyz)[:, :2]
+
+
+def _trajectory_figure(report: Report, title: str) -> Any:
+    """The embedded trajectory and odometry alone, aligned to the truth as evo aligns them for APE."""
+    import matplotlib.pyplot as plt
+
+    assert report.embedding is not None
+    fig, ax = plt.subplots(figsize=(7.5, 7.5), layout="constrained")
+    optimised, odometry = report.embedding.poses, report.embedding.odometry
+    truth = report.true_poses
+    known = None if truth is None else np.isfinite(truth).all(axis=1)
+    if truth is not None and known is not None and known.sum() >= 2:
+        stamps = np.asarray(report.stamps_ns, dtype=np.int64)[known]
+        ax.plot(truth[known, 0], truth[known, 1], "-", color="0.6", linewidth=2.5, label="ground truth")
+        odometry_xy = _aligned(odometry[known], truth[known], stamps)
+        optimised_xy = _aligned(optimised[known], truth[known], stamps)
+        frame = "aligned to the ground truth (evo, Umeyama SE(3))"
+    else:
+        odometry_xy, optimised_xy = odometry[:, :2], optimised[:, :2]
+        frame = "in the frame of the first keyframe (no ground truth)"
+    ax.plot(odometry_xy[:, 0], odometry_xy[:, 1], "--", color="tab:gray", linewidth=1, label="odometry alone")
+    ax.plot(
+        optimised_xy[:, 0], optimised_xy[:, 1], "-", color="tab:blue", linewidth=1.2, label="embedded map"
+    )
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(True, alpha=0.3)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(f"Trajectory {frame}\n{title}")
+    ax.legend(loc="best", fontsize="small")
+    return fig
 
 
 def _revisit_spans(ax: Any, evaluation: Evaluation) -> None:

@@ -9,16 +9,24 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
 from contextlib import closing
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from aslam.app.metric_view import (
+    Embedding,
+    MetricScores,
+    TrajectoryScores,
+    embed_run,
+    estimator_config,
+)
+from aslam.app.metric_view import score as score_trajectories
 from aslam.core import se2
 from aslam.core.errors import InputError
 from aslam.core.metrics import Evaluation, evaluate
-from aslam.data_formats.errors import RecordingError
+from aslam.data_formats.errors import EstimateError, RecordingError
 from aslam.data_formats.estimate import EstimateFile, iter_keyframes, read_estimate
 from aslam.data_formats.graph_json import build_graph_json
 from aslam.data_formats.sources import TopicChoice, iter_source_ground_truth, source_files
@@ -55,16 +63,6 @@ def truth_at_stamps(
     return poses
 
 
-def dead_reckoning(actions: np.ndarray, start: np.ndarray | None = None) -> np.ndarray:
-    """(n, 3) poses from composing the keyframe actions (the first action is the start's)."""
-    poses = np.zeros((len(actions), 3))
-    pose = np.zeros(3) if start is None else np.asarray(start, dtype=float)
-    for i, action in enumerate(actions):
-        pose = pose if i == 0 else se2.compose(pose, action)
-        poses[i] = pose
-    return poses
-
-
 # --- the summary -----------------------------------------------------------------------------------
 
 
@@ -78,6 +76,8 @@ def build_summary(
     states: int,
     links: int,
     keyframes_per_second: float | None,
+    embedding: Embedding | None = None,
+    metric: MetricScores | None = None,
 ) -> dict[str, Any]:
     """The summary JSON (every key always present; null where not measurable)."""
     counts = evaluation.hypothesis_counts
@@ -108,7 +108,29 @@ def build_summary(
             "best": _stats(evaluation.error_stats(weighted=False)),
             "weighted": _stats(evaluation.error_stats(weighted=True)),
         },
+        "trajectory": _trajectory_summary(embedding, metric),
         "timing": {"keyframes_per_second": keyframes_per_second},
+    }
+
+
+def _trajectory_summary(embedding: Embedding | None, metric: MetricScores | None) -> dict[str, Any]:
+    """evo's APE/RPE of the embedded (optimised) and the odometry-only trajectory; null without truth."""
+
+    def stats(scores: TrajectoryScores | None, name: str) -> dict[str, float | None]:
+        values = None if scores is None else asdict(getattr(scores, name))
+        return {stat: None if values is None else values[stat] for stat in ("rmse", "mean", "median", "max")}
+
+    optimised = None if metric is None else metric.optimised
+    odometry = None if metric is None else metric.odometry
+    return {
+        "ape_m": stats(optimised, "ape_m"),
+        "rpe_m": stats(optimised, "rpe_m"),
+        "rpe_deg": stats(optimised, "rpe_deg"),
+        "odometry_ape_m": stats(odometry, "ape_m"),
+        "odometry_rpe_m": stats(odometry, "rpe_m"),
+        "odometry_rpe_deg": stats(odometry, "rpe_deg"),
+        "closures": None if embedding is None else len(embedding.closures),
+        "closures_outvoted": None if embedding is None else int(embedding.outvoted.sum()),
     }
 
 
@@ -155,6 +177,10 @@ class Report:
     true_poses: np.ndarray | None
     """(n, 3) true poses at the keyframes; None without ground truth."""
     evaluation: Evaluation
+    embedding: Embedding | None
+    """The best map embedded as a pose graph (GTSAM); None below two keyframes."""
+    metric: MetricScores | None
+    """evo's scores of the embedding and of odometry alone; None without ground truth."""
     summary: dict[str, Any]
 
     def graph_json(self) -> dict[str, Any]:
@@ -203,20 +229,35 @@ def score(
     evaluation = evaluate(steps, true_poses, radius_m=radius_m, heading_deg=heading_deg)
     if not evaluation.has_ground_truth:
         true_poses = None
+    action_array = np.array(actions, dtype=float).reshape(-1, 3)
+    try:
+        embedding = embed_run(action_array, info.graph.states, estimator_config(info.metadata.config))
+    except ValueError as err:
+        raise EstimateError(f"no metric view of the map ({err})", path=estimate) from err
+    metric = None
+    if embedding is not None and true_poses is not None and np.isfinite(true_poses).all(axis=1).sum() >= 2:
+        try:
+            metric = score_trajectories(embedding, true_poses, stamps)
+        except ValueError as err:
+            warn(f"{estimate}: no trajectory scores: {err}")
     summary = build_summary(
         evaluation,
         states=len(info.graph.states),
         links=len(info.graph.links),
         keyframes_per_second=None if info.timing is None else info.timing.keyframes_per_second,
+        embedding=embedding,
+        metric=metric,
     )
     return Report(
         estimate_path=estimate,
         estimate=info,
         recording_path=recording_path,
         stamps_ns=tuple(stamps),
-        actions=np.array(actions, dtype=float).reshape(-1, 3),
+        actions=action_array,
         true_poses=true_poses,
         evaluation=evaluation,
+        embedding=embedding,
+        metric=metric,
         summary=summary,
     )
 

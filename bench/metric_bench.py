@@ -27,6 +27,7 @@ import sys
 import time
 from dataclasses import asdict
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -35,11 +36,11 @@ from aslam.app.metric_view import (
     EmbedOptions,
     Kernel,
     embed,
-    read_best_path,
+    estimator_config,
     score,
     score_trajectory,
-    truth_for,
 )
+from aslam.app.score import score as score_estimate
 from aslam.core import se2
 from aslam.data_formats.estimate import read_estimate
 
@@ -69,11 +70,22 @@ def recorded_and_estimated(name: str, record_args: list[str], work: Path) -> tup
     return recording, estimate
 
 
+def best_path(recording: Path, estimate: Path) -> SimpleNamespace:
+    """What the embedding needs of a run, read and scored by the application layer."""
+    report = score_estimate(estimate, recording=recording)
+    assert report.embedding is not None and report.true_poses is not None
+    return SimpleNamespace(
+        actions=report.actions,
+        assignment=report.embedding.assignment,
+        config=estimator_config(report.estimate.metadata.config),
+        stamps_ns=np.asarray(report.stamps_ns, dtype=np.int64),
+        truth=report.true_poses,
+    )
+
+
 def odometry_drift(actions: np.ndarray, truth: np.ndarray) -> dict[str, float]:
-    poses = [truth[0]]
-    for action in actions[1:]:
-        poses.append(se2.compose(poses[-1], action))
-    error = np.hypot(*(np.array(poses)[:, :2] - truth[:, :2]).T)
+    poses = se2.dead_reckoning(actions, truth[0])
+    error = np.hypot(*(poses[:, :2] - truth[:, :2]).T)
     return {"final": float(error[-1]), "max": float(np.nanmax(error))}
 
 
@@ -99,8 +111,8 @@ def wrong_closure(best: Any, truth: np.ndarray, lap: int) -> dict[str, Any] | No
 def measure(name: str, record_args: list[str], work: Path, lap: int | None) -> dict[str, Any]:
     log(f"{name}:")
     recording, estimate = recorded_and_estimated(name, record_args, work)
-    best = read_best_path(estimate)
-    truth = truth_for(best, recording)
+    best = best_path(recording, estimate)
+    truth = best.truth
     options = EmbedOptions.from_config(best.config)
     times = []
     for _ in range(3):

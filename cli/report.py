@@ -15,6 +15,7 @@ import typer
 from aslam.cli.app import app
 from aslam.cli.output import ForceOption, QuietOption, Terminal, VerboseOption
 from aslam.core.errors import InputError, QualityGateFailed
+from aslam.data_formats.trajectory import TrajectoryFormat
 
 
 @app.command()
@@ -35,6 +36,17 @@ def report(
     plots: Annotated[
         Path | None, typer.Option("--plots", help="Write PNG figures into this folder.", file_okay=False)
     ] = None,
+    trajectory: Annotated[
+        Path | None,
+        typer.Option(
+            help="Write the embedded (GTSAM-optimised) trajectory here, and beside it *.odometry.* and "
+            "*.truth.* (for evo).",
+            dir_okay=False,
+        ),
+    ] = None,
+    trajectory_format: Annotated[
+        TrajectoryFormat, typer.Option(help="Trajectory file format.")
+    ] = TrajectoryFormat.TUM,
     json_out: Annotated[
         str | None,
         typer.Option(
@@ -91,6 +103,8 @@ def report(
     written: list[Path] = []
     if graph is not None:
         written += _write_json(graph, result.graph_json(), indent=1)
+    if trajectory is not None:
+        written += _write_trajectories(result, trajectory, trajectory_format, force=force)
     if plots is not None:
         from aslam.app.plots import write_plots
 
@@ -103,6 +117,15 @@ def report(
     failed = failed_conditions(conditions, result.summary)
     if failed:
         raise QualityGateFailed(f"quality gate failed: {'; '.join(failed)}")
+
+
+def _write_trajectories(result: Any, path: Path, fmt: TrajectoryFormat, *, force: bool) -> list[Path]:
+    from aslam.app.metric_view import export_trajectories
+
+    if result.embedding is None:
+        raise InputError("fewer than two keyframes: no trajectory to write", path=path)
+    paths = export_trajectories(path, result.embedding, result.stamps_ns, result.true_poses, fmt, force=force)
+    return list(paths.values())
 
 
 def _check_output(path: Path, *, force: bool) -> None:

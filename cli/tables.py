@@ -61,6 +61,9 @@ def print_report(console: Console, report: Report) -> None:
         ("  first delay (keyframes)", reloc["first_delay_keyframes"]),
         ("  mean delay (keyframes)", reloc["mean_delay_keyframes"]),
         ("hypotheses max / mean / final", "{max} / {mean:.1f} / {final}".format(**s["hypotheses"])),
+        ("trajectory APE RMSE, embedded (m)", s["trajectory"]["ape_m"]["rmse"]),
+        ("  odometry alone (m)", s["trajectory"]["odometry_ape_m"]["rmse"]),
+        ("  loop closures outvoted by the pose graph", s["trajectory"]["closures_outvoted"]),
         ("keyframes/s", s["timing"]["keyframes_per_second"]),
     ]
     for name, value in rows:

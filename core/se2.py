@@ -61,3 +61,13 @@ def interpolate(a: Pose2, b: Pose2, fraction: float) -> Pose2:
     xy = a[:2] + fraction * (b[:2] - a[:2])
     yaw = wrap_angle(a[2] + fraction * wrap_angle(b[2] - a[2]))
     return np.array([xy[0], xy[1], float(yaw)])
+
+
+def dead_reckoning(actions: np.ndarray, start: np.ndarray | None = None) -> np.ndarray:
+    """(n, 3) poses from composing the keyframe actions (the first action is the start's)."""
+    poses = np.zeros((len(actions), 3))
+    pose = np.zeros(3) if start is None else np.asarray(start, dtype=float)
+    for i, action in enumerate(actions):
+        pose = pose if i == 0 else compose(pose, action)
+        poses[i] = pose
+    return poses

@@ -20,13 +20,16 @@ from contextlib import closing
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from aslam.core.estimator import EstimateResult, MapLink, MapState, StepResult
 from aslam.core.tree import Hypothesis, TreeStats
 from aslam.data_formats import files
 from aslam.data_formats.errors import EstimateError
 from aslam.data_formats.mcap_file import McapFile
+
+if TYPE_CHECKING:
+    from aslam.data_formats.foxglove import MetricScene
 
 ESTIMATE_METADATA = "aslam.estimate"
 TIMING_METADATA = "aslam.timing"
@@ -334,11 +337,22 @@ class EstimateWriter:
         self._last_stamp_ns = step.stamp_ns
         self._add(self._keyframe_channel, step.stamp_ns, keyframe_message(step))
 
-    def finish(self, result: EstimateResult, metadata: EstimateMetadata, timing: Timing | None) -> None:
-        """Write the graph and the metadata, close, and move the file to its final name."""
+    def finish(
+        self,
+        result: EstimateResult,
+        metadata: EstimateMetadata,
+        timing: Timing | None,
+        scene: MetricScene | None = None,
+    ) -> None:
+        """Write the graph, the metric view for Foxglove (if given) and the metadata, close, and
+        move the file to its final name."""
 
         def last_writes() -> None:
             self._add(self._graph_channel, self._last_stamp_ns, graph_message(result))
+            if scene is not None:
+                from aslam.data_formats.foxglove import write_scene
+
+                write_scene(self._writer, scene)
             self._writer.add_metadata(ESTIMATE_METADATA, metadata.as_record())
             if timing is not None:
                 self._writer.add_metadata(TIMING_METADATA, timing.as_record())

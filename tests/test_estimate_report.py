@@ -22,6 +22,7 @@ from aslam.core.estimator import Estimator, MapLink, MapState
 from aslam.data_formats.camera import CameraIntrinsics
 from aslam.data_formats.estimate import (
     ESTIMATE_METADATA,
+    GRAPH_TOPIC,
     KEYFRAME_TOPIC,
     TIMING_METADATA,
     iter_keyframes,
@@ -108,12 +109,20 @@ def test_estimate_file_decodes_with_mcaps_own_reader(estimate_file: Path, record
         reader = make_reader(f)
         summary = reader.get_summary()
         assert summary is not None
-        for channel in summary.channels.values():
+        ours = [
+            c for c in summary.channels.values() if c.topic.startswith("/aslam/") and "metric" not in c.topic
+        ]
+        for channel in ours:
             assert channel.message_encoding == "json"
             assert summary.schemas[channel.schema_id].encoding == "jsonschema"
             json.loads(summary.schemas[channel.schema_id].data)  # the schema is JSON
+        metric = {c.topic: c.message_encoding for c in summary.channels.values() if c not in ours}
+        assert metric == dict.fromkeys(
+            ["/aslam/metric/scene", "/aslam/metric/trajectory", "/aslam/metric/odometry", "/aslam/metric/tf"],
+            "protobuf",
+        )  # Foxglove's schemas (tests/test_foxglove_scene.py decodes them)
         metadata = {m.name: m.metadata for m in reader.iter_metadata()}
-        for _schema, channel, message in reader.iter_messages():
+        for _schema, channel, message in reader.iter_messages(topics=[KEYFRAME_TOPIC, GRAPH_TOPIC]):
             (keyframes if channel.topic == KEYFRAME_TOPIC else graphs).append(json.loads(message.data))
             if channel.topic == KEYFRAME_TOPIC:
                 assert message.log_time == keyframes[-1]["stamp_ns"]
@@ -300,7 +309,7 @@ def test_report_outputs(estimate_file: Path, tmp_path: Path, capsys):
     assert set(state) == {"id", "keyframes", "stamps_ns", "first_visit_truth"}
     assert set(state["first_visit_truth"]) == {"x_m", "y_m", "yaw_rad"}
     assert {"from", "to", "action", "covariance", "count", "loop_closure"} <= set(graph["links"][0])
-    assert {p.name for p in plots.iterdir()} == {"hypotheses.png", "errors.png", "map.png"}
+    assert {p.name for p in plots.iterdir()} == {"hypotheses.png", "errors.png", "map.png", "trajectory.png"}
     assert all(p.read_bytes().startswith(b"\x89PNG") for p in plots.iterdir())
     assert not [p for p in tmp_path.rglob(".*partial*")]
 
@@ -439,3 +448,39 @@ def test_hypothesis_plot_has_whole_number_axes(estimate_file: Path):
     figure = _hypotheses_figure(score(estimate_file).evaluation, "t")
     ticks = figure.axes[0].get_yticks()
     assert len(ticks) and all(float(t).is_integer() for t in ticks)
+
+
+def test_report_trajectory_files_score_the_same_with_evo_ape(estimate_file: Path, tmp_path: Path, capsys):
+    import subprocess
+    import sys
+
+    tum = tmp_path / "run.tum"
+    assert main(["report", str(estimate_file), "--trajectory", str(tum), "--json", "-", "-q"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert {p.name for p in tmp_path.iterdir()} == {"run.tum", "run.odometry.tum", "run.truth.tum"}
+    evo_ape = Path(sys.executable).with_name("evo_ape")
+    done = subprocess.run(
+        [str(evo_ape), "tum", str(tmp_path / "run.truth.tum"), str(tum), "-a"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    rmse = float(
+        next(line.split()[1] for line in done.stdout.splitlines() if line.strip().startswith("rmse"))
+    )
+    assert rmse == pytest.approx(summary["trajectory"]["ape_m"]["rmse"], abs=1e-5)
+    assert summary["trajectory"]["ape_m"]["rmse"] < summary["trajectory"]["odometry_ape_m"]["rmse"]
+    assert (
+        main(
+            [
+                "report",
+                str(estimate_file),
+                "--trajectory",
+                str(tmp_path / "k.txt"),
+                "--trajectory-format",
+                "kitti",
+            ]
+        )
+        == 0
+    )
+    assert len((tmp_path / "k.txt").read_text().splitlines()) == summary["keyframes"]
