@@ -59,6 +59,8 @@ class EstimateSummary:
     hypotheses: int
     wall_s: float
     slam_s: float
+    embed_s: float
+    """The metric view: the pose-graph optimisation and the Foxglove scene, written at the end."""
 
     @property
     def keyframes_per_second(self) -> float:
@@ -182,9 +184,11 @@ def estimate(
                     samples=counts.samples,
                     keyframes=keyframes,
                 )
+            embed_start = time.perf_counter()
             embedding = embed_run(np.array(actions).reshape(-1, 3), result.states, config)
             scene = None if embedding is None else metric_scene(embedding, result.keyframe_stamps_ns)
             writer.finish(result, metadata, run_timing, scene)
+            embed_s = time.perf_counter() - embed_start
     finally:
         hasher.cancel()
     if not result.keyframe_stamps_ns:
@@ -198,6 +202,7 @@ def estimate(
         hypotheses=len(result.hypotheses),
         wall_s=time.perf_counter() - start,
         slam_s=counts.slam_s,
+        embed_s=embed_s,
     )
 
 

@@ -94,7 +94,10 @@ def estimate(**options: Any) -> None:
         f"{summary.states} states, {summary.links} links, {summary.hypotheses} hypotheses; "
         f"{summary.keyframes_per_second:.1f} keyframes/s)"
     )
-    terminal.detail(f"SLAM step: {summary.slam_s:.3f} s of {summary.wall_s:.3f} s wall")
+    terminal.detail(
+        f"SLAM step {summary.slam_s:.3f} s, metric view (GTSAM + Foxglove scene) {summary.embed_s:.3f} s, "
+        f"of {summary.wall_s:.3f} s wall"
+    )
 
 
 _MISSING = inspect.Parameter.empty
