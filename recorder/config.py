@@ -61,6 +61,10 @@ class NoiseParams:
     wander_length_m: float = 3.0  # correlation length of the wander along the route
     model: NoiseModel = NoiseModel.DEFAULT
 
+    def __post_init__(self) -> None:
+        if not isinstance(self.model, NoiseModel) and self.model in set(NoiseModel):
+            object.__setattr__(self, "model", NoiseModel(self.model))  # "paper" → NoiseModel.PAPER
+
     def problems(self) -> list[str]:
         out = []
         for f in fields(self):
