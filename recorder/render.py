@@ -362,15 +362,9 @@ class PyrenderRenderer:
         if getattr(world, "kind", "") == "generated":
             self.scene, self._lights_xy = build_generated_scene(world, pyrender, light_panels=False)
             self._light_z = world.height_m - 0.25
-            if len(world.lights_xy):
-                for lighting in lightings:
-                    key = self._panel_key(lighting)
-                    if key not in self._panel_nodes:
-                        on, emissive = key
-                        mesh = pyrender.Mesh(
-                            primitives=light_panel_primitives(world, pyrender, on, emissive), is_visible=False
-                        )
-                        self._panel_nodes[key] = _add(self.scene, pyrender, mesh=mesh)
+            self._world = world
+            for lighting in lightings:  # built up front, in order, so node hashes are deterministic
+                self._panels_for(lighting)
         else:
             self.scene, self._lights_xy = build_file_scene(world, pyrender)
             self._light_z = camera.height_m + 0.8
@@ -419,13 +413,25 @@ class PyrenderRenderer:
             emissive = tuple(c / peak for c in lighting.colour)
         return tuple(bool(v) for v in on), emissive
 
+    def _panels_for(self, lighting: Lighting):
+        """The (hidden until used) light-panel node for ``lighting``'s on/off set and colour."""
+        if not len(self._world.lights_xy):
+            return None
+        key = self._panel_key(lighting)
+        if key not in self._panel_nodes:
+            on, emissive = key
+            primitives = light_panel_primitives(self._world, self._pyrender, on, emissive)
+            mesh = self._pyrender.Mesh(primitives=primitives, is_visible=False)
+            self._panel_nodes[key] = _add(self.scene, self._pyrender, mesh=mesh)
+        return self._panel_nodes[key]
+
     def _apply_lighting(self, lighting: Lighting) -> None:
         """Switch the scene to ``lighting`` (nothing to do when it is the current one)."""
         if lighting == self._lighting:
             return
         self._lighting = lighting
         if self._panel_nodes:
-            visible = self._panel_nodes[self._panel_key(lighting)]
+            visible = self._panels_for(lighting)
             for node in self._panel_nodes.values():
                 node.mesh.is_visible = node is visible
         if self._lights_xy is not None and len(self._lights_xy) and lighting.lights_on is not None:
@@ -463,7 +469,7 @@ class PyrenderRenderer:
 
     def render(self, pose: np.ndarray, lighting: Lighting = DEFAULT_LIGHTING) -> np.ndarray:
         """RGB uint8 image ``(height_px, width_px, 3)`` seen from SE(2) pose ``(x_m, y_m, yaw_rad)``
-        under ``lighting`` (one of those given to the constructor)."""
+        under ``lighting`` (best one of those given to the constructor, whose panels are ready)."""
         pose = np.asarray(pose, dtype=float)
         self._apply_lighting(lighting)
         self.scene.set_pose(self._camera_node, camera_matrix(pose, self.camera.height_m))
