@@ -163,6 +163,14 @@ def plan(config: RecordConfig) -> Plan:
             connected=connected,
             true_path=truth if drifting else None,
         )
+        # a pose no driven step reaches (a route that starts or ends with a kidnap) has no corridor
+        check_path_in_world(
+            world,
+            commanded,
+            actions_json,
+            connected=connected,
+            what="the route (only driven steps get corridors)",
+        )
         check_path_in_world(world, truth, actions_json, connected=connected)
         n_lights = len(world.lights_xy)
     else:

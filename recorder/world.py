@@ -552,6 +552,6 @@ def check_path_in_world(
         k = int(np.argmin(ok))
         x, y = xy[k]
         raise WorldError(
-            f"{what} leaves the generated world's free space at ({x:.2f}, {y:.2f}) m during "
-            f"{_where(int(which[k]), actions_json)}"
+            f"{what} leaves the generated world's free space at ({x:.2f}, {y:.2f}) m "
+            f"({_where(int(which[k]), actions_json)})"
         )

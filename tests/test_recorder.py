@@ -602,3 +602,14 @@ def test_every_knob_at_video_rate_is_deterministic_and_in_the_metadata(tmp_path)
     assert json.loads(meta["lighting"])["change"] == 0.7
     assert json.loads(meta["world"])["aliasing"] == 1.0
     assert {"kidnap": {"x_m": 2.0, "y_m": 1.0, "yaw_deg": -180.0}} in json.loads(meta["route"])["actions"]
+
+
+def test_a_pose_that_no_driven_step_reaches_is_refused(tmp_path, capsys):
+    """Only driven steps get corridors: a route that starts with a kidnap would start inside rock."""
+    route = _write_json(
+        tmp_path / "k.json", {"actions": [{"kidnap": {"x_m": 5, "y_m": 5}}, {"forward_m": 1}]}
+    )
+    out = tmp_path / "k.mcap"
+    assert main(["record", "--route", str(route), "--size", "32x24", "-o", str(out)]) == 2
+    err = _one_error_line(capsys)
+    assert "the route" in err and "the start pose" in err and not out.exists()
