@@ -366,6 +366,15 @@ def test_osmesa_fallback_renders_the_same_scene(tmp_path):
 PAPER_LAP = 34
 
 
+def _samples(path: Path):
+    """The recording's samples (the one place these tests read them, for an easy API change)."""
+    return iter_samples(path)
+
+
+def _metadata(path: Path) -> dict[str, str]:
+    return read_metadata(path)
+
+
 def _offsets(truth: np.ndarray, commanded: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return truth[:, :2] - commanded[:, :2], np.degrees(se2.wrap_angle(truth[:, 2] - commanded[:, 2]))
 
@@ -469,7 +478,7 @@ def test_lap_lighting_changes_every_lap_and_nothing_at_zero():
 
 
 def _lap_images(path: Path, per_lap: int) -> tuple[np.ndarray, np.ndarray]:
-    images = np.array([s.image.decode_bgr().astype(float) for s in iter_samples(path)])
+    images = np.array([s.image.decode_bgr().astype(float) for s in _samples(path)])
     return images[:per_lap], images[per_lap : 2 * per_lap]
 
 
@@ -488,7 +497,7 @@ def test_lighting_change_relights_each_lap(tmp_path):
     ]
     assert abs(math.log(brightness)) > 0.2
     assert abs(math.log(blue_red[1] / blue_red[0])) > 0.1
-    meta = json.loads(read_metadata(tmp_path / "relit.mcap")["lighting"])
+    meta = json.loads(_metadata(tmp_path / "relit.mcap")["lighting"])
     assert meta["change"] == 1.0 and len(meta["laps"]) == 2
 
 
@@ -588,14 +597,14 @@ def test_every_knob_at_video_rate_is_deterministic_and_in_the_metadata(tmp_path)
     assert main([*args, "-o", str(tmp_path / "b.mcap")]) == 0
     assert (tmp_path / "a.mcap").read_bytes() == (tmp_path / "b.mcap").read_bytes()
     n_actions = 2 * len(carried.actions)
-    samples = list(iter_samples(tmp_path / "a.mcap"))
+    samples = list(_samples(tmp_path / "a.mcap"))
     assert len(samples) == 3 * n_actions + 1
     np.testing.assert_allclose(samples[9 * 3].odometry_pose, 0.0, atol=1e-9)  # keyframe 9: reset
     # while carried (action 2), the view holds until the robot is set down
     held = [s.ground_truth_pose for s in samples[6:9]]
     np.testing.assert_allclose(held[1], held[0], atol=1e-6)
     assert np.hypot(*(samples[9].ground_truth_pose[:2] - held[0][:2])) > 0.5
-    meta = read_metadata(tmp_path / "a.mcap")
+    meta = _metadata(tmp_path / "a.mcap")
     model = json.loads(meta["noise"])
     assert model["model"] == "paper" and model["wander_m"] == 0.2 and model["odometry_reset_at"] == 9
     assert model["jitter_m"] == 0.0  # the paper model's default
