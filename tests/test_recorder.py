@@ -478,7 +478,12 @@ def test_lap_lighting_changes_every_lap_and_nothing_at_zero():
 
 
 def _lap_images(path: Path, per_lap: int) -> tuple[np.ndarray, np.ndarray]:
-    images = np.array([s.image.decode_bgr().astype(float) for s in _samples(path)])
+    import cv2
+
+    def bgr(sample) -> np.ndarray:  # the PNG as stored, in colour
+        return cv2.imdecode(np.frombuffer(sample.image.data, np.uint8), cv2.IMREAD_COLOR).astype(float)
+
+    images = np.array([bgr(s) for s in _samples(path)])
     return images[:per_lap], images[per_lap : 2 * per_lap]
 
 
