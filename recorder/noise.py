@@ -90,14 +90,6 @@ def jitter(n: int, model: NoiseParams, rng: np.random.Generator) -> np.ndarray:
     )
 
 
-def true_poses(commanded: np.ndarray, model: NoiseParams, rng: np.random.Generator) -> np.ndarray:
-    """Ground-truth keyframe poses: the commanded poses plus independent, non-accumulating jitter."""
-    commanded = np.asarray(commanded, dtype=float)
-    out = commanded + jitter(len(commanded), model, rng)
-    out[:, 2] = se2.wrap_angle(out[:, 2])
-    return out
-
-
 def arc_length(poses: np.ndarray, connected: np.ndarray | None = None) -> np.ndarray:
     """Distance driven up to each pose (a kidnap adds none)."""
     poses = np.asarray(poses, dtype=float)
