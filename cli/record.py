@@ -17,7 +17,9 @@ from aslam.cli.output import ForceOption, QuietOption, Terminal, VerboseOption
 from aslam.recorder.config import (
     DEFAULT_CAMERA_HEIGHT_M,
     DEFAULT_FOV_DEG,
+    DEFAULT_JITTER,
     CameraSpec,
+    NoiseModel,
     NoiseParams,
     RecordConfig,
     parse_size,
@@ -42,14 +44,63 @@ def record(
     drift_deg_per_m: Annotated[
         float, typer.Option(help="Odometry heading drift σ per metre driven, degrees.")
     ] = _DEFAULT_NOISE.drift_deg_per_m,
+    noise_model: Annotated[
+        NoiseModel,
+        typer.Option(
+            help="default: truth = route + jitter/wander, odometry = noisy true motion. "
+            "paper: the executed actions carry the error (it accumulates in the truth; the world is "
+            "built around the true path), odometry = the commanded actions.",
+            case_sensitive=False,
+        ),
+    ] = NoiseModel.DEFAULT,
     jitter_m: Annotated[
-        float, typer.Option(help="σ of the true x, y around the route (not accumulated), metres.")
-    ] = _DEFAULT_NOISE.jitter_m,
+        float | None,
+        typer.Option(
+            help="σ of the true x, y around the route, white (not accumulated), metres. "
+            "(default 0.05; 0 with --noise-model paper)",
+            show_default=False,
+        ),
+    ] = None,
     jitter_deg: Annotated[
-        float, typer.Option(help="σ of the true heading around the route (not accumulated), degrees.")
-    ] = _DEFAULT_NOISE.jitter_deg,
+        float | None,
+        typer.Option(
+            help="σ of the true heading around the route, white (not accumulated), degrees. "
+            "(default 1.5; 0 with --noise-model paper)",
+            show_default=False,
+        ),
+    ] = None,
+    wander_m: Annotated[
+        float,
+        typer.Option(
+            help="σ of a smooth offset of the true x, y, correlated along the route, different on "
+            "every lap (soft-limited to 0.6 m), metres."
+        ),
+    ] = _DEFAULT_NOISE.wander_m,
+    wander_deg: Annotated[
+        float, typer.Option(help="σ of a smooth true heading error, correlated along the route, degrees.")
+    ] = _DEFAULT_NOISE.wander_deg,
+    wander_length_m: Annotated[
+        float, typer.Option(help="Correlation length of the wander along the route, metres.")
+    ] = _DEFAULT_NOISE.wander_length_m,
+    odometry_reset_at: Annotated[
+        int | None,
+        typer.Option(
+            help="Odometry restarts from zero at this keyframe (the truth goes on).", show_default=False
+        ),
+    ] = None,
     aliasing: Annotated[
-        float, typer.Option(help="Fraction (0..1) of wall panels drawing from 3 shared textures.")
+        float,
+        typer.Option(
+            help="Fraction (0..1) of wall panels and floor zones drawn from a shared plain texture set; "
+            "1 = every surface shared (no doors or pictures): places differ only by layout."
+        ),
+    ] = 0.0,
+    lighting_change: Annotated[
+        float,
+        typer.Option(
+            help="0..1: each lap lit differently (intensity, colour temperature, which lights are on); "
+            "0 = the same light on every lap."
+        ),
     ] = 0.0,
     world: Annotated[
         Path | None,
@@ -76,14 +127,24 @@ def record(
 ) -> None:
     """Render an indoor walkthrough along a route into an MCAP recording (images, odometry, truth)."""
     width, height = parse_size(size)
+    default_jitter_m, default_jitter_deg = DEFAULT_JITTER[noise_model]
     config = RecordConfig(
         route=route,
         laps=laps,
         seed=seed,
         noise=NoiseParams(
-            noise=noise, drift_deg_per_m=drift_deg_per_m, jitter_m=jitter_m, jitter_deg=jitter_deg
+            noise=noise,
+            drift_deg_per_m=drift_deg_per_m,
+            jitter_m=default_jitter_m if jitter_m is None else jitter_m,
+            jitter_deg=default_jitter_deg if jitter_deg is None else jitter_deg,
+            wander_m=wander_m,
+            wander_deg=wander_deg,
+            wander_length_m=wander_length_m,
+            model=noise_model,
         ),
         aliasing=aliasing,
+        lighting_change=lighting_change,
+        odometry_reset_at=odometry_reset_at,
         world=world,
         camera=CameraSpec(width_px=width, height_px=height, fov_deg=fov_deg, height_m=camera_height_m),
         fps=fps,

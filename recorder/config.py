@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
+from enum import StrEnum
 from pathlib import Path
 
 from aslam.core.errors import ConfigError
@@ -35,6 +36,18 @@ class CameraSpec:
         return 2.0 * math.atan(math.tan(math.radians(self.fov_deg) / 2.0) * self.height_px / self.width_px)
 
 
+class NoiseModel(StrEnum):
+    """How the true path and the odometry relate (see :mod:`aslam.recorder.noise`)."""
+
+    DEFAULT = "default"  # truth = commanded route + jitter/wander; odometry = noisy true actions
+    PAPER = "paper"  # truth = noisy executed actions, accumulated; odometry = the commanded actions
+
+
+#: ``--jitter-m``/``--jitter-deg`` when not given: the default model keeps two visits of a place
+#: apart by a little; the paper's model has no jitter (its error is in the executed actions).
+DEFAULT_JITTER = {NoiseModel.DEFAULT: (0.05, 1.5), NoiseModel.PAPER: (0.0, 0.0)}
+
+
 @dataclass(frozen=True)
 class NoiseParams:
     """Parameters of :mod:`aslam.recorder.noise` (see its docstring for why the model is split)."""
@@ -43,6 +56,30 @@ class NoiseParams:
     drift_deg_per_m: float = 0.5  # σ of the heading drift per metre driven
     jitter_m: float = 0.05  # σ of the true x and y around the commanded pose (not accumulated)
     jitter_deg: float = 1.5  # σ of the true yaw around the commanded yaw (not accumulated)
+    wander_m: float = 0.0  # σ of a smooth offset of the true x and y, correlated along the route
+    wander_deg: float = 0.0  # σ of a smooth true heading error, correlated along the route
+    wander_length_m: float = 3.0  # correlation length of the wander along the route
+    model: NoiseModel = NoiseModel.DEFAULT
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.model, NoiseModel) and self.model in set(NoiseModel):
+            object.__setattr__(self, "model", NoiseModel(self.model))  # "paper" → NoiseModel.PAPER
+
+    def problems(self) -> list[str]:
+        out = []
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name == "model":
+                if not isinstance(value, NoiseModel):
+                    out.append(f"--noise-model must be one of {', '.join(m.value for m in NoiseModel)}")
+                continue
+            if not math.isfinite(value) or value < 0:
+                out.append(f"--{f.name.replace('_', '-')} must be a finite number ≥ 0, got {value}")
+        if math.isfinite(self.noise) and self.noise >= 1:
+            out.append(f"--noise is a relative error and must be < 1, got {self.noise}")
+        if math.isfinite(self.wander_length_m) and self.wander_length_m < 0.1:
+            out.append(f"--wander-length-m must be at least 0.1 m, got {self.wander_length_m}")
+        return out
 
 
 @dataclass(frozen=True)
@@ -52,6 +89,8 @@ class RecordConfig:
     ``laps=None`` means the default: 2 for a preset route (a first visit, then revisits), 1 for a
     route file.  ``fps=None`` renders one image per action (plus the initial one); ``fps=F``
     renders ``round(F)`` images per action (each action takes 1 s).  ``jpeg_quality=None`` writes PNG.
+    ``lighting_change`` (0…1) relights every lap differently; ``odometry_reset_at=K`` restarts the
+    odometry from zero at keyframe K.
     """
 
     route: str = "paper"
@@ -59,6 +98,8 @@ class RecordConfig:
     seed: int = 0
     noise: NoiseParams = field(default_factory=NoiseParams)
     aliasing: float = 0.0
+    lighting_change: float = 0.0
+    odometry_reset_at: int | None = None
     world: Path | None = None
     camera: CameraSpec = field(default_factory=CameraSpec)
     fps: float | None = None
@@ -76,13 +117,13 @@ class RecordConfig:
             out.append(f"--laps must be at least 1, got {self.laps}")
         if self.seed < 0:
             out.append(f"--seed must be ≥ 0, got {self.seed}")
-        for name, value in vars(self.noise).items():
-            if not math.isfinite(value) or value < 0:
-                out.append(f"--{name.replace('_', '-')} must be a finite number ≥ 0, got {value}")
-        if math.isfinite(self.noise.noise) and self.noise.noise >= 1:
-            out.append(f"--noise is a relative error and must be < 1, got {self.noise.noise}")
+        out.extend(self.noise.problems())
         if not (math.isfinite(self.aliasing) and 0.0 <= self.aliasing <= 1.0):
             out.append(f"--aliasing must be between 0 and 1, got {self.aliasing}")
+        if not (math.isfinite(self.lighting_change) and 0.0 <= self.lighting_change <= 1.0):
+            out.append(f"--lighting-change must be between 0 and 1, got {self.lighting_change}")
+        if self.odometry_reset_at is not None and self.odometry_reset_at < 0:
+            out.append(f"--odometry-reset-at must be a keyframe index ≥ 0, got {self.odometry_reset_at}")
         cam = self.camera
         if not (math.isfinite(cam.fov_deg) and 1.0 <= cam.fov_deg <= 170.0):
             out.append(f"--fov-deg must be between 1 and 170 degrees, got {cam.fov_deg}")

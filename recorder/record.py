@@ -21,8 +21,19 @@ from aslam.core import se2
 from aslam.core.errors import ConfigError, InputError
 from aslam.data_formats.provenance import tool_version
 from aslam.recorder import noise, routes
-from aslam.recorder.config import RecordConfig
-from aslam.recorder.world import GridWorld, SceneWorld, check_route_in_scene, generate_world, load_scene_world
+from aslam.recorder.config import NoiseModel, RecordConfig
+from aslam.recorder.lighting import DEFAULT as DEFAULT_LIGHTING
+from aslam.recorder.lighting import Lighting, lap_lighting, lighting_json
+from aslam.recorder.world import (
+    TRUE_PATH,
+    TRUE_PATH_CLEARANCE_M,
+    GridWorld,
+    SceneWorld,
+    check_path_in_world,
+    check_route_in_scene,
+    generate_world,
+    load_scene_world,
+)
 
 #: Stamps start at a fixed epoch (2020-09-13T12:26:40Z), not at 0 (which ROS tools treat as unset),
 #: and not at the wall clock (which would break byte-identical output).
@@ -36,42 +47,65 @@ Progress = Callable[[int, int], None]  # (frames done, frames total)
 
 
 class Frame(NamedTuple):
-    """One image to render: when, where it really is, where odometry says, and its keyframe."""
+    """One image to render: when, where it really is, where odometry says, its keyframe and lighting."""
 
     stamp_ns: int
     truth_pose: np.ndarray
     odometry_pose: np.ndarray
     keyframe: int | None  # index of the keyframe, None for intermediate (--fps) frames
+    lighting: Lighting = DEFAULT_LIGHTING
 
 
 @dataclass(frozen=True)
 class Plan:
-    """Everything decided before rendering: route, world, poses."""
+    """Everything decided before rendering: route, world, poses, lighting.
+
+    ``odometry`` is what ``/odom`` reports at each keyframe (after any reset);
+    ``odometry_before_reset`` is pose ``odometry_reset_at`` in the old frame, so the frames of the
+    action that leads to the reset interpolate in the frame they belong to.
+    """
 
     route: routes.Route
     world: GridWorld | SceneWorld
     truth: np.ndarray  # keyframe poses, (n, 3)
     odometry: np.ndarray  # keyframe poses, (n, 3)
     frames_per_action: int
+    lightings: tuple[Lighting, ...] = (DEFAULT_LIGHTING,)  # one per lap
+    lap_of_keyframe: np.ndarray | None = None  # (n,) lap index of each keyframe
+    odometry_reset_at: int | None = None
+    odometry_before_reset: np.ndarray | None = None
 
     @property
     def n_frames(self) -> int:
         return (len(self.truth) - 1) * self.frames_per_action + 1
 
+    def _lighting(self, k: int) -> Lighting:
+        lap = 0 if self.lap_of_keyframe is None else int(self.lap_of_keyframe[k])
+        return self.lightings[lap]
+
     def frames(self) -> Iterator[Frame]:
         n = self.frames_per_action
+        connected = self.route.connected
         for k in range(len(self.truth) - 1):
+            lighting = self._lighting(k)
+            odom_next = self.odometry[k + 1]
+            if self.odometry_reset_at == k + 1 and self.odometry_before_reset is not None:
+                odom_next = self.odometry_before_reset
             for j in range(n):
                 stamp = START_STAMP_NS + k * ACTION_DURATION_NS + j * ACTION_DURATION_NS // n
                 if j == 0:
-                    yield Frame(stamp, self.truth[k], self.odometry[k], k)
+                    yield Frame(stamp, self.truth[k], self.odometry[k], k, lighting)
+                elif not connected[k]:  # carried away: the view and odometry hold until set down
+                    yield Frame(stamp, self.truth[k], self.odometry[k], None, lighting)
                 else:
                     f = j / n
                     truth = se2.interpolate(self.truth[k], self.truth[k + 1], f)
-                    odom = se2.interpolate(self.odometry[k], self.odometry[k + 1], f)
-                    yield Frame(stamp, truth, odom, None)
+                    odom = se2.interpolate(self.odometry[k], odom_next, f)
+                    yield Frame(stamp, truth, odom, None, lighting)
         k = len(self.truth) - 1
-        yield Frame(START_STAMP_NS + k * ACTION_DURATION_NS, self.truth[k], self.odometry[k], k)
+        yield Frame(
+            START_STAMP_NS + k * ACTION_DURATION_NS, self.truth[k], self.odometry[k], k, self._lighting(k)
+        )
 
 
 @dataclass(frozen=True)
@@ -85,14 +119,27 @@ class RecordResult:
 
 
 def plan(config: RecordConfig) -> Plan:
-    """Validate the config, resolve the route, build or load the world, simulate the poses."""
+    """Validate the config, resolve the route, simulate the poses, build or load the world.
+
+    The generated world is built around the commanded path, and with ``--noise-model paper``
+    (whose truth drifts off the route) around the true path as well; either way the true path is
+    then checked to stay in free space, naming the first action that leaves it.
+    """
     config.validate()
-    route = routes.resolve_route(config.route)
+    base = routes.resolve_route(config.route)
     laps = config.laps
     if laps is None:
         laps = routes.DEFAULT_PRESET_LAPS if config.route in routes.PRESETS else 1
-    route = route.repeated(laps)
+    route = base.repeated(laps)
     commanded = route.poses()
+    connected = route.connected
+    actions_json = [a.to_json() for a in route.actions]
+    reset_at = config.odometry_reset_at
+    if reset_at is not None and reset_at >= len(commanded):
+        raise ConfigError(
+            f"--odometry-reset-at must be a keyframe of the route (0..{len(commanded) - 1}), got {reset_at}"
+        )
+    truth, odometry = noise.simulate(commanded, config.noise, config.seed, connected=connected)
     if config.world is None:
         from aslam.recorder.world import HEIGHT_M
 
@@ -101,12 +148,55 @@ def plan(config: RecordConfig) -> Plan:
                 f"--camera-height-m must be below {HEIGHT_M - 0.1:g} m in a generated world "
                 f"(ceilings are {HEIGHT_M:g} m), got {config.camera.height_m}"
             )
-        world: GridWorld | SceneWorld = generate_world(commanded, config.seed, aliasing=config.aliasing)
+        drifting = config.noise.model is NoiseModel.PAPER
+        world: GridWorld | SceneWorld = generate_world(
+            commanded,
+            config.seed,
+            aliasing=config.aliasing,
+            connected=connected,
+            true_path=truth if drifting else None,
+        )
+        # a pose no driven step reaches (a route that starts or ends with a kidnap) has no corridor
+        check_path_in_world(
+            world,
+            commanded,
+            actions_json,
+            connected=connected,
+            what="the route (only driven steps get corridors)",
+        )
+        check_path_in_world(world, truth, actions_json, connected=connected)
+        n_lights = len(world.lights_xy)
     else:
         world = load_scene_world(config.world)
-        check_route_in_scene(world, commanded, [a.to_json() for a in route.actions], config.camera.height_m)
-    truth, odometry = noise.simulate(commanded, config.noise, config.seed)
-    return Plan(route, world, truth, odometry, config.frames_per_action)
+        check_route_in_scene(world, commanded, actions_json, config.camera.height_m, connected=connected)
+        check_route_in_scene(
+            world,
+            truth,
+            actions_json,
+            config.camera.height_m,
+            clearance_m=TRUE_PATH_CLEARANCE_M,
+            connected=connected,
+            what=TRUE_PATH,
+        )
+        n_lights = 0
+    before_reset = None
+    if reset_at is not None:
+        before_reset = odometry[reset_at].copy()
+        odometry = noise.reset_odometry(odometry, reset_at)
+    per_lap = len(base.actions)
+    lap_of_keyframe = np.minimum(np.arange(len(commanded)) // per_lap, laps - 1)
+    lightings = lap_lighting(config.lighting_change, laps, n_lights, config.seed)
+    return Plan(
+        route,
+        world,
+        truth,
+        odometry,
+        config.frames_per_action,
+        lightings=lightings,
+        lap_of_keyframe=lap_of_keyframe,
+        odometry_reset_at=reset_at,
+        odometry_before_reset=before_reset,
+    )
 
 
 def metadata(config: RecordConfig, p: Plan) -> dict[str, str]:
@@ -115,7 +205,8 @@ def metadata(config: RecordConfig, p: Plan) -> dict[str, str]:
         "world": p.world.describe(),
         "seed": str(config.seed),
         "route": p.route.to_json(),
-        "noise": noise.noise_json(config.noise),
+        "noise": noise.noise_json(config.noise, odometry_reset_at=config.odometry_reset_at),
+        "lighting": lighting_json(config.lighting_change, p.lightings),
         "camera": json.dumps(camera, separators=(",", ":")),
         "tool_version": tool_version(),
     }
@@ -148,7 +239,7 @@ def record(
     sheet_keys = set(_sheet_keyframes(len(p.truth)))
     sheet: list[tuple[int, np.ndarray]] = []
 
-    with PyrenderRenderer(p.world, cam) as renderer:
+    with PyrenderRenderer(p.world, cam, p.lightings) as renderer:
         loop_start = time.perf_counter()
         with (
             RecordingWriter(output, camera=intrinsics, metadata=metadata(config, p), force=force) as writer,
@@ -164,7 +255,7 @@ def record(
             done = 0
             try:
                 for frame in p.frames():
-                    rgb = renderer.render(frame.truth_pose)
+                    rgb = renderer.render(frame.truth_pose, frame.lighting)
                     if frame.keyframe in sheet_keys:
                         sheet.append((frame.keyframe, rgb))
                     pending.append(pool.submit(encode_and_write, frame, rgb))

@@ -8,7 +8,11 @@ platform must be chosen before PyOpenGL is first imported, so :func:`select_plat
 The scene is kept light for speed: all wall panels share one texture atlas and one draw call, the
 floor is one draw call per floor texture, the ceiling, light panels and door frames one each.  Four
 point lights (pyrender's per-pass cap per light type) follow the camera: each frame they sit at the
-four ceiling light panels nearest the camera, so a place is lit the same way on every visit.
+four ceiling light panels nearest the camera, so a place is lit the same way on every visit —
+unless a per-lap :class:`~aslam.recorder.lighting.Lighting` says otherwise (``--lighting-change``):
+then the lights' intensity and colour change, and the point lights sit at the nearest panels that
+are *on* (off panels do not glow: each distinct on/off set has its own panel mesh, and only the
+current one is visible).
 """
 
 from __future__ import annotations
@@ -16,11 +20,15 @@ from __future__ import annotations
 import ctypes.util
 import math
 import os
+from collections.abc import Sequence
 
 import numpy as np
 
 from aslam.recorder.config import CameraSpec
 from aslam.recorder.errors import RenderError
+from aslam.recorder.lighting import DEFAULT as DEFAULT_LIGHTING
+from aslam.recorder.lighting import DEFAULT_COLOUR, Lighting
+from aslam.recorder.world import LIGHT_SIZE_M
 
 ATLAS_WIDTH = 2048
 ATLAS_PAD = 2
@@ -214,8 +222,42 @@ def _add(scene, pyrender, *, pose=None, **what):
     return node
 
 
-def build_generated_scene(world, pyrender):
-    """pyrender.Scene of a :class:`~aslam.recorder.world.GridWorld`; returns (scene, light positions)."""
+def light_panel_primitives(world, pyrender, on=None, emissive=(1.0, 1.0, 1.0)):
+    """Ceiling light panels: glowing where ``on`` (default: all), plain grey where off."""
+    on = np.ones(len(world.lights_xy), dtype=bool) if on is None else np.asarray(on, dtype=bool)
+    h = world.height_m
+    out = []
+    for lit in (True, False):
+        mask = on if lit else ~on
+        if not mask.any():
+            continue
+        half = 0.5 * LIGHT_SIZE_M
+        lx, ly = world.lights_xy[mask, 0], world.lights_xy[mask, 1]
+        z = np.full_like(lx, h - 0.01)
+        c = np.stack(
+            [
+                np.stack([lx - half, ly - half, z], -1),
+                np.stack([lx - half, ly + half, z], -1),
+                np.stack([lx + half, ly + half, z], -1),
+                np.stack([lx + half, ly - half, z], -1),
+            ],
+            axis=1,
+        )
+        glow = np.full((8, 8, 3), 255 if lit else 150, np.uint8)
+        glow[0, :] = glow[-1, :] = glow[:, 0] = glow[:, -1] = 170 if lit else 110  # a darker rim
+        uv = np.tile([[0.0, 0.0], [0.0, 1.0], [1.0, 1.0], [1.0, 0.0]], (len(lx), 1, 1))
+        material = _textured(pyrender, glow, emissive=1.0)
+        material.emissiveFactor = np.asarray(emissive if lit else (0.0, 0.0, 0.0), dtype=float)
+        out.append(_primitive(pyrender, _quads(c, np.tile([0.0, 0.0, -1.0], (len(lx), 1)), uv), material))
+    return out
+
+
+def build_generated_scene(world, pyrender, *, light_panels: bool = True):
+    """pyrender.Scene of a :class:`~aslam.recorder.world.GridWorld`; returns (scene, light positions).
+
+    ``light_panels=False`` leaves the ceiling light panels out (the renderer adds one set per
+    lighting, see :class:`PyrenderRenderer`).
+    """
     scene = pyrender.Scene(ambient_light=(AMBIENT, AMBIENT, AMBIENT), bg_color=(0, 0, 0))
     atlas, rects = _atlas(world.wall_textures)
     corners, normals, uvs = [], [], []
@@ -242,29 +284,8 @@ def build_generated_scene(world, pyrender):
             pyrender, _cell_quads(world, world.free, h, False), _textured(pyrender, world.ceiling_texture)
         )
     )
-    if len(world.lights_xy):
-        half = 0.5 * 0.6
-        lx, ly = world.lights_xy[:, 0], world.lights_xy[:, 1]
-        z = np.full_like(lx, h - 0.01)
-        c = np.stack(
-            [
-                np.stack([lx - half, ly - half, z], -1),
-                np.stack([lx - half, ly + half, z], -1),
-                np.stack([lx + half, ly + half, z], -1),
-                np.stack([lx + half, ly - half, z], -1),
-            ],
-            axis=1,
-        )
-        glow = np.full((8, 8, 3), 255, np.uint8)
-        glow[0, :] = glow[-1, :] = glow[:, 0] = glow[:, -1] = 170  # a darker rim
-        uv = np.tile([[0.0, 0.0], [0.0, 1.0], [1.0, 1.0], [1.0, 0.0]], (len(lx), 1, 1))
-        primitives.append(
-            _primitive(
-                pyrender,
-                _quads(c, np.tile([0.0, 0.0, -1.0], (len(lx), 1)), uv),
-                _textured(pyrender, glow, emissive=1.0),
-            )
-        )
+    if light_panels and len(world.lights_xy):
+        primitives.extend(light_panel_primitives(world, pyrender))
     _add(scene, pyrender, mesh=pyrender.Mesh(primitives=primitives))
     if world.door_frames:
         _add(scene, pyrender, mesh=_door_frames_mesh(world.door_frames, pyrender))
@@ -325,7 +346,9 @@ def build_file_scene(world, pyrender):
 class PyrenderRenderer:
     """Renders SE(2) camera poses of one world into RGB images, in this process."""
 
-    def __init__(self, world, camera: CameraSpec) -> None:
+    def __init__(
+        self, world, camera: CameraSpec, lightings: Sequence[Lighting] = (DEFAULT_LIGHTING,)
+    ) -> None:
         select_platform()
         try:
             import pyrender
@@ -336,12 +359,20 @@ class PyrenderRenderer:
             ) from err
         self._pyrender = pyrender
         self.camera = camera
+        self._panel_nodes: dict[tuple, object] = {}
         if getattr(world, "kind", "") == "generated":
-            self.scene, self._lights_xy = build_generated_scene(world, pyrender)
+            self.scene, self._lights_xy = build_generated_scene(world, pyrender, light_panels=False)
             self._light_z = world.height_m - 0.25
+            self._world = world
+            for lighting in lightings:  # built up front, in order, so node hashes are deterministic
+                self._panels_for(lighting)
         else:
             self.scene, self._lights_xy = build_file_scene(world, pyrender)
             self._light_z = camera.height_m + 0.8
+        self._ambient = np.array(self.scene.ambient_light, dtype=float)
+        self._lighting: Lighting | None = None
+        self._on_xy = self._lights_xy
+        self._intensity = LIGHT_INTENSITY
         cam = pyrender.PerspectiveCamera(
             yfov=camera.yfov_rad, aspectRatio=camera.width_px / camera.height_px, znear=0.05, zfar=80.0
         )
@@ -373,6 +404,53 @@ class PyrenderRenderer:
             ) from err
         self._flags = pyrender.RenderFlags.NONE
 
+    def _panel_key(self, lighting: Lighting) -> tuple:
+        n = 0 if self._lights_xy is None else len(self._lights_xy)
+        on = lighting.lights_on if lighting.lights_on is not None else (True,) * n
+        if lighting.is_default:
+            emissive = (1.0, 1.0, 1.0)
+        else:
+            peak = max(lighting.colour)
+            emissive = tuple(c / peak for c in lighting.colour)
+        return tuple(bool(v) for v in on), emissive
+
+    def _panels_for(self, lighting: Lighting):
+        """The (hidden until used) light-panel node for ``lighting``'s on/off set and colour."""
+        if not len(self._world.lights_xy):
+            return None
+        key = self._panel_key(lighting)
+        if key not in self._panel_nodes:
+            on, emissive = key
+            primitives = light_panel_primitives(self._world, self._pyrender, on, emissive)
+            mesh = self._pyrender.Mesh(primitives=primitives, is_visible=False)
+            self._panel_nodes[key] = _add(self.scene, self._pyrender, mesh=mesh)
+        return self._panel_nodes[key]
+
+    def _apply_lighting(self, lighting: Lighting) -> None:
+        """Switch the scene to ``lighting`` (nothing to do when it is the current one)."""
+        if lighting == self._lighting:
+            return
+        self._lighting = lighting
+        if self._panel_nodes:
+            visible = self._panels_for(lighting)
+            for node in self._panel_nodes.values():
+                node.mesh.is_visible = node is visible
+        if self._lights_xy is not None and len(self._lights_xy) and lighting.lights_on is not None:
+            self._on_xy = self._lights_xy[np.asarray(lighting.lights_on, dtype=bool)]
+        else:
+            self._on_xy = self._lights_xy
+        if lighting.is_default:
+            self.scene.ambient_light = self._ambient
+            colour, intensity = DEFAULT_COLOUR, LIGHT_INTENSITY
+        else:
+            tint = np.asarray(lighting.colour) / np.asarray(DEFAULT_COLOUR)
+            self.scene.ambient_light = self._ambient * lighting.intensity * tint
+            colour, intensity = lighting.colour, LIGHT_INTENSITY * lighting.intensity
+        self._intensity = intensity
+        for node in self._light_nodes:
+            node.light.color = np.asarray(colour, dtype=float)
+            node.light.intensity = intensity
+
     def _place_lights(self, pose: np.ndarray) -> None:
         if self._lights_xy is None or not len(self._lights_xy):
             m = np.eye(4)
@@ -380,16 +458,21 @@ class PyrenderRenderer:
             for node in self._light_nodes:
                 self.scene.set_pose(node, m)
             return
-        d2 = np.sum((self._lights_xy - pose[:2]) ** 2, axis=1)
+        d2 = np.sum((self._on_xy - pose[:2]) ** 2, axis=1)
         nearest = np.argsort(d2, kind="stable")[: len(self._light_nodes)]
-        for node, k in zip(self._light_nodes, nearest, strict=False):
-            m = np.eye(4)
-            m[:3, 3] = (*self._lights_xy[k], self._light_z)
-            self.scene.set_pose(node, m)
+        for n, node in enumerate(self._light_nodes):
+            # fewer lights on than point lights: the spare ones go dark
+            node.light.intensity = self._intensity if n < len(nearest) else 0.0
+            if n < len(nearest):
+                m = np.eye(4)
+                m[:3, 3] = (*self._on_xy[nearest[n]], self._light_z)
+                self.scene.set_pose(node, m)
 
-    def render(self, pose: np.ndarray) -> np.ndarray:
-        """RGB uint8 image ``(height_px, width_px, 3)`` seen from SE(2) pose ``(x_m, y_m, yaw_rad)``."""
+    def render(self, pose: np.ndarray, lighting: Lighting = DEFAULT_LIGHTING) -> np.ndarray:
+        """RGB uint8 image ``(height_px, width_px, 3)`` seen from SE(2) pose ``(x_m, y_m, yaw_rad)``
+        under ``lighting`` (best one of those given to the constructor, whose panels are ready)."""
         pose = np.asarray(pose, dtype=float)
+        self._apply_lighting(lighting)
         self.scene.set_pose(self._camera_node, camera_matrix(pose, self.camera.height_m))
         self._place_lights(pose)
         color, _ = self._renderer.render(self.scene, flags=self._flags)

@@ -1,13 +1,17 @@
-"""Routes: a start pose and a list of actions (``forward_m`` or ``turn_deg``), from presets or JSON.
+"""Routes: a start pose and actions (``forward_m``, ``turn_deg``, ``kidnap``), from presets or JSON.
 
 A route is what the robot is *commanded* to do.  The ground truth follows the commanded poses
 (plus a small non-accumulating jitter, see :mod:`aslam.recorder.noise`), so a closed route really
 comes back to the places it has seen.
 
+A ``kidnap`` action carries the robot to an absolute pose: the ground truth jumps there, the
+odometry sees no motion (the "kidnapped robot" test of relocalisation).
+
 JSON form (angles in degrees, CCW positive; distances in metres)::
 
     {"start": {"x_m": 0, "y_m": 0, "yaw_deg": 0},
-     "actions": [{"forward_m": 1.0}, {"turn_deg": 90}]}
+     "actions": [{"forward_m": 1.0}, {"turn_deg": 90},
+                 {"kidnap": {"x_m": 4, "y_m": 5, "yaw_deg": 180}}]}
 """
 
 from __future__ import annotations
@@ -33,17 +37,32 @@ MAX_FORWARD_M = 1000.0
 
 
 class Action(NamedTuple):
-    """One commanded action: drive ``forward_m`` metres, or turn ``turn_rad`` in place (CCW +)."""
+    """One commanded action: drive ``forward_m`` metres, turn ``turn_rad`` in place (CCW +), or be
+    carried to the absolute pose ``kidnap_to`` ``(x_m, y_m, yaw_rad)`` (odometry sees nothing)."""
 
     forward_m: float = 0.0
     turn_rad: float = 0.0
+    kidnap_to: tuple[float, float, float] | None = None
+
+    @property
+    def is_kidnap(self) -> bool:
+        return self.kidnap_to is not None
 
     @property
     def motion(self) -> np.ndarray:
-        """The action as an SE(2) motion in the robot's frame."""
+        """The action as an SE(2) motion in the robot's frame (a kidnap has none: see ``apply``)."""
         return np.array([self.forward_m, 0.0, self.turn_rad])
 
-    def to_json(self) -> dict[str, float]:
+    def apply(self, pose: np.ndarray) -> np.ndarray:
+        """The commanded pose after this action, from ``pose``."""
+        if self.kidnap_to is not None:
+            return np.array(self.kidnap_to, dtype=float)
+        return se2.compose(pose, self.motion)
+
+    def to_json(self) -> dict[str, Any]:
+        if self.kidnap_to is not None:
+            x, y, yaw = self.kidnap_to
+            return {"kidnap": {"x_m": x, "y_m": y, "yaw_deg": round(math.degrees(yaw), 9)}}
         if self.turn_rad != 0.0 or self.forward_m == 0.0:
             return {"turn_deg": round(math.degrees(self.turn_rad), 9)}
         return {"forward_m": self.forward_m}
@@ -62,8 +81,13 @@ class Route:
         out = np.empty((len(self.actions) + 1, 3))
         out[0] = self.start_pose
         for i, action in enumerate(self.actions):
-            out[i + 1] = se2.compose(out[i], action.motion)
+            out[i + 1] = action.apply(out[i])
         return out
+
+    @property
+    def connected(self) -> np.ndarray:
+        """Per action, whether the robot drives from its pose to the next (False for a kidnap)."""
+        return np.array([not a.is_kidnap for a in self.actions], dtype=bool)
 
     @property
     def is_closed(self) -> bool:
@@ -101,6 +125,22 @@ class Route:
             "actions": [a.to_json() for a in self.actions],
         }
         return json.dumps(doc, separators=(",", ":"))
+
+
+def kidnapped(route: Route, at_keyframe: int, to_keyframe: int) -> Route:
+    """``route`` driven up to keyframe ``at_keyframe``, then carried to the commanded pose of keyframe
+    ``to_keyframe`` and driven on from there to the end (for relocalisation tests and benchmarks).
+
+    E.g. ``kidnapped(preset("paper").repeated(2), 44, 20)``: lap 1, ten metres of lap 2, then carried
+    back to keyframe 20's corridor and driven on to the end of the route.
+    """
+    n = len(route.actions)
+    if not (0 <= at_keyframe <= n and 0 <= to_keyframe <= n):
+        raise RouteError(f"kidnap keyframes must be within 0..{n}, got {at_keyframe} and {to_keyframe}")
+    x, y, yaw = (float(v) for v in route.poses()[to_keyframe])
+    kidnap = Action(kidnap_to=(x, y, yaw))
+    actions = (*route.actions[:at_keyframe], kidnap, *route.actions[to_keyframe:])
+    return Route(f"{route.name}-kidnap-{at_keyframe}-to-{to_keyframe}", route.start_pose, actions)
 
 
 # --------------------------------------------------------------------------------------- presets
@@ -173,6 +213,27 @@ def _number(value: Any) -> float | None:
     return value if math.isfinite(value) else None
 
 
+def _pose(doc: Any, where: str, problems: list[str]) -> tuple[float, float, float] | None:
+    """``{x_m, y_m, yaw_deg}`` (each defaulting to 0) → ``(x_m, y_m, yaw_rad)``; problems appended."""
+    if not isinstance(doc, dict):
+        problems.append(f"'{where}' must be an object {{x_m, y_m, yaw_deg}}, got {json.dumps(doc)}")
+        return None
+    values = []
+    ok = True
+    for key in ("x_m", "y_m", "yaw_deg"):
+        value = _number(doc.get(key, 0.0))
+        if value is None:
+            problems.append(f"{where}.{key} must be a finite number, got {doc.get(key)!r}")
+            ok = False
+            value = 0.0
+        values.append(value)
+    extra = sorted(set(doc) - {"x_m", "y_m", "yaw_deg"})
+    if extra:
+        problems.append(f"{where} has unknown key(s) {', '.join(map(repr, extra))}")
+        ok = False
+    return (values[0], values[1], float(se2.wrap_angle(math.radians(values[2])))) if ok else None
+
+
 def parse_route(doc: Any, *, name: str = "route", path: Path | str | None = None) -> Route:
     """Validate a decoded route document; raise :class:`RouteError` naming the first bad entry.
 
@@ -184,31 +245,21 @@ def parse_route(doc: Any, *, name: str = "route", path: Path | str | None = None
     unknown = sorted(set(doc) - {"start", "actions", "name"})
     if unknown:
         problems.append(f"unknown key(s) {', '.join(map(repr, unknown))} (expected 'start', 'actions')")
-    start = doc.get("start", {"x_m": 0, "y_m": 0, "yaw_deg": 0})
-    start_pose = (0.0, 0.0, 0.0)
-    if not isinstance(start, dict):
-        problems.append("'start' must be an object {x_m, y_m, yaw_deg}")
-    else:
-        values = []
-        for key in ("x_m", "y_m", "yaw_deg"):
-            value = _number(start.get(key, 0.0))
-            if value is None:
-                problems.append(f"start.{key} must be a finite number, got {start.get(key)!r}")
-                value = 0.0
-            values.append(value)
-        extra = sorted(set(start) - {"x_m", "y_m", "yaw_deg"})
-        if extra:
-            problems.append(f"start has unknown key(s) {', '.join(map(repr, extra))}")
-        start_pose = (values[0], values[1], float(se2.wrap_angle(math.radians(values[2]))))
+    start_pose = _pose(doc.get("start", {"x_m": 0, "y_m": 0, "yaw_deg": 0}), "start", problems)
+    start_pose = start_pose or (0.0, 0.0, 0.0)
     actions_doc = doc.get("actions")
     actions: list[Action] = []
     if not isinstance(actions_doc, list) or not actions_doc:
-        problems.append("'actions' must be a non-empty list of {forward_m: d} or {turn_deg: a}")
+        problems.append(
+            "'actions' must be a non-empty list of {forward_m: d}, {turn_deg: a} or {kidnap: pose}"
+        )
         actions_doc = []
     for i, entry in enumerate(actions_doc):
         where = f"actions[{i}]"
         if not isinstance(entry, dict) or len(entry) != 1:
-            problems.append(f"{where} = {json.dumps(entry)}: expected exactly one of forward_m or turn_deg")
+            problems.append(
+                f"{where} = {json.dumps(entry)}: expected exactly one of forward_m, turn_deg or kidnap"
+            )
             continue
         (key, raw), value = next(iter(entry.items())), _number(next(iter(entry.values())))
         if key == "forward_m":
@@ -221,8 +272,12 @@ def parse_route(doc: Any, *, name: str = "route", path: Path | str | None = None
                 problems.append(f"{where}: turn_deg must be a finite number, got {raw!r}")
                 continue
             actions.append(Action(turn_rad=math.radians(value)))
+        elif key == "kidnap":
+            pose = _pose(raw, f"{where}: kidnap", problems)
+            if pose is not None:
+                actions.append(Action(kidnap_to=pose))
         else:
-            problems.append(f"{where}: unknown action {key!r} (expected forward_m or turn_deg)")
+            problems.append(f"{where}: unknown action {key!r} (expected forward_m, turn_deg or kidnap)")
     if problems:
         more = f" (and {len(problems) - 1} more problem(s))" if len(problems) > 1 else ""
         raise RouteError(problems[0] + more, path=path)

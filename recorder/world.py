@@ -13,8 +13,13 @@
    panels are placed every few metres along the path.
 
 ``aliasing`` (0…1) is the fraction of wall panels whose texture is drawn from a small shared set
-(:data:`N_SHARED_TEXTURES`), so that distinct places look alike.  The aliasing draw uses its own
-random stream, so changing it does not change the rest of the world.
+(:data:`N_SHARED_TEXTURES` plain wallpapers: no door, poster or painting) and the fraction of floor
+zones that take the one shared floor texture, so that distinct places look alike.  At 1 every
+surface comes from the shared set (no doors, no pictures, one floor): places differ only by the
+layout — corridors, junctions, alcoves, lights.  The aliasing draws use their own random stream,
+so changing the value does not change the rest of the world.
+
+A kidnap (``connected[i]`` False) is not a path: no corridor is carved along it.
 
 **Scene files** (:func:`load_scene_world`): any ``.glb``, ``.gltf`` or ``.obj`` trimesh can load,
 in metres with +z up and the floor at z = 0 (the frame of the route).  Before anything is rendered
@@ -135,11 +140,15 @@ def _segment_distance(px: np.ndarray, py: np.ndarray, a: np.ndarray, b: np.ndarr
     return np.hypot(px - (a[0] + t * d[0]), py - (a[1] + t * d[1]))
 
 
-def _unique_segments(points: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Path segments with repeats (later laps, reverse drives) removed."""
+def _unique_segments(
+    points: np.ndarray, connected: np.ndarray | None = None
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Path segments with repeats (later laps, reverse drives) and kidnaps removed."""
     seen: set[tuple] = set()
     out = []
-    for a, b in itertools.pairwise(points):
+    for i, (a, b) in enumerate(itertools.pairwise(points)):
+        if connected is not None and not connected[i]:
+            continue
         key = tuple(np.round(np.concatenate([a, b]), 6))
         rkey = tuple(np.round(np.concatenate([b, a]), 6))
         if key in seen or rkey in seen:
@@ -204,9 +213,12 @@ def _cut(length: int, rng: np.random.Generator) -> list[int]:
 
 
 def _panel_texture(
-    rng: np.random.Generator, length_m: float, height_m: float
+    rng: np.random.Generator, length_m: float, height_m: float, *, decorated: bool = True
 ) -> tuple[np.ndarray, float | None]:
-    """A wall panel's texture; returns it and the door's left edge in metres (None: no door)."""
+    """A wall panel's texture; returns it and the door's left edge in metres (None: no door).
+
+    ``decorated=False`` gives the plain wallpaper (with its baseboard) and never a door or picture.
+    """
     w = max(8, round(length_m * tex.PX_PER_M))
     h = round(height_m * tex.PX_PER_M)
     gen = tex.WALLPAPERS[int(rng.integers(len(tex.WALLPAPERS)))]
@@ -216,6 +228,8 @@ def _panel_texture(
     img[h - base_h :] = board.astype(np.uint8)
     img[h - base_h] = (board * 0.6).astype(np.uint8)
     door_at = None
+    if not decorated:
+        return img, None
     roll = rng.random()
     if length_m >= 1.4 and roll < 0.22:
         dw, dh = round(DOOR_WIDTH_M * tex.PX_PER_M), round(DOOR_HEIGHT_M * tex.PX_PER_M)
@@ -240,29 +254,50 @@ def _panel_texture(
     return img, door_at
 
 
-def generate_world(commanded: np.ndarray, seed: int, *, aliasing: float = 0.0) -> GridWorld:
-    """Build a world around the commanded path (see the module docstring), deterministic per seed."""
+def generate_world(
+    commanded: np.ndarray,
+    seed: int,
+    *,
+    aliasing: float = 0.0,
+    connected: np.ndarray | None = None,
+    true_path: np.ndarray | None = None,
+) -> GridWorld:
+    """Build a world around the commanded path (see the module docstring), deterministic per seed.
+
+    ``connected[i]`` is False where action ``i`` is a kidnap.  ``true_path`` (when the truth drifts
+    off the route, ``--noise-model paper``) gets a corridor of its own too, so the camera stays in
+    free space; alcoves and lights still follow the commanded path, so their density does not
+    depend on the noise.
+    """
     rng = np.random.default_rng([seed, 0])
     alias_rng = np.random.default_rng([seed, 2])
     points = np.asarray(commanded, dtype=float)[:, :2]
+    extra = None if true_path is None else np.asarray(true_path, dtype=float)[:, :2]
+    everything = points if extra is None else np.concatenate([points, extra])
     cell = CELL_M
     margin = CORRIDOR_HALF_WIDTH_M + 3.5 + 2 * cell
-    lo = np.floor((points.min(axis=0) - margin) / cell) * cell
-    hi = np.ceil((points.max(axis=0) + margin) / cell) * cell
+    lo = np.floor((everything.min(axis=0) - margin) / cell) * cell
+    hi = np.ceil((everything.max(axis=0) + margin) / cell) * cell
     nx, ny = (np.round((hi - lo) / cell)).astype(int)
     cx = lo[0] + (np.arange(nx) + 0.5) * cell
     cy = lo[1] + (np.arange(ny) + 0.5) * cell
     centres_x, centres_y = np.meshgrid(cx, cy)
-    segments = _unique_segments(points)
+    segments = _unique_segments(points, connected)
     free = np.zeros((ny, nx), dtype=bool)
-    for a, b in segments or [(points[0], points[0])]:
+    corridors = segments or [(points[0], points[0])]
+    if extra is not None:
+        corridors = corridors + _unique_segments(extra, connected)
+    for a, b in corridors:
         free |= _segment_distance(centres_x, centres_y, a, b) <= CORRIDOR_HALF_WIDTH_M
     n_alcoves = _carve_alcoves(free, centres_x, centres_y, segments, rng, cell)
     # keep a solid border so every free cell is enclosed
     free[:1] = free[-1:] = False
     free[:, :1] = free[:, -1:] = False
 
-    shared = [_panel_texture(alias_rng, PANEL_CELLS[1] * cell, HEIGHT_M)[0] for _ in range(N_SHARED_TEXTURES)]
+    shared = [
+        _panel_texture(alias_rng, PANEL_CELLS[1] * cell, HEIGHT_M, decorated=False)[0]
+        for _ in range(N_SHARED_TEXTURES)
+    ]
     wall_textures: list[np.ndarray] = list(shared)
     panels: list[Panel] = []
     doors = []
@@ -309,6 +344,8 @@ def generate_world(commanded: np.ndarray, seed: int, *, aliasing: float = 0.0) -
     zones_x = np.floor((centres_x - lo[0]) / FLOOR_ZONE_M).astype(int)
     zones_y = np.floor((centres_y - lo[1]) / FLOOR_ZONE_M).astype(int)
     zone_choice = rng.integers(N_FLOOR_TEXTURES, size=(zones_y.max() + 1, zones_x.max() + 1))
+    # aliased zones take the shared floor texture (index 0)
+    zone_choice = np.where(alias_rng.random(zone_choice.shape) < aliasing, 0, zone_choice)
     floor_zone = zone_choice[zones_y, zones_x]
     floor_textures = [tex.floor_texture(rng) for _ in range(N_FLOOR_TEXTURES)]
     ceiling = tex.ceiling_texture(rng)
@@ -416,6 +453,20 @@ def ray_distance(triangles: np.ndarray, origin: np.ndarray, direction: np.ndarra
     return float(t[hit].min()) if hit.any() else math.inf
 
 
+def _where(i: int, actions_json: list[dict]) -> str:
+    if i == 0:
+        return "the start pose"
+    return f"action {i - 1} ({json.dumps(actions_json[i - 1])})"
+
+
+#: What a true path that leaves free space is blamed on, in the error message.
+TRUE_PATH = "the true path (--jitter-m, --wander-m, --noise-model)"
+#: Clearance of the true path from walls: beyond the camera's near clip plane (0.05 m).
+TRUE_PATH_CLEARANCE_M = 0.06
+#: Clearance of the true path from the walls of a generated world (its corridors are 2 m wide).
+GENERATED_CLEARANCE_M = 0.1
+
+
 def check_route_in_scene(
     world: SceneWorld,
     commanded: np.ndarray,
@@ -423,21 +474,20 @@ def check_route_in_scene(
     camera_height_m: float,
     *,
     clearance_m: float = 0.15,
+    connected: np.ndarray | None = None,
+    what: str = "route",
 ) -> None:
     """Refuse a route that leaves free space: raise :class:`WorldError` naming the first bad action.
 
-    Each forward segment at camera height is ray-tested against the mesh (plus ``clearance_m`` so
+    Each driven segment at camera height is ray-tested against the mesh (plus ``clearance_m`` so
     the jittered true pose and the near clip plane stay clear), and every pose needs floor below.
+    A kidnap (``connected[i]`` False) is not driven, so it is not ray-tested.  ``what`` names the
+    path in the message (the commanded route, or the true path with :data:`TRUE_PATH`).
     """
     triangles = np.asarray(world.mesh.triangles, dtype=float)
     points = np.asarray(commanded, dtype=float)
     origins = np.column_stack([points[:, :2], np.full(len(points), camera_height_m)])
     checked: set[tuple] = set()
-
-    def where(i: int) -> str:
-        if i == 0:
-            return "the start pose"
-        return f"action {i - 1} ({json.dumps(actions_json[i - 1])})"
 
     down = np.array([0.0, 0.0, -1.0])
     for i in range(len(points)):
@@ -445,19 +495,63 @@ def check_route_in_scene(
         if key in checked:  # later laps repeat the same segments
             continue
         checked.add(key)
-        d = origins[i] - origins[i - 1] if i > 0 else np.zeros(3)
+        driven = i > 0 and (connected is None or bool(connected[i - 1]))
+        d = origins[i] - origins[i - 1] if driven else np.zeros(3)
         length = float(np.linalg.norm(d))
         if length > 1e-9:
             dist = ray_distance(triangles, origins[i - 1], d / length)
             if dist <= length + clearance_m:
                 x, y = (origins[i - 1] + d / length * dist)[:2]
                 raise WorldError(
-                    f"route crosses the scene's geometry at ({x:.2f}, {y:.2f}) m during {where(i)}",
+                    f"{what} crosses the scene's geometry at ({x:.2f}, {y:.2f}) m during "
+                    f"{_where(i, actions_json)}",
                     path=world.path,
                 )
         if not math.isfinite(ray_distance(triangles, origins[i], down)):
             x, y = points[i, :2]
             raise WorldError(
-                f"route leaves the scene: no floor below ({x:.2f}, {y:.2f}) m after {where(i)}",
+                f"{what} leaves the scene: no floor below ({x:.2f}, {y:.2f}) m after "
+                f"{_where(i, actions_json)}",
                 path=world.path,
             )
+
+
+def check_path_in_world(
+    world: GridWorld,
+    poses: np.ndarray,
+    actions_json: list[dict],
+    *,
+    connected: np.ndarray | None = None,
+    clearance_m: float = GENERATED_CLEARANCE_M,
+    what: str = TRUE_PATH,
+) -> None:
+    """Refuse a path that leaves a generated world's free space (:class:`WorldError`, first bad action).
+
+    Every pose, and points every 5 cm along each driven step, need free cells at ``clearance_m`` in
+    eight directions around them.
+    """
+    points = np.asarray(poses, dtype=float)[:, :2]
+    samples = [points[:1]]
+    index = [np.zeros(1, dtype=int)]
+    for i in range(1, len(points)):
+        if connected is not None and not connected[i - 1]:
+            samples.append(points[i : i + 1])
+            index.append(np.array([i]))
+            continue
+        n = max(1, math.ceil(float(np.hypot(*(points[i] - points[i - 1]))) / 0.05))
+        t = np.arange(1, n + 1)[:, None] / n
+        samples.append(points[i - 1] + (points[i] - points[i - 1]) * t)
+        index.append(np.full(n, i))
+    xy = np.concatenate(samples)
+    which = np.concatenate(index)
+    angles = np.arange(8) * (math.pi / 4)
+    ring = np.concatenate([[[0.0, 0.0]], clearance_m * np.column_stack([np.cos(angles), np.sin(angles)])])
+    probe = xy[:, None, :] + ring[None, :, :]
+    ok = world.is_free(probe[..., 0], probe[..., 1]).all(axis=1)
+    if not ok.all():
+        k = int(np.argmin(ok))
+        x, y = xy[k]
+        raise WorldError(
+            f"{what} leaves the generated world's free space at ({x:.2f}, {y:.2f}) m "
+            f"({_where(int(which[k]), actions_json)})"
+        )

@@ -6,6 +6,7 @@ Real rendering at 64×48 on short routes, so the whole file takes a few seconds.
 from __future__ import annotations
 
 import ctypes.util
+import itertools
 import json
 import math
 import os
@@ -16,14 +17,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import one_error_line
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from aslam.cli.app import main
 from aslam.core import se2
+from aslam.core.errors import ConfigError
 from aslam.data_formats.recording import Recording
-from aslam.recorder import noise, routes
-from aslam.recorder.config import CameraSpec, NoiseParams, RecordConfig
+from aslam.recorder import lighting, noise, routes
+from aslam.recorder.config import CameraSpec, NoiseModel, NoiseParams, RecordConfig
 from aslam.recorder.errors import RouteError, WorldError
-from aslam.recorder.world import generate_world
+from aslam.recorder.record import plan
+from aslam.recorder.world import check_path_in_world, generate_world
 
 SMALL = CameraSpec(width_px=64, height_px=48)
 # a closed 2 m × 1 m loop: 6 forwards + 4 turns, 11 keyframes per lap
@@ -88,6 +93,9 @@ def test_route_json_round_trips(tmp_path):
         ({"actions": [{"forward_m": 1, "turn_deg": 3}]}, "actions[0]"),
         ({"actions": []}, "non-empty"),
         ({"start": {"x_m": "a"}, "actions": [{"turn_deg": 1}]}, "start.x_m"),
+        ({"actions": [{"kidnap": {"x_m": "a"}}]}, "actions[0]: kidnap.x_m"),
+        ({"actions": [{"kidnap": 3}]}, "actions[0]: kidnap"),
+        ({"actions": [{"kidnap": {"x_m": 1, "z_m": 2}}]}, "unknown key(s) 'z_m'"),
         ([1, 2], "JSON object"),
     ],
 )
@@ -178,6 +186,11 @@ def test_aliasing_shares_textures_without_changing_the_layout():
     shared = sum(p.texture < 3 for p in half.panels) / len(half.panels)
     assert 0.3 < shared < 0.7
     assert len(full.wall_textures) == 3
+    # truly aliased: no door, no unique texture, one floor texture; in between, some of each
+    assert full.door_frames == [] and np.unique(full.floor_zone[full.free]).size == 1
+    assert np.unique(plain.floor_zone[plain.free]).size > 1
+    zones = half.floor_zone[half.free]
+    assert 0 < np.mean(zones == 0) < 1 and len(half.door_frames) <= len(plain.door_frames)
 
 
 def test_world_is_deterministic_per_seed():
@@ -341,3 +354,271 @@ def test_osmesa_fallback_renders_the_same_scene(tmp_path):
     frames = [s.image.decode_gray() for s in Recording(out).samples()]
     assert len(frames) == 35
     assert all(frame.std() > 5 for frame in frames)  # real views, not blank buffers
+
+
+# --------------------------------------------------------------------------- the hard-case knobs
+
+PAPER_LAP = 34
+
+
+def _samples(path: Path):
+    """The recording's samples (the one place these tests read them, for an easy API change)."""
+    return Recording(path).samples()
+
+
+def _metadata(path: Path) -> dict[str, str]:
+    return Recording(path).metadata()
+
+
+def _offsets(truth: np.ndarray, commanded: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return truth[:, :2] - commanded[:, :2], np.degrees(se2.wrap_angle(truth[:, 2] - commanded[:, 2]))
+
+
+def test_wander_is_smooth_bounded_and_differs_between_laps():
+    commanded = routes.preset("paper").repeated(3).poses()
+    smooth = NoiseParams(jitter_m=0.0, jitter_deg=0.0, wander_m=0.3, wander_deg=5.0)
+    truth, odom = noise.simulate(commanded, smooth, seed=41)
+    off, yaw = _offsets(truth, commanded)
+    assert 0.15 < off.std() < 0.4 and 2.5 < yaw.std() < 8.0
+    assert np.hypot(*off.T).max() <= noise.WANDER_LIMIT_M
+    # smooth: 1 m apart the offset barely changes (white jitter of the same σ changes by √2 σ)
+    assert np.diff(off, axis=0).std() < 0.5 * off.std()
+    assert np.diff(yaw).std() < 0.5 * yaw.std()
+    white, _ = noise.simulate(commanded, NoiseParams(jitter_m=0.3, jitter_deg=5.0), seed=41)
+    white_off, _ = _offsets(white, commanded)
+    assert np.diff(white_off, axis=0).std() > 1.2 * white_off.std()
+    # every lap wanders its own way
+    lap1, lap2 = off[:PAPER_LAP], off[PAPER_LAP : 2 * PAPER_LAP]
+    assert np.hypot(*(lap2 - lap1).T).mean() > 0.15
+    # odometry still reports the true motion plus noise (a few % of each step)
+    true_steps = se2.between(truth[:-1], truth[1:])
+    odom_steps = se2.between(odom[:-1], odom[1:])
+    assert np.abs(odom_steps[:, :2] - true_steps[:, :2]).max() < 0.2
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    seed=st.integers(0, 2**31),
+    wander_m=st.floats(0.0, 5.0),
+    jitter_m=st.floats(0.0, 2.0),
+)
+def test_true_offset_is_bounded_whatever_the_wander_and_jitter(seed, wander_m, jitter_m):
+    commanded = routes.preset("paper").repeated(2).poses()
+    model = NoiseParams(jitter_m=jitter_m, wander_m=wander_m, wander_deg=5.0)
+    truth, _ = noise.simulate(commanded, model, seed=seed)
+    assert np.hypot(*(truth[:, :2] - commanded[:, :2]).T).max() <= noise.MAX_OFFSET_M + 1e-9
+    if jitter_m == 0.0:
+        assert np.hypot(*(truth[:, :2] - commanded[:, :2]).T).max() <= noise.WANDER_LIMIT_M + 1e-9
+
+
+def test_wander_has_its_own_random_stream():
+    """Turning the wander on adds a smooth offset and leaves the jitter drawn for the seed alone."""
+    commanded = routes.preset("paper").repeated(2).poses()
+    jittered, _ = noise.simulate(commanded, NoiseParams(jitter_m=0.05, jitter_deg=0.0), seed=2)
+    both, _ = noise.simulate(commanded, NoiseParams(jitter_m=0.05, jitter_deg=0.0, wander_m=0.3), seed=2)
+    added = both[:, :2] - jittered[:, :2]
+    assert added.std() > 0.1
+    assert np.diff(added, axis=0).std() < 0.5 * added.std()  # smooth: none of the white jitter
+
+
+@pytest.mark.parametrize("name", ["paper", "figure8", "grid"])
+@pytest.mark.parametrize(
+    "model",
+    [
+        NoiseParams(jitter_m=0.3, jitter_deg=10.0, wander_m=1.0, wander_deg=10.0),
+        NoiseParams(noise=0.1, jitter_m=0.0, jitter_deg=0.0, wander_m=0.3, model=NoiseModel.PAPER),
+    ],
+    ids=["wander-and-jitter", "paper-10%"],
+)
+def test_the_camera_stays_in_free_space(name, model):
+    p = plan(RecordConfig(route=name, seed=3, noise=model))  # plan() itself refuses a path through walls
+    truth = p.truth
+    for dx, dy in ((0.0, 0.0), (0.05, 0.0), (-0.05, 0.0), (0.0, 0.05), (0.0, -0.05)):
+        assert p.world.is_free(truth[:, 0] + dx, truth[:, 1] + dy).all()
+    # and the check is real: the same path 1.5 m to the side is refused, naming the options
+    moved = truth + np.array([0.0, 1.5, 0.0])
+    with pytest.raises(WorldError, match="--wander-m"):
+        check_path_in_world(p.world, moved, [a.to_json() for a in p.route.actions])
+
+
+def test_a_true_path_that_wanders_out_of_a_scene_is_refused(tmp_path, capsys):
+    scene = _box_room(tmp_path / "room.glb")  # walls at ±3 m
+    near_wall = _write_json(
+        tmp_path / "near.json", {"start": {"x_m": -2, "y_m": 2.75}, "actions": [{"forward_m": 1}] * 4}
+    )
+    args = ["record", "--world", str(scene), "--route", str(near_wall), "--size", "32x24"]
+    assert main([*args, "--jitter-m", "0", "-o", str(tmp_path / "ok.mcap")]) == 0
+    capsys.readouterr()
+    out = tmp_path / "bad.mcap"
+    assert main([*args, "--jitter-m", "2", "--seed", "1", "-o", str(out)]) == 2
+    err = one_error_line(capsys.readouterr().err)
+    assert str(scene) in err and "true path" in err and "--jitter-m" in err
+    assert not out.exists()
+
+
+def test_lap_lighting_changes_every_lap_and_nothing_at_zero():
+    assert lighting.lap_lighting(0.0, 3, 8, seed=1) == (lighting.DEFAULT,) * 3
+    laps = lighting.lap_lighting(1.0, 4, 40, seed=1)
+    assert laps == lighting.lap_lighting(1.0, 4, 40, seed=1)
+    for a, b in itertools.pairwise(laps):
+        assert abs(math.log(a.intensity / b.intensity)) >= 2 * lighting.INTENSITY_LOG_RANGE[0] - 1e-9
+        assert (
+            abs(math.log(a.temperature_k / b.temperature_k)) >= 2 * lighting.TEMPERATURE_LOG_RANGE[0] - 1e-9
+        )
+        assert a.lights_on != b.lights_on
+    off = np.mean([not on for lap in laps for on in lap.lights_on])
+    assert 0.3 < off < 0.7
+    warm, cool = lighting.tinted_colour(2700.0), lighting.tinted_colour(6500.0)
+    assert warm[0] > warm[2] and cool[2] > cool[0]
+
+
+def _lap_images(path: Path, per_lap: int) -> tuple[np.ndarray, np.ndarray]:
+    import cv2
+
+    def bgr(sample) -> np.ndarray:  # the PNG as stored, in colour
+        return cv2.imdecode(np.frombuffer(sample.image.data, np.uint8), cv2.IMREAD_COLOR).astype(float)
+
+    images = np.array([bgr(s) for s in _samples(path)])
+    return images[:per_lap], images[per_lap : 2 * per_lap]
+
+
+def test_lighting_change_relights_each_lap(tmp_path):
+    route = _write_json(tmp_path / "loop.json", LOOP)
+    base = ["record", "--route", str(route), "--laps", "2", "--size", "64x48", "--jitter-m", "0"]
+    base += ["--jitter-deg", "0", "--seed", "4"]
+    assert main([*base, "-o", str(tmp_path / "same.mcap")]) == 0
+    assert main([*base, "--lighting-change", "1", "-o", str(tmp_path / "relit.mcap")]) == 0
+    lap1, lap2 = _lap_images(tmp_path / "same.mcap", 10)
+    np.testing.assert_array_equal(lap1, lap2)  # same poses, same light: the same images
+    lap1, lap2 = _lap_images(tmp_path / "relit.mcap", 10)
+    brightness = np.median(lap2.mean(axis=(1, 2, 3)) / lap1.mean(axis=(1, 2, 3)))
+    blue_red = [
+        np.median(lap[..., 0].mean(axis=(1, 2)) / lap[..., 2].mean(axis=(1, 2))) for lap in (lap1, lap2)
+    ]
+    assert abs(math.log(brightness)) > 0.2
+    assert abs(math.log(blue_red[1] / blue_red[0])) > 0.1
+    meta = json.loads(_metadata(tmp_path / "relit.mcap")["lighting"])
+    assert meta["change"] == 1.0 and len(meta["laps"]) == 2
+
+
+def _palette(world, poses: np.ndarray) -> int:
+    """Colours (8 levels per channel) covering ≥ 0.2 % of the pixels of views along the route."""
+    from aslam.recorder.render import PyrenderRenderer
+
+    with PyrenderRenderer(world, SMALL) as renderer:
+        images = np.array([renderer.render(p) for p in poses])
+    q = (images // 32).reshape(-1, 3).astype(int)
+    counts = np.bincount(q[:, 0] * 64 + q[:, 1] * 8 + q[:, 2], minlength=512) / len(q)
+    return int((counts > 0.002).sum())
+
+
+def test_aliasing_narrows_what_the_camera_sees():
+    commanded = routes.preset("paper").poses()
+    palettes = [_palette(generate_world(commanded, seed=7, aliasing=a), commanded[::2]) for a in (0, 0.5, 1)]
+    assert palettes[0] > palettes[1] > palettes[2]
+
+
+def test_paper_noise_accumulates_in_the_truth_and_odometry_reports_the_commanded_route():
+    commanded = routes.preset("paper").repeated(10).poses()
+    model = NoiseParams(noise=0.03, jitter_m=0.0, jitter_deg=0.0, model=NoiseModel.PAPER)
+    errors = []
+    for seed in range(12):
+        truth, odom = noise.simulate(commanded, model, seed=seed)
+        np.testing.assert_allclose(odom[:, :2], commanded[:, :2], atol=1e-9)
+        np.testing.assert_allclose(se2.wrap_angle(odom[:, 2] - commanded[:, 2]), 0.0, atol=1e-9)
+        errors.append(np.hypot(*(truth[:, :2] - commanded[:, :2]).T))
+        executed = se2.between(truth[:-1], truth[1:])
+        ordered = se2.between(commanded[:-1], commanded[1:])
+        forward = ordered[:, 0] > 0.5
+        relative = executed[forward, 0] / ordered[forward, 0] - 1.0
+        assert np.std(relative) == pytest.approx(0.03, rel=0.25)
+    errors = np.array(errors)
+    after_one_lap, after_ten = errors[:, PAPER_LAP].mean(), errors[:, -1].mean()
+    assert after_ten > 2.0 * after_one_lap > 0.0  # the error accumulates in the truth
+
+
+def test_paper_noise_world_is_built_around_the_true_path():
+    p = plan(RecordConfig(seed=58, noise=NoiseParams(noise=0.05, jitter_m=0, jitter_deg=0, model="paper")))
+    drift = np.hypot(*(p.truth[:, :2] - p.route.poses()[:, :2]).T).max()
+    assert drift > 0.5  # far enough off the route that a route-only world would not do
+    assert p.world.is_free(p.truth[:, 0], p.truth[:, 1]).all()
+    np.testing.assert_allclose(p.odometry[:, :2], p.route.poses()[:, :2], atol=1e-9)
+
+
+def test_kidnap_jumps_the_truth_while_the_odometry_sees_nothing(tmp_path):
+    paper = routes.preset("paper").repeated(2)
+    route = routes.kidnapped(paper, 44, 20)
+    assert route.actions[44].is_kidnap and not route.connected[44]
+    assert len(route.actions) == 44 + 1 + (68 - 20) and route.connected.sum() == len(route.actions) - 1
+    again = routes.load_route_file(_write_json(tmp_path / "k.json", json.loads(route.to_json())))
+    np.testing.assert_allclose(again.poses(), route.poses(), atol=1e-9)
+    commanded = route.poses()
+    np.testing.assert_allclose(commanded[45], paper.poses()[20], atol=1e-9)
+    truth, odom = noise.simulate(commanded, NoiseParams(), seed=31, connected=route.connected)
+    np.testing.assert_array_equal(odom[45], odom[44])  # carried: no odometry
+    assert np.hypot(*(truth[45, :2] - commanded[45, :2])) < 0.3  # truth is where it was carried
+    assert np.hypot(*(truth[45, :2] - truth[44, :2])) > 3.0
+    # the jump is not a corridor
+    carved = generate_world(commanded, seed=31)
+    kidnapped = generate_world(commanded, seed=31, connected=route.connected)
+    assert kidnapped.free.sum() < carved.free.sum()
+
+
+def test_odometry_reset_restarts_from_zero_and_keeps_the_motion(tmp_path, capsys):
+    route = str(_write_json(tmp_path / "loop.json", LOOP))
+    plain = plan(RecordConfig(route=route, laps=2, seed=2))
+    reset = plan(RecordConfig(route=route, laps=2, seed=2, odometry_reset_at=7))
+    np.testing.assert_array_equal(reset.truth, plain.truth)
+    np.testing.assert_array_equal(reset.odometry[:7], plain.odometry[:7])
+    np.testing.assert_array_equal(reset.odometry[7], [0.0, 0.0, 0.0])
+    np.testing.assert_allclose(
+        se2.between(reset.odometry[7:-1], reset.odometry[8:]),
+        se2.between(plain.odometry[7:-1], plain.odometry[8:]),
+        atol=1e-9,
+    )
+    with pytest.raises(ConfigError, match="--odometry-reset-at"):
+        plan(RecordConfig(route=route, laps=2, odometry_reset_at=21))
+    assert (
+        main(["record", "--route", route, "--odometry-reset-at", "-1", "-o", str(tmp_path / "x.mcap")]) == 2
+    )
+    assert "--odometry-reset-at" in one_error_line(capsys.readouterr().err)
+
+
+def test_every_knob_at_video_rate_is_deterministic_and_in_the_metadata(tmp_path):
+    # the 2 m × 1 m loop, carried from its first corner to its third mid-lap, closed so it repeats
+    loop = routes.parse_route(LOOP)
+    carried = routes.kidnapped(loop, 2, 5)
+    assert carried.is_closed
+    route = _write_json(tmp_path / "carried.json", json.loads(carried.to_json()))
+    args = ["record", "--route", str(route), "--laps", "2", "--size", "32x24", "--seed", "5", "--fps", "3"]
+    args += ["--wander-m", "0.2", "--wander-deg", "4", "--lighting-change", "0.7", "--aliasing", "1"]
+    args += ["--noise-model", "paper", "--odometry-reset-at", "9"]
+    assert main([*args, "-o", str(tmp_path / "a.mcap")]) == 0
+    assert main([*args, "-o", str(tmp_path / "b.mcap")]) == 0
+    assert (tmp_path / "a.mcap").read_bytes() == (tmp_path / "b.mcap").read_bytes()
+    n_actions = 2 * len(carried.actions)
+    samples = list(_samples(tmp_path / "a.mcap"))
+    assert len(samples) == 3 * n_actions + 1
+    np.testing.assert_allclose(samples[9 * 3].odometry_pose, 0.0, atol=1e-9)  # keyframe 9: reset
+    # while carried (action 2), the view holds until the robot is set down
+    held = [s.ground_truth_pose for s in samples[6:9]]
+    np.testing.assert_allclose(held[1], held[0], atol=1e-6)
+    assert np.hypot(*(samples[9].ground_truth_pose[:2] - held[0][:2])) > 0.5
+    meta = _metadata(tmp_path / "a.mcap")
+    model = json.loads(meta["noise"])
+    assert model["model"] == "paper" and model["wander_m"] == 0.2 and model["odometry_reset_at"] == 9
+    assert model["jitter_m"] == 0.0  # the paper model's default
+    assert json.loads(meta["lighting"])["change"] == 0.7
+    assert json.loads(meta["world"])["aliasing"] == 1.0
+    assert {"kidnap": {"x_m": 2.0, "y_m": 1.0, "yaw_deg": -180.0}} in json.loads(meta["route"])["actions"]
+
+
+def test_a_pose_that_no_driven_step_reaches_is_refused(tmp_path, capsys):
+    """Only driven steps get corridors: a route that starts with a kidnap would start inside rock."""
+    route = _write_json(
+        tmp_path / "k.json", {"actions": [{"kidnap": {"x_m": 5, "y_m": 5}}, {"forward_m": 1}]}
+    )
+    out = tmp_path / "k.mcap"
+    assert main(["record", "--route", str(route), "--size", "32x24", "-o", str(out)]) == 2
+    err = one_error_line(capsys.readouterr().err)
+    assert "the route" in err and "the start pose" in err and not out.exists()
