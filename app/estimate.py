@@ -28,9 +28,10 @@ from aslam.data_formats.estimate import (
     Timing,
     check_output_path,
 )
+from aslam.data_formats.files import source_files
 from aslam.data_formats.provenance import tool_version
 from aslam.data_formats.rosbag_source import open_source
-from aslam.data_formats.sources import TopicChoice, iter_source_samples, source_files, source_image_count
+from aslam.data_formats.sources import TopicChoice, iter_source_samples, source_image_count
 
 PROGRESS_INTERVAL_S = 0.1
 

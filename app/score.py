@@ -28,8 +28,9 @@ from aslam.core.errors import InputError
 from aslam.core.metrics import Evaluation, evaluate
 from aslam.data_formats.errors import EstimateError, RecordingError
 from aslam.data_formats.estimate import EstimateFile, iter_keyframes, read_estimate
+from aslam.data_formats.files import source_files
 from aslam.data_formats.graph_json import build_graph_json
-from aslam.data_formats.sources import TopicChoice, iter_source_ground_truth, source_files
+from aslam.data_formats.sources import TopicChoice, iter_source_ground_truth
 
 # --- ground truth ----------------------------------------------------------------------------------
 

@@ -106,3 +106,11 @@ def write_atomically(
         raise error(f"cannot write: {err.strerror or err}", path=path) from err
     finally:
         temporary.unlink(missing_ok=True)
+
+
+def source_files(path: Path) -> list[Path]:
+    """The files that hold a source, in a stable order: the file itself, or a bag folder's files."""
+    path = Path(path)
+    if path.is_dir():
+        return sorted(p for p in path.iterdir() if p.is_file())
+    return [path]

@@ -28,8 +28,10 @@ from aslam.core.errors import InputError
 from aslam.data_formats import ros_msgs
 from aslam.data_formats.camera import CameraIntrinsics
 from aslam.data_formats.errors import BagError
+from aslam.data_formats.files import source_files
 from aslam.data_formats.pose_sync import Sample, SampleAssembler
 from aslam.data_formats.recording import _header_stamp_ns, _lazy_image
+from aslam.data_formats.recording_info import TopicInfo
 
 TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
 IMAGE_FILE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -404,13 +406,6 @@ def _iter_bag_ground_truth(path: Path, topic: str) -> Iterator[tuple[int, np.nda
 
 
 @dataclass(frozen=True)
-class BagTopic:
-    topic: str
-    datatype: str
-    messages: int
-
-
-@dataclass(frozen=True)
 class BagSummary:
     """What a bag's index says (no message read): ``summarize_bag``."""
 
@@ -423,7 +418,7 @@ class BagSummary:
     messages: int
     start_ns: int | None
     end_ns: int | None
-    topics: tuple[BagTopic, ...]
+    topics: tuple[TopicInfo, ...]
     resolved: ResolvedTopics | None  # the topics iter_bag_samples would read
     problem: str | None  # why it could not resolve them (e.g. two image topics)
 
@@ -453,7 +448,7 @@ def summarize_bag(path: Path, topics: BagTopics = BagTopics()) -> BagSummary:
     with _open_reader(path) as reader, _rosbags_errors(path, "cannot read the bag's index"):
         types = _topic_types(reader)
         infos = reader.topics
-        bag_topics = tuple(BagTopic(t, types[t], int(infos[t].msgcount)) for t in sorted(types))
+        bag_topics = tuple(TopicInfo(t, types[t], int(infos[t].msgcount)) for t in sorted(types))
         storage, files, compression, distro = _storage(reader, kind, path)
         messages = int(reader.message_count)
         start = int(reader.start_time) if messages else None
@@ -513,7 +508,7 @@ def describe_bag(
 
     The bag's own facts (kind, storage, files, compression, the topics read) go in ``metadata``.
     """
-    from aslam.data_formats.recording_info import RecordingInfo, TopicInfo
+    from aslam.data_formats.recording_info import RecordingInfo
 
     path = Path(path)
     summary = summarize_bag(path, topics)
@@ -561,7 +556,7 @@ def describe_bag(
     }
     return RecordingInfo(
         path=str(path),
-        size_bytes=_size(path),
+        size_bytes=sum(file.stat().st_size for file in source_files(path)),
         topics=tuple(TopicInfo(t.topic, t.datatype, t.messages) for t in summary.topics),
         samples=samples,
         first_stamp_ns=first,
@@ -575,12 +570,6 @@ def describe_bag(
         truncated=False,
         warnings=tuple(warnings),
     )
-
-
-def _size(path: Path) -> int:
-    if path.is_dir():
-        return sum(p.stat().st_size for p in path.iterdir() if p.is_file())
-    return path.stat().st_size
 
 
 def read_bag_camera_intrinsics(path: Path) -> CameraIntrinsics | None:

@@ -114,14 +114,6 @@ def iter_source_ground_truth(
     raise _not_a_stream(path)
 
 
-def source_files(path: Path) -> list[Path]:
-    """The files that hold a source, in a stable order: the file itself, or a bag folder's files."""
-    path = Path(path)
-    if path.is_dir():
-        return sorted(p for p in path.iterdir() if p.is_file())
-    return [path]
-
-
 def describe_source(
     path: Path, topics: TopicChoice = TopicChoice(), *, on_warning: Callable[[str], None] | None = None
 ) -> RecordingInfo:
