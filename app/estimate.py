@@ -30,8 +30,7 @@ from aslam.data_formats.estimate import (
 )
 from aslam.data_formats.files import source_files
 from aslam.data_formats.provenance import tool_version
-from aslam.data_formats.rosbag_source import open_source
-from aslam.data_formats.sources import TopicChoice, iter_source_samples, source_image_count
+from aslam.data_formats.sources import TopicChoice, open_input
 
 PROGRESS_INTERVAL_S = 0.1
 
@@ -139,9 +138,8 @@ def estimate(
         raise InputError("the output would overwrite the recording", path=output)
     check_output_path(output, force=force)
     warn = on_warning or (lambda _line: None)
-    kind = open_source(recording)
-    samples = iter_source_samples(recording, topics, on_warning=warn)
-    total = source_image_count(recording, topics)
+    source = open_input(recording, topics, on_warning=warn)
+    total = source.image_count()
     estimator = Estimator(config)
     counts = PipelineCounts()
     hasher = FileHasher(recording)
@@ -155,7 +153,7 @@ def estimate(
     try:
         with (
             EstimateWriter(output, tool_version=tool_version(), force=force) as writer,
-            closing(run_estimate(samples, estimator, counts=counts, workers=workers)) as steps,
+            closing(run_estimate(source.samples(), estimator, counts=counts, workers=workers)) as steps,
         ):
             last_update = 0.0
             actions = []
@@ -174,7 +172,7 @@ def estimate(
                 tool_version=tool_version(),
                 config=asdict(config),
                 recording=RecordingIdentity(str(recording), _size_bytes(hasher.files), hasher.result()),
-                topics=topics.stored(kind),
+                topics=source.stored_topics(),
             )
             run_timing = None
             if timing:

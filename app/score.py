@@ -30,7 +30,7 @@ from aslam.data_formats.errors import EstimateError, RecordingError
 from aslam.data_formats.estimate import EstimateFile, iter_keyframes, read_estimate
 from aslam.data_formats.files import source_files
 from aslam.data_formats.graph_json import build_graph_json
-from aslam.data_formats.sources import TopicChoice, iter_source_ground_truth
+from aslam.data_formats.sources import TopicChoice, open_input
 
 # --- ground truth ----------------------------------------------------------------------------------
 
@@ -284,7 +284,7 @@ def _ground_truth(
     path: Path, topics: TopicChoice, stamps: list[int], warn: Callable[[str], None]
 ) -> np.ndarray | None:
     try:
-        with closing(iter_source_ground_truth(path, topics, on_warning=warn)) as truth:  # type: ignore[arg-type]
+        with closing(open_input(path, topics, on_warning=warn).ground_truth()) as truth:  # type: ignore[arg-type]
             poses = truth_at_stamps(stamps, truth)
     except RecordingError as err:
         warn(f"{err}; reporting without ground truth")

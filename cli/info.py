@@ -37,11 +37,11 @@ def info(
     Exit code 0 when the whole recording reads (warnings, e.g. a truncated file, go to stderr),
     2 when it cannot be used.
     """
-    from aslam.data_formats.sources import TopicChoice, describe_source
+    from aslam.data_formats.sources import TopicChoice, open_input
 
     terminal = output.Terminal(quiet=quiet, verbose=verbose)
     topics = TopicChoice(image=image_topic, odometry=odometry_topic, ground_truth=ground_truth_topic)
-    result = describe_source(recording, topics, on_warning=terminal.warning)
+    result = open_input(recording, topics, on_warning=terminal.warning).describe()
     if as_json:
         sys.stdout.write(json.dumps(result.as_dict(), indent=2, sort_keys=False) + "\n")
         return

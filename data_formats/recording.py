@@ -205,10 +205,13 @@ class Recording:
     ``on_warning``, one line each.
     """
 
-    def __init__(self, path: Path, *, on_warning: Callable[[str], None] | None = None) -> None:
+    def __init__(
+        self, path: Path, *, on_warning: Callable[[str], None] | None = None, file: McapFile | None = None
+    ) -> None:
+        """``file``: the ``McapFile`` of ``path`` when the caller has opened it already."""
         self.path = Path(path)
         self._warn = on_warning or (lambda _message: None)
-        self.file = McapFile(self.path, on_warning=self._warn)
+        self.file = file if file is not None else McapFile(self.path, on_warning=self._warn)
 
     @property
     def size_bytes(self) -> int:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 from aslam.data_formats.camera import CameraIntrinsics
@@ -77,25 +76,14 @@ class RecordingInfo:
 
 
 def describe_recording(
-    path: Path,
-    topics: RecordingTopics = RecordingTopics(),
-    *,
-    on_warning: Callable[[str], None] | None = None,
+    recording: Recording, topics: RecordingTopics = RecordingTopics(), *, warn: Callable[[str], None]
 ) -> RecordingInfo:
     """Read the whole recording, decoding every image, and say what it holds.
 
-    Any problem iter_samples would meet raises here too (RecordingError); warnings are passed to
-    ``on_warning`` as they come and also collected in the result.
+    Any problem ``Recording.samples`` would meet raises here too (RecordingError). ``warnings`` in
+    the result is empty: the caller, who made ``recording`` with its warning callback, fills it.
     """
-    path = Path(path)
-    warnings: list[str] = []
-
-    def warn(message: str) -> None:
-        warnings.append(message)
-        if on_warning is not None:
-            on_warning(message)
-
-    recording = Recording(path, on_warning=warn)
+    path = recording.path
     source = recording.file
     counts = source.count_messages()
     metadata = recording.metadata()
@@ -147,5 +135,4 @@ def describe_recording(
         camera=camera,
         metadata=metadata,
         truncated=source.truncation is not None,
-        warnings=tuple(warnings),
     )

@@ -29,6 +29,7 @@ from aslam.data_formats import ros_msgs
 from aslam.data_formats.camera import CameraIntrinsics
 from aslam.data_formats.errors import BagError
 from aslam.data_formats.files import source_files
+from aslam.data_formats.mcap_file import McapFile
 from aslam.data_formats.pose_sync import Sample, SampleAssembler
 from aslam.data_formats.recording import _header_stamp_ns, _lazy_image
 from aslam.data_formats.recording_info import TopicInfo
@@ -55,14 +56,21 @@ BAG_KINDS = (SourceKind.ROSBAG2, SourceKind.ROSBAG2_FILE, SourceKind.ROSBAG1)
 
 def open_source(path: Path) -> SourceKind:
     """Tell by content (not only the name) what ``path`` is; BagError for anything unreadable."""
+    return classify(path)[0]
+
+
+def classify(
+    path: Path, *, on_warning: Callable[[str], None] | None = None
+) -> tuple[SourceKind, McapFile | None]:
+    """:func:`open_source`, with the ``McapFile`` opened on the way (summary read) for an MCAP file."""
     path = Path(path)
     if not path.exists():
         raise BagError("no such file or folder", path=path)
     if path.is_dir():
         if (path / "metadata.yaml").is_file():
-            return SourceKind.ROSBAG2
+            return SourceKind.ROSBAG2, None
         if any(p.suffix.lower() in IMAGE_FILE_SUFFIXES for p in path.iterdir() if p.is_file()):
-            return SourceKind.IMAGE_FOLDER
+            return SourceKind.IMAGE_FOLDER, None
         raise BagError("is a folder with neither a rosbag2 metadata.yaml nor png/jpg images", path=path)
     try:
         with path.open("rb") as f:
@@ -74,19 +82,19 @@ def open_source(path: Path) -> SourceKind:
     from aslam.data_formats.files import MCAP_MAGIC
 
     if head.startswith(MCAP_MAGIC):
-        from aslam.data_formats.mcap_file import McapFile
         from aslam.data_formats.recording import METADATA_NAME
 
-        if McapFile(path).metadata(METADATA_NAME) is not None:  # present, even if empty
-            return SourceKind.RECORDING
+        mcap = McapFile(path, on_warning=on_warning)
+        if mcap.metadata(METADATA_NAME) is not None:  # present, even if empty
+            return SourceKind.RECORDING, mcap
         _need_suffix(path, ".mcap", "an MCAP file")
-        return SourceKind.ROSBAG2_FILE
+        return SourceKind.ROSBAG2_FILE, mcap
     if head.startswith(_BAG1_MAGIC):
         _need_suffix(path, ".bag", "a ROS 1 bag")
-        return SourceKind.ROSBAG1
+        return SourceKind.ROSBAG1, None
     if head == _SQLITE_MAGIC:
         _need_suffix(path, ".db3", "a rosbag2 sqlite3 file")
-        return SourceKind.ROSBAG2_FILE
+        return SourceKind.ROSBAG2_FILE, None
     if head.startswith(_ZSTD_MAGIC):
         raise BagError(
             "is a zstd-compressed file; pass the rosbag2 folder that holds it and its metadata.yaml",

@@ -1,5 +1,9 @@
 """One entry point for every input ``estimate``, ``info`` and ``report`` accept: our recordings and
-ROS bags of every kind (see ``rosbag_source.open_source``), as the same ``Sample`` stream.
+ROS bags of every kind (see ``rosbag_source.classify``), as the same ``Sample`` stream.
+
+``open_input(path, topics)`` looks at the path once (for our MCAP recordings: the one ``McapFile``,
+its summary read once) and returns an object that serves the samples, the image count, the ground
+truth and the description, whatever the kind.
 
 Topic names are optional everywhere: a recording falls back to its standard topics, a bag finds
 its own (``rosbag_source.resolve_topics``). An image folder is refused with the command that
@@ -9,22 +13,23 @@ turns it into a recording, so that stamps, poses and the odometry flag are fixed
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from aslam.data_formats.pose_sync import Sample
 from aslam.data_formats.recording import Recording, RecordingTopics
-from aslam.data_formats.recording_info import RecordingInfo
+from aslam.data_formats.recording_info import RecordingInfo, describe_recording
 from aslam.data_formats.rosbag_source import (
     BAG_KINDS,
     BagError,
     BagTopics,
     SourceKind,
+    classify,
+    describe_bag,
     iter_bag_ground_truth,
     iter_bag_samples,
-    open_source,
     summarize_bag,
 )
 
@@ -50,81 +55,99 @@ class TopicChoice:
             ground_truth=self.ground_truth or defaults.ground_truth,
         )
 
-    def stored(self, kind: SourceKind) -> dict[str, str | None]:
-        """What the estimate file records: a recording's topics in full, a bag's as chosen."""
-        if kind is SourceKind.RECORDING:
-            return asdict(self.recording_topics())
-        return asdict(self)
-
     def bag_topics(self) -> BagTopics:
         return BagTopics(image=self.image, odometry=self.odometry, ground_truth=self.ground_truth)
 
 
-def _not_a_stream(path: Path) -> BagError:
-    return BagError(
-        f"is an image folder; make it a recording first: aslam import {path} -o REC.mcap", path=path
-    )
+class _Warnings:
+    """Every warning of one input, collected (for ``info --json``) and passed on as it comes."""
+
+    def __init__(self, on_warning: Callable[[str], None] | None) -> None:
+        self.lines: list[str] = []
+        self._on_warning = on_warning
+
+    def __call__(self, line: str) -> None:
+        self.lines.append(line)
+        if self._on_warning is not None:
+            self._on_warning(line)
 
 
-def iter_source_samples(
-    path: Path,
-    topics: TopicChoice = TopicChoice(),
-    *,
-    on_warning: Callable[[str], None] | None = None,
-) -> Iterator[Sample]:
-    """The samples of a recording or a bag, whichever ``path`` is (checked at once)."""
-    path = Path(path)
-    kind = open_source(path)
-    if kind is SourceKind.RECORDING:
-        return Recording(path, on_warning=on_warning).samples(topics.recording_topics())
-    if kind in BAG_KINDS:
-        return iter_bag_samples(path, topics.bag_topics(), on_warning=on_warning)
-    raise _not_a_stream(path)
+class RecordingInput:
+    """One of our MCAP recordings, with the topics to read."""
+
+    kind = SourceKind.RECORDING
+
+    def __init__(self, recording: Recording, topics: RecordingTopics, warnings: _Warnings) -> None:
+        self.path = recording.path
+        self.recording = recording
+        self.topics = topics
+        self._warnings = warnings
+
+    def stored_topics(self) -> dict[str, str | None]:
+        """The topics as the estimate file records them."""
+        return asdict(self.topics)
+
+    def samples(self) -> Iterator[Sample]:
+        return self.recording.samples(self.topics)
+
+    def image_count(self) -> int | None:
+        return self.recording.image_count(self.topics)
+
+    def ground_truth(self) -> Iterator[tuple[int, np.ndarray]]:
+        return self.recording.ground_truth(self.topics)
+
+    def describe(self) -> RecordingInfo:
+        info = describe_recording(self.recording, self.topics, warn=self._warnings)
+        return replace(info, warnings=tuple(self._warnings.lines))
 
 
-def source_image_count(path: Path, topics: TopicChoice = TopicChoice()) -> int | None:
-    """How many images the stream will read (for a progress bar), from the index; None if unknown."""
-    path = Path(path)
-    kind = open_source(path)
-    if kind in BAG_KINDS:
-        summary = summarize_bag(path, topics.bag_topics())
+class BagInput:
+    """A ROS bag (rosbag2 folder or file, ROS 1 bag), its topics found unless chosen."""
+
+    def __init__(self, path: Path, kind: SourceKind, topics: TopicChoice, warnings: _Warnings) -> None:
+        self.path = path
+        self.kind = kind
+        self.choice = topics
+        self.topics = topics.bag_topics()
+        self._warnings = warnings
+
+    def stored_topics(self) -> dict[str, str | None]:
+        return asdict(self.choice)
+
+    def samples(self) -> Iterator[Sample]:
+        return iter_bag_samples(self.path, self.topics, on_warning=self._warnings)
+
+    def image_count(self) -> int | None:
+        summary = summarize_bag(self.path, self.topics)
         if summary.resolved is None:
             return None
         return next((t.messages for t in summary.topics if t.topic == summary.resolved.image), None)
-    if kind is SourceKind.RECORDING:
-        return Recording(path).image_count(topics.recording_topics())
-    raise _not_a_stream(path)
+
+    def ground_truth(self) -> Iterator[tuple[int, np.ndarray]]:
+        if self.choice.ground_truth is None:
+            raise BagError("no ground-truth topic named for this bag (--ground-truth-topic)", path=self.path)
+        return iter_bag_ground_truth(self.path, self.choice.ground_truth)
+
+    def describe(self) -> RecordingInfo:
+        info = describe_bag(self.path, self.topics, on_warning=self._warnings)
+        return replace(info, warnings=tuple(self._warnings.lines))
 
 
-def iter_source_ground_truth(
+Input = RecordingInput | BagInput
+
+
+def open_input(
     path: Path, topics: TopicChoice = TopicChoice(), *, on_warning: Callable[[str], None] | None = None
-) -> Iterator[tuple[int, np.ndarray]]:
-    """``(stamp_ns, pose)`` of the ground truth of a recording, or of a bag's named topic.
-
-    RecordingError when there is none (a bag has ground truth only on a topic named for it).
-    """
+) -> Input:
+    """The recording or bag at ``path`` (checked at once: BagError/RecordingError naming it)."""
     path = Path(path)
-    kind = open_source(path)
+    warnings = _Warnings(on_warning)
+    kind, mcap = classify(path, on_warning=warnings)
     if kind is SourceKind.RECORDING:
-        return Recording(path, on_warning=on_warning).ground_truth(topics.recording_topics())
+        recording = Recording(path, on_warning=warnings, file=mcap)
+        return RecordingInput(recording, topics.recording_topics(), warnings)
     if kind in BAG_KINDS:
-        if topics.ground_truth is None:
-            raise BagError("no ground-truth topic named for this bag (--ground-truth-topic)", path=path)
-        return iter_bag_ground_truth(path, topics.ground_truth)
-    raise _not_a_stream(path)
-
-
-def describe_source(
-    path: Path, topics: TopicChoice = TopicChoice(), *, on_warning: Callable[[str], None] | None = None
-) -> RecordingInfo:
-    """What a recording or a bag holds, read whole (``aslam info``)."""
-    from aslam.data_formats.recording_info import describe_recording
-    from aslam.data_formats.rosbag_source import describe_bag
-
-    path = Path(path)
-    kind = open_source(path)
-    if kind is SourceKind.RECORDING:
-        return describe_recording(path, topics.recording_topics(), on_warning=on_warning)
-    if kind in BAG_KINDS:
-        return describe_bag(path, topics.bag_topics(), on_warning=on_warning)
-    raise _not_a_stream(path)
+        return BagInput(path, kind, topics, warnings)
+    raise BagError(
+        f"is an image folder; make it a recording first: aslam import {path} -o REC.mcap", path=path
+    )

@@ -16,7 +16,7 @@ from aslam.data_formats.camera import CameraIntrinsics
 from aslam.data_formats.images import EncodedImage, ImageFormat
 from aslam.data_formats.recording_writer import RecordingWriter
 from aslam.data_formats.rosbag_source import BagError
-from aslam.data_formats.sources import TopicChoice, iter_source_samples, source_image_count
+from aslam.data_formats.sources import TopicChoice, open_input
 
 
 def test_recording_and_bags_agree(tmp_path):
@@ -26,7 +26,7 @@ def test_recording_and_bags_agree(tmp_path):
     bag = write_rosbag2(tmp_path / "bag", storage="sqlite3")
     ros1 = write_rosbag1(tmp_path / "bag.bag")
     choice = TopicChoice(ground_truth="/ground_truth")
-    from_bag = list(iter_source_samples(bag, choice))
+    from_bag = list(open_input(bag, choice).samples())
     recording = tmp_path / "rec.mcap"
     with RecordingWriter(recording, camera=CameraIntrinsics(24, 16, 60.0), metadata={}) as writer:
         for sample in from_bag:
@@ -38,16 +38,16 @@ def test_recording_and_bags_agree(tmp_path):
                 sample.odometry_pose,
                 sample.ground_truth_pose,
             )
-    from_recording = list(iter_source_samples(recording, TopicChoice()))
-    from_ros1 = list(iter_source_samples(ros1, choice))
+    from_recording = list(open_input(recording, TopicChoice()).samples())
+    from_ros1 = list(open_input(ros1, choice).samples())
     assert_driver_samples(from_bag)
     assert_driver_samples(from_ros1)
     assert_driver_samples(from_recording)
     for a, b in zip(from_bag, from_recording, strict=True):
         np.testing.assert_array_equal(a.odometry_pose, b.odometry_pose)
-    assert source_image_count(bag) == N_IMAGES
-    assert source_image_count(recording) == N_IMAGES
-    assert source_image_count(bag, TopicChoice(image=IMAGE_TOPIC)) == N_IMAGES
+    assert open_input(bag).image_count() == N_IMAGES
+    assert open_input(recording).image_count() == N_IMAGES
+    assert open_input(bag, TopicChoice(image=IMAGE_TOPIC)).image_count() == N_IMAGES
 
 
 def test_an_image_folder_must_be_imported_first(tmp_path):
@@ -56,7 +56,7 @@ def test_an_image_folder_must_be_imported_first(tmp_path):
     (tmp_path / "imgs").mkdir()
     cv2.imwrite(str(tmp_path / "imgs" / "1.png"), np.zeros((4, 4), np.uint8))
     with pytest.raises(BagError, match="make it a recording first: aslam import"):
-        iter_source_samples(tmp_path / "imgs")
+        open_input(tmp_path / "imgs").samples()
 
 
 def test_estimate_gives_the_same_result_from_a_recording_and_its_bags(tmp_path, capsys):
@@ -74,7 +74,7 @@ def test_estimate_gives_the_same_result_from_a_recording_and_its_bags(tmp_path, 
     }
     recording = tmp_path / "rec.mcap"
     with RecordingWriter(recording, camera=CameraIntrinsics(24, 16, 60.0), metadata={}) as writer:
-        for sample in iter_source_samples(sources["mcap"], TopicChoice(ground_truth="/ground_truth")):
+        for sample in open_input(sources["mcap"], TopicChoice(ground_truth="/ground_truth")).samples():
             ok, png = cv2.imencode(".png", sample.image.decode_gray())
             assert ok
             writer.write(
