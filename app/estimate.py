@@ -115,6 +115,7 @@ def estimate(
     force: bool = False,
     timing: bool = True,
     workers: int = DEFAULT_WORKERS,
+    reader_process: bool = True,
     on_progress: Callable[[EstimateProgress], None] | None = None,
     on_warning: Callable[[str], None] | None = None,
 ) -> EstimateSummary:
@@ -122,6 +123,7 @@ def estimate(
 
     Streams the recording. ``output`` appears only when complete; any failure or interrupt leaves
     nothing under it. With ``timing=False`` the same inputs give a byte-identical file.
+    ``reader_process=False`` reads in this process (see :func:`aslam.app.pipeline.run_estimate`).
     """
     if workers < 1:
         raise InputError(f"--workers must be at least 1, got {workers}")
@@ -146,7 +148,15 @@ def estimate(
     try:
         with (
             EstimateWriter(output, tool_version=tool_version(), force=force) as writer,
-            closing(run_estimate(source.samples(topics), estimator, counts=counts, workers=workers)) as steps,
+            closing(
+                run_estimate(
+                    source.samples(topics),
+                    estimator,
+                    counts=counts,
+                    workers=workers,
+                    reader_process=reader_process,
+                )
+            ) as steps,
         ):
             last_update = 0.0
             for step in steps:
