@@ -219,12 +219,12 @@ def _record_config(knobs: dict[str, Any], base: Path, where: str, problems: list
             return None
         world = world_path
     width, height = CameraSpec().width_px, CameraSpec().height_px
+    size_problem = None
     if "size" in knobs:
         try:
             width, height = parse_size(knobs["size"])
         except ConfigError as err:
-            problems.append(f"{where}: {err.problem.replace('--size', 'size')}")
-            return None
+            size_problem = f"{where}: {_option_to_key(err.problem)}"
     noise = NoiseParams()
     config = RecordConfig(
         route=route,
@@ -247,11 +247,11 @@ def _record_config(knobs: dict[str, Any], base: Path, where: str, problems: list
         fps=None if knobs.get("fps") is None else float(knobs["fps"]),
         jpeg_quality=knobs.get("jpeg_quality"),
     )
-    found = config.problems()
-    if found:
-        problems += [f"{where}: {_option_to_key(p)}" for p in found]
-        return None
-    return config
+    found = [f"{where}: {_option_to_key(p)}" for p in config.problems()]
+    if size_problem is not None:
+        found.insert(0, size_problem)
+    problems += found
+    return None if found else config
 
 
 def _option_to_key(message: str) -> str:
