@@ -224,4 +224,6 @@ def _print_pareto(run: Any, objectives: list[Any]) -> None:
         values = [_figure_text(result.summary.get(o.key)) for o in objectives]
         table.add_row(str(task.index), task.source.label, _parameters_text(task), *values)
     console = Console()
-    console.print(table, width=None if console.is_terminal else 10_000)
+    if not console.is_terminal:  # a pipe or a file: full names, never cut to 80 columns
+        console = Console(width=10_000)
+    console.print(table)
