@@ -354,6 +354,7 @@ def run_sweep(
     scheduler: str | None = None,
     force: bool = False,
     extra_figures: Sequence[str] = (),
+    client: Any | None = None,
     on_plan: Callable[[Sequence[Task], int], None] | None = None,
     on_result: Callable[[Task, TaskResult, bool], None] | None = None,
 ) -> SweepRun:
@@ -363,6 +364,7 @@ def run_sweep(
     reused)`` once per task as it finishes (reused ones first). Results arrive in completion
     order; the tables are in task order and hold the sweep's figures and ``extra_figures``.
     A failed task does not stop the others; :meth:`SweepRun.check` says whether any failed.
+    ``client``: a Dask client to use (and leave open) instead of starting one (a bench, a notebook).
     """
     results_dir = Path(results_dir).absolute()
     if results_dir.exists() and not results_dir.is_dir():
@@ -386,7 +388,8 @@ def run_sweep(
         for index in sorted(results):
             on_result(tasks[index], results[index], True)
     if pending:
-        client = open_client(workers=workers, scheduler=scheduler)
+        own = client is None
+        client = open_client(workers=workers, scheduler=scheduler) if own else client
         try:
             for task, result in _compute(client, pending, force=force):
                 save_result(results_dir, result)
@@ -394,7 +397,8 @@ def run_sweep(
                 if on_result is not None:
                     on_result(task, result, False)
         finally:
-            _close(client, local=scheduler is None)
+            if own:
+                _close(client, local=scheduler is None)
     ordered = tuple(results[task.index] for task in tasks)
     parquet, csv = write_tables(results_dir, sweep, tasks, ordered, extra_figures)
     return SweepRun(tuple(tasks), ordered, reused, parquet, csv)
