@@ -89,7 +89,9 @@ def spread(values: list[float]) -> dict[str, float]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
@@ -121,12 +123,14 @@ def main() -> None:
         cold_start = time.perf_counter()
         cold = run_sweep(sweep, folder / "cold", workers=args.workers, force=True)
         cold_s = time.perf_counter() - cold_start
-        identical = identical and [
-            {k: v for k, v in r.summary.items() if not k.startswith("timing.")} for r in cold.results
-        ] == reference
+        identical = (
+            identical
+            and [{k: v for k, v in r.summary.items() if not k.startswith("timing.")} for r in cold.results]
+            == reference
+        )
     ratios = {
-        "serial_over_sweep": [s / p for s, p in zip(times["serial"], times["sweep"], strict=True)],
-        "serial_inproc_over_sweep": [s / p for s, p in zip(times["serial_inproc"], times["sweep"], strict=True)],
+        f"{name}_over_sweep": [s / p for s, p in zip(times[name], times["sweep"], strict=True)]
+        for name in ("serial", "serial_inproc")
     }
     print(
         json.dumps(
