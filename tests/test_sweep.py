@@ -309,3 +309,10 @@ def test_the_pareto_front_leaves_out_failed_and_unmeasured_results():
         [_result(0, [1, None]), _result(1, [0, 0]), failed], [Objective("f0", True), Objective("f1", True)]
     )
     assert [r.index for r in front] == [1]
+
+
+def test_the_example_sweep_file_is_valid(tmp_path):
+    example = Path(__file__).resolve().parents[1] / "docs" / "examples" / "sweep.toml"
+    sweep = read_sweep_file(example)
+    assert len(sweep.renders) == 5 and len(list(sweep.parameter_sets())) == 6
+    assert len(plan_tasks(sweep, tmp_path)) == 30
