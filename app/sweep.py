@@ -11,8 +11,8 @@ Tasks never raise: a failure becomes a row with its error, and the sweep goes on
 task is saved at once as ``RESULTS_DIR/tasks/KEY.json``, so an interrupted sweep loses nothing;
 a re-run skips tasks whose successful result is saved (``force`` recomputes). A task's key is the
 SHA-256 of its recording's identity (the file's SHA-256, or for a recording to render its
-configuration, which decides its bytes), its full estimator configuration and the scoring
-options. The tables (``results.parquet``, ``results.csv``) hold one row per task, in task order
+configuration, which decides its bytes), its full estimator configuration, the scoring options
+and the aslam version. The tables (``results.parquet``, ``results.csv``) hold one row per task, in task order
 (recordings in file order, then parameter sets in grid order), so the same sweep gives the same
 rows, except the timing and worker columns.
 """
@@ -33,6 +33,7 @@ from aslam.app.sweep_file import ScoreOptions, Sweep
 from aslam.core.config import EstimatorConfig
 from aslam.core.errors import AslamError, InputError
 from aslam.data_formats.files import write_atomically
+from aslam.data_formats.provenance import tool_version
 from aslam.recorder.config import RecordConfig
 
 RESULTS_PARQUET = "results.parquet"
@@ -105,7 +106,7 @@ class Task:
 
 def render_path(results_dir: Path, config: RecordConfig) -> tuple[Path, str]:
     """Where a render of ``config`` goes, and its identity (the configuration's SHA-256)."""
-    identity = _digest(asdict(config))
+    identity = _digest({"render": asdict(config), "version": tool_version()})
     name = f"{Path(config.route).stem}-seed{config.seed}-{identity[:12]}.mcap"
     return results_dir / RENDERS_FOLDER / name, identity
 
@@ -131,7 +132,12 @@ def plan_tasks(
         for parameters in sweep.parameter_sets():
             config = EstimatorConfig(**dict(parameters))
             key = _digest(
-                {"recording": source.identity, "config": asdict(config), "score": asdict(sweep.score)}
+                {
+                    "recording": source.identity,
+                    "config": asdict(config),
+                    "score": asdict(sweep.score),
+                    "version": tool_version(),
+                }
             )
             tasks.append(
                 Task(
