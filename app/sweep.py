@@ -41,6 +41,8 @@ RESULTS_CSV = "results.csv"
 TASKS_FOLDER = "tasks"
 ESTIMATES_FOLDER = "estimates"
 RENDERS_FOLDER = "recordings"
+#: The Dask setting through which the nanny gives worker processes ``MALLOC_TRIM_THRESHOLD_``.
+NANNY_MALLOC_TRIM = "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_"
 #: Columns of every row besides the parameters (``param.NAME``) and the figures (summary keys).
 TIMING_COLUMNS = ("estimate_wall_s", "keyframes_per_second")
 #: Columns that legitimately differ between two runs of the same sweep.
@@ -320,10 +322,14 @@ def open_client(*, workers: int | None, scheduler: str | None) -> Any:
     """A Dask client: of the cluster at ``scheduler``, or of a new local cluster of worker processes.
 
     The local cluster has ``workers`` processes (default: one per core) of one thread each: the
-    estimator holds the GIL, so processes, not threads, use the cores.
+    estimator holds the GIL, so processes, not threads, use the cores. Its workers start without
+    the ``MALLOC_TRIM_THRESHOLD_=65536`` Dask's nanny sets by default: that fixed threshold also
+    turns off glibc's adaptive mmap threshold, and every decoded image then costs an mmap/munmap
+    and its page faults (measured: twice the CPU time of a task).
     """
     import logging
 
+    import dask
     from distributed import Client, LocalCluster
 
     if scheduler is not None:
@@ -342,13 +348,14 @@ def open_client(*, workers: int | None, scheduler: str | None) -> Any:
     )
     if count < 1:
         raise InputError(f"--workers must be at least 1, got {count}")
-    cluster = LocalCluster(
-        n_workers=count,
-        threads_per_worker=1,
-        processes=True,
-        dashboard_address=None,
-        silence_logs=logging.ERROR,
-    )
+    with dask.config.set({NANNY_MALLOC_TRIM: None}):  # None: the variable is not set (Dask's convention)
+        cluster = LocalCluster(
+            n_workers=count,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            silence_logs=logging.ERROR,
+        )
     return Client(cluster)
 
 
