@@ -44,7 +44,7 @@ RENDERS_FOLDER = "recordings"
 #: The Dask setting through which the nanny gives worker processes ``MALLOC_TRIM_THRESHOLD_``.
 NANNY_MALLOC_TRIM = "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_"
 #: Columns of every row besides the parameters (``param.NAME``) and the figures (summary keys).
-TIMING_COLUMNS = ("estimate_wall_s", "keyframes_per_second")
+TIMING_COLUMNS = ("estimate_wall_s", "keyframes_per_second", "task_cpu_s")
 #: Columns that legitimately differ between two runs of the same sweep.
 VARYING_COLUMNS = (*TIMING_COLUMNS, "timing.keyframes_per_second", "worker")
 
@@ -180,6 +180,8 @@ class TaskResult:
     estimate_wall_s: float | None
     keyframes_per_second: float | None
     worker: str
+    task_cpu_s: float | None = None
+    """CPU seconds of the worker process during the task (estimate and score; its threads too)."""
 
     @property
     def ok(self) -> bool:
@@ -228,6 +230,7 @@ def run_task(task: Task, rendered: Rendered | None = None) -> TaskResult:
 
     warnings: list[str] = []
     worker = worker_name()
+    cpu_start = time.process_time()
 
     def failed(error: str) -> TaskResult:
         return TaskResult(task.index, task.key, None, error, tuple(warnings), None, None, worker)
@@ -263,6 +266,7 @@ def run_task(task: Task, rendered: Rendered | None = None) -> TaskResult:
         summary.wall_s,
         summary.keyframes_per_second,
         worker,
+        time.process_time() - cpu_start,
     )
 
 
@@ -499,6 +503,7 @@ def rows(
             {
                 "estimate_wall_s": result.estimate_wall_s,
                 "keyframes_per_second": result.keyframes_per_second,
+                "task_cpu_s": result.task_cpu_s,
                 "error": result.error or "",
                 "warnings": "; ".join(result.warnings),
                 "worker": result.worker,

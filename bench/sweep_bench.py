@@ -13,6 +13,12 @@ sweep            ``run_sweep`` on a LocalCluster of N worker processes started b
                  tasks' time: submit to last result);
 sweep_cold       ``run_sweep`` starting and stopping its own LocalCluster, once (the whole command).
 
+CPU seconds are reported too (serial: this process and its reader children; sweep: the workers'
+CPU during their tasks): on a machine shared with other work, wall-clock ratios say as much about
+the others' load as about the sweep (with Linux's autogroup scheduling, one session's processes
+share one session's CPU share, so two worker processes there need not get twice the CPU of one),
+while CPU per task shows the sweep's own overhead.
+
 Runs alternate (serial, serial_inproc, sweep, ...) so that other load on a shared machine falls on
 each alike; the ratios are reported per repeat (median, min, max). Target: serial / sweep ≥ 1.7
 with 2 workers on 2 cores. The figures of every sweep run are checked against the serial ones.
@@ -24,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import resource
 import statistics
 import sys
 import tempfile
@@ -65,23 +72,35 @@ def _figures(summary: dict) -> dict:
     return {k: v for k, v in leaves(summary).items() if not k.startswith("timing.")}
 
 
-def run_serial(tasks, folder: Path, *, task_settings: bool) -> tuple[float, list[dict]]:
+def _cpu_s() -> float:
+    """CPU seconds of this process and its finished children (the forked reader of ``estimate``)."""
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + children.ru_utime + children.ru_stime
+
+
+def run_serial(tasks, folder: Path, *, task_settings: bool) -> tuple[float, float, list[dict]]:
     options = {"workers": 1, "reader_process": False} if task_settings else {}
     figures = []
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), _cpu_s()
     for task in tasks:
         output = folder / f"{task.key[:16]}.mcap"
         estimate(task.source.path, output, task.config, force=True, **options)
         report = score(output, recording=task.source.path)
         figures.append(_figures(report.summary))
-    return time.perf_counter() - start, figures
+    return time.perf_counter() - start, _cpu_s() - cpu_start, figures
 
 
-def run_parallel(sweep, folder: Path, client) -> tuple[float, list[dict]]:
+def run_parallel(sweep, folder: Path, client) -> tuple[float, float, list[dict]]:
+    """Wall seconds, the workers' CPU seconds spent in the tasks, and the figures."""
     start = time.perf_counter()
     run = run_sweep(sweep, folder, client=client, force=True)
     seconds = time.perf_counter() - start
-    return seconds, [{k: v for k, v in r.summary.items() if not k.startswith("timing.")} for r in run.results]
+    cpu = sum(r.task_cpu_s or 0.0 for r in run.results)
+    return (
+        seconds,
+        cpu,
+        [{k: v for k, v in r.summary.items() if not k.startswith("timing.")} for r in run.results],
+    )
 
 
 def spread(values: list[float]) -> dict[str, float]:
@@ -100,6 +119,7 @@ def main() -> None:
         folder = Path(tmp)
         tasks = plan_tasks(sweep, folder / "plan")
         times: dict[str, list[float]] = {"serial": [], "serial_inproc": [], "sweep": []}
+        cpu: dict[str, list[float]] = {name: [] for name in times}
         identical = True
         reference = None
         client = open_client(workers=args.workers, scheduler=None)
@@ -110,13 +130,16 @@ def main() -> None:
                     out = folder / f"{name}-{repeat}"
                     out.mkdir()
                     if name == "sweep":
-                        seconds, figures = run_parallel(sweep, out, client)
+                        seconds, cpu_s, figures = run_parallel(sweep, out, client)
                     else:
-                        seconds, figures = run_serial(tasks, out, task_settings=name == "serial_inproc")
+                        seconds, cpu_s, figures = run_serial(
+                            tasks, out, task_settings=name == "serial_inproc"
+                        )
                     reference = reference or figures
                     identical = identical and figures == reference
                     times[name].append(seconds)
-                    print(f"{name} #{repeat}: {seconds:.2f} s", file=sys.stderr)
+                    cpu[name].append(cpu_s)
+                    print(f"{name} #{repeat}: {seconds:.2f} s wall, {cpu_s:.2f} s CPU", file=sys.stderr)
         finally:
             client.close()
             client.cluster.close()
@@ -139,6 +162,7 @@ def main() -> None:
                 "workers": args.workers,
                 "repeats": args.repeats,
                 "seconds": {name: spread(values) for name, values in times.items()},
+                "cpu_seconds": {name: spread(values) for name, values in cpu.items()},
                 "sweep_cold_s": cold_s,
                 "ratio": {name: spread(values) for name, values in ratios.items()},
                 "target_serial_over_sweep": 1.7,
