@@ -175,6 +175,7 @@ class _LiveDisplay:
         table = Table(box=None, pad_edge=False)
         for name in ("#", "recording", "parameters", *map(_short_key, self.figures), "wall s", "worker"):
             table.add_column(name, overflow="fold")
+        table.add_column("error", overflow="fold", style="red")
         for row in self.rows:
             table.add_row(*row)
         return Group(table, self.progress)
@@ -190,17 +191,18 @@ class _LiveDisplay:
         self.progress.update(self.bar, total=len(tasks))
 
     def result(self, task: Task, result: TaskResult, reused: bool) -> None:
-        if result.ok and result.summary is not None:
-            figures = [_figure_text(result.summary.get(k)) for k in self.figures]
+        from rich.text import Text
+
+        summary = result.summary or {}
+        figures = [_figure_text(summary.get(k)) for k in self.figures]
+        if result.ok:
             wall = "done before" if reused else f"{result.estimate_wall_s:.2f}"
         else:
             self.failed += 1
-            from rich.text import Text
-
-            figures = [Text(f"failed: {result.error}", style="red"), *[""] * (len(self.figures) - 1)]
             wall = ""
+        error = Text(result.error or "")  # plain text: an error may contain [brackets]
         self.rows.append(
-            (str(task.index), task.source.label, _parameters_text(task), *figures, wall, result.worker)
+            (str(task.index), task.source.label, _parameters_text(task), *figures, wall, result.worker, error)
         )
         self.progress.update(self.bar, advance=1, failed=self.failed)
         self.live.update(self._render())
