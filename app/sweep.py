@@ -342,8 +342,8 @@ def open_client(*, workers: int | None, scheduler: str | None) -> Any:
                 "--workers sizes a local cluster; the cluster at --scheduler has its own workers"
             )
         try:
-            return Client(scheduler, timeout="20s")
-        except (OSError, TimeoutError) as err:
+            return Client(scheduler, timeout="10s")
+        except (OSError, TimeoutError, ValueError) as err:  # ValueError: not an address
             raise InputError(f"cannot reach the Dask scheduler at {scheduler}: {err}") from err
     count = (
         workers

@@ -331,3 +331,15 @@ def test_estimate_with_the_reader_in_process_writes_the_same_bytes(recordings, t
     )
     assert summary.keyframes > 20
     assert forked.read_bytes() == in_process.read_bytes()
+
+
+def test_a_bad_scheduler_address_is_exit_2(recordings, tmp_path, capsys):
+    sweep = _write_sweep(tmp_path)
+    (tmp_path / "good.mcap").symlink_to(recordings / "good.mcap")
+    (tmp_path / "corrupt.mcap").symlink_to(recordings / "corrupt.mcap")
+    assert main(["sweep", str(sweep), "-o", str(tmp_path / "out"), "--scheduler", "nonsense", "-q"]) == 2
+    assert "cannot reach the Dask scheduler at nonsense" in capsys.readouterr().err
+    code = main(
+        ["sweep", str(sweep), "-o", str(tmp_path / "out"), "--scheduler", "tcp://x:1", "--workers", "2"]
+    )
+    assert code == 2 and "--workers sizes a local cluster" in capsys.readouterr().err
