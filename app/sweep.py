@@ -99,7 +99,7 @@ class Task:
     index: int
     source: Source
     parameters: tuple[tuple[str, Any], ...]
-    """The grid's values for this task (the rest of the configuration is the default)."""
+    """Its grid's values for this task (the rest of the configuration is the default)."""
     config: EstimatorConfig
     score: ScoreOptions
     key: str
@@ -466,7 +466,7 @@ def _close(client: Any, *, local: bool) -> None:
 
 def columns(sweep: Sweep, extra_figures: Iterable[str] = ()) -> list[str]:
     """The table's columns, in order."""
-    params = [f"param.{name}" for name, _values in sweep.grid]
+    params = [f"param.{name}" for name in sweep.parameter_names()]
     figures = list(dict.fromkeys([*sweep.figures, *extra_figures]))
     return [
         "task",
@@ -499,7 +499,7 @@ def rows(
             "recording": str(task.source.path),
             "render": "" if task.source.render is None else _render_text(task.source.render),
         }
-        row.update({f"param.{name}": value for name, value in task.parameters})
+        row.update({f"param.{name}": getattr(task.config, name) for name in sweep.parameter_names()})
         row.update({key: summary.get(key) for key in figures})
         row.update(
             {

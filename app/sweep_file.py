@@ -62,6 +62,10 @@ class ScoreOptions:
     heading_deg: float = 45.0
 
 
+Grid = tuple[tuple[str, tuple[Any, ...]], ...]
+"""Estimator parameters and their values, in file order; its parameter sets are their product."""
+
+
 @dataclass(frozen=True)
 class Sweep:
     """A checked sweep file: every recording and parameter set it names, in a stable order."""
@@ -71,16 +75,21 @@ class Sweep:
     """Recording files (absolute), in the order given; each glob's matches sorted by name."""
     renders: tuple[RecordConfig, ...]
     """Recordings to render first, in the order of the ``[[render]]`` tables and their value lists."""
-    grid: tuple[tuple[str, tuple[Any, ...]], ...]
-    """Estimator parameters and their values, in file order; the parameter sets are their product."""
+    grids: tuple[Grid, ...]
+    """The ``[grid]`` table, or the ``[[grid]]`` tables in file order (none: the defaults)."""
     figures: tuple[str, ...] = DEFAULT_FIGURES
     score: ScoreOptions = field(default_factory=ScoreOptions)
 
     def parameter_sets(self) -> Iterator[tuple[tuple[str, Any], ...]]:
-        """Every combination of the grid, the last key varying fastest (one empty set for no grid)."""
-        names = [name for name, _values in self.grid]
-        for values in itertools.product(*(values for _name, values in self.grid)):
-            yield tuple(zip(names, values, strict=True))
+        """Every grid's combinations in turn, the last key varying fastest (one empty set for no grid)."""
+        for grid in self.grids or ((),):
+            names = [name for name, _values in grid]
+            for values in itertools.product(*(values for _name, values in grid)):
+                yield tuple(zip(names, values, strict=True))
+
+    def parameter_names(self) -> tuple[str, ...]:
+        """Every parameter some grid names, in order of first appearance."""
+        return tuple(dict.fromkeys(name for grid in self.grids for name, _values in grid))
 
 
 def _as_list(value: Any) -> list[Any]:
@@ -126,12 +135,12 @@ def read_sweep_file(path: Path) -> Sweep:
     renders = _renders(document.get("render", []), base, problems)
     if not recordings and not renders and not any("recordings" in p or "render" in p for p in problems):
         problems.append("no recordings: give [recordings] paths and/or [[render]] tables")
-    grid = _grid(document.get("grid", {}), problems)
+    grids = _grids(document.get("grid", []), problems)
     figures = _figures(document.get("figures", list(DEFAULT_FIGURES)), problems)
     score = _score(document.get("score", {}), problems)
     if problems:
         raise ConfigError("; ".join(dict.fromkeys(problems)), path=path)
-    return Sweep(path.absolute(), recordings, renders, grid, figures, score)
+    return Sweep(path.absolute(), recordings, renders, grids, figures, score)
 
 
 def _table(value: Any, name: str, known: Any, problems: list[str]) -> dict[str, Any]:
@@ -259,7 +268,19 @@ def _option_to_key(message: str) -> str:
     return re.sub(r"--([a-z][a-z-]*)", lambda m: m.group(1).replace("-", "_"), message)
 
 
-def _grid(value: Any, problems: list[str]) -> tuple[tuple[str, tuple[Any, ...]], ...]:
+def _grids(value: Any, problems: list[str]) -> tuple[Grid, ...]:
+    """``[grid]`` (one table) or ``[[grid]]`` (several, each a product; their sets run in turn)."""
+    if isinstance(value, dict):
+        return (_grid(value, "grid", problems),)
+    if not isinstance(value, list) or not all(isinstance(t, dict) for t in value):
+        problems.append("'grid' must be a table ([grid]) or tables ([[grid]])")
+        return ()
+    return tuple(
+        _grid(table, f"grid #{n}" if len(value) > 1 else "grid", problems) for n, table in enumerate(value, 1)
+    )
+
+
+def _grid(value: dict[str, Any], where: str, problems: list[str]) -> Grid:
     types = {name: kind for name, kind, _default, _help in EstimatorConfig.parameters()}
     table = _table(value, "grid", types, problems)
     grid: list[tuple[str, tuple[Any, ...]]] = []
@@ -267,10 +288,10 @@ def _grid(value: Any, problems: list[str]) -> tuple[tuple[str, tuple[Any, ...]],
     for key, item in table.items():
         values = _as_list(item)
         if not values:
-            problems.append(f"grid.{key} is an empty list")
+            problems.append(f"{where}: {key} is an empty list")
             bad = True
         for one in values:
-            problem = _type_problem(f"grid.{key}", one, types[key])
+            problem = _type_problem(f"{where}: {key}", one, types[key])
             if problem:
                 problems.append(problem)
                 bad = True
@@ -283,7 +304,7 @@ def _grid(value: Any, problems: list[str]) -> tuple[tuple[str, tuple[Any, ...]],
         try:
             EstimatorConfig(**dict(zip(names, combination, strict=True)))
         except ConfigError as err:
-            problems.append(f"grid: {err.problem}")
+            problems.append(f"{where}: {err.problem}")
     return tuple(grid)
 
 

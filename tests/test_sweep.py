@@ -26,6 +26,7 @@ from aslam.app.sweep import (
     pareto_front,
     plan_tasks,
     resolve_objectives,
+    rows,
     run_sweep,
 )
 from aslam.app.sweep_file import read_sweep_file
@@ -217,8 +218,8 @@ def test_sweep_file_problems_are_one_line_exit_2_naming_the_file(tmp_path, capsy
         "unknown key 'bogus'",
         "unknown summary key 'loop_closure.nope'",
         "'*.nothing' matches no file",
-        "grid.beta must be a number, got 'x'",
-        "grid.max_hypotheses must be a whole number, got 2.5",
+        "grid: beta must be a number, got 'x'",
+        "grid: max_hypotheses must be a whole number, got 2.5",
         "unknown key 'grid.what'",
         "seed must be ≥ 0, got -1",
         "unknown key 'render.colour'",
@@ -314,8 +315,8 @@ def test_the_pareto_front_leaves_out_failed_and_unmeasured_results():
 def test_the_example_sweep_file_is_valid(tmp_path):
     example = Path(__file__).resolve().parents[1] / "docs" / "examples" / "sweep.toml"
     sweep = read_sweep_file(example)
-    assert len(sweep.renders) == 5 and len(list(sweep.parameter_sets())) == 6
-    assert len(plan_tasks(sweep, tmp_path)) == 30
+    assert len(sweep.renders) == 5 and len(list(sweep.parameter_sets())) == 7
+    assert len(plan_tasks(sweep, tmp_path)) == 35
 
 
 def test_estimate_with_the_reader_in_process_writes_the_same_bytes(recordings, tmp_path):
@@ -343,3 +344,31 @@ def test_a_bad_scheduler_address_is_exit_2(recordings, tmp_path, capsys):
         ["sweep", str(sweep), "-o", str(tmp_path / "out"), "--scheduler", "tcp://x:1", "--workers", "2"]
     )
     assert code == 2 and "--workers sizes a local cluster" in capsys.readouterr().err
+
+
+def test_several_grids_run_in_turn_and_every_row_shows_the_effective_values(tmp_path, recordings):
+    path = tmp_path / "s.toml"
+    path.write_text(
+        f'[recordings]\npaths = ["{recordings / "good.mcap"}"]\n'
+        "[[grid]]\nbeta = [2.0, 3.0]\n"
+        "[[grid]]  # the paper's estimator\ncells_x = 1\ncandidate_search = 'path'\n"
+    )
+    sweep = read_sweep_file(path)
+    assert [dict(p) for p in sweep.parameter_sets()] == [
+        {"beta": 2.0},
+        {"beta": 3.0},
+        {"cells_x": 1, "candidate_search": "path"},
+    ]
+    assert sweep.parameter_names() == ("beta", "cells_x", "candidate_search")
+    tasks = plan_tasks(sweep, tmp_path)
+    results = [TaskResult(t.index, t.key, {}, None, (), 1.0, 1.0, "w") for t in tasks]
+    table = [{k: v for k, v in row.items() if k.startswith("param.")} for row in rows(sweep, tasks, results)]
+    assert table == [
+        {"param.beta": 2.0, "param.cells_x": 2, "param.candidate_search": "graph"},
+        {"param.beta": 3.0, "param.cells_x": 2, "param.candidate_search": "graph"},
+        {"param.beta": 3.0, "param.cells_x": 1, "param.candidate_search": "path"},
+    ]
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[[render]]\n[[grid]]\nbeta = 1.0\n[[grid]]\nbeta = -1.0\n")
+    with pytest.raises(ConfigError, match="grid #2: beta must be a positive number"):
+        read_sweep_file(bad)
