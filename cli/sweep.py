@@ -38,7 +38,7 @@ def sweep(
         ),
     ],
     workers: Annotated[
-        int | None, typer.Option(help="Worker processes of the local cluster. [default: one per core]")
+        int | None, typer.Option(help="Worker processes of the local cluster. \\[default: one per core]")
     ] = None,
     scheduler: Annotated[
         str | None,
