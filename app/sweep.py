@@ -39,6 +39,7 @@ from aslam.recorder.config import RecordConfig
 RESULTS_PARQUET = "results.parquet"
 RESULTS_CSV = "results.csv"
 TASKS_FOLDER = "tasks"
+HASHES_FILE = "hashes.json"
 ESTIMATES_FOLDER = "estimates"
 RENDERS_FOLDER = "recordings"
 #: The Dask setting through which the nanny gives worker processes ``MALLOC_TRIM_THRESHOLD_``.
@@ -113,19 +114,57 @@ def render_path(results_dir: Path, config: RecordConfig) -> tuple[Path, str]:
     return results_dir / RENDERS_FOLDER / name, identity
 
 
-def plan_tasks(
-    sweep: Sweep, results_dir: Path, *, on_hashing: Callable[[Path], None] | None = None
-) -> list[Task]:
+class HashCache:
+    """Recordings' SHA-256 kept in ``RESULTS_DIR/hashes.json``, valid while path, size and mtime hold.
+
+    A re-run then reads no recording it has hashed before; a recording rewritten since (another
+    size or mtime) is hashed again. The identity stays the content's hash, so a copied or moved
+    recording is still the same task.
+    """
+
+    def __init__(self, path: Path | None, *, use: bool = True) -> None:
+        self.path = path
+        self.entries: dict[str, dict[str, Any]] = {}
+        if path is not None and use:
+            try:
+                loaded = json.loads(path.read_text())
+                self.entries = loaded if isinstance(loaded, dict) else {}
+            except (OSError, ValueError):
+                self.entries = {}
+        self.changed = False
+
+    def sha256(self, recording: Path) -> str:
+        try:
+            stat = recording.stat()
+        except OSError as err:
+            raise InputError(f"cannot read: {err.strerror or err}", path=recording) from err
+        stamp = {"size": stat.st_size, "mtime_ns": stat.st_mtime_ns}
+        entry = self.entries.get(str(recording))
+        if isinstance(entry, dict) and all(entry.get(k) == v for k, v in stamp.items()):
+            digest = entry.get("sha256")
+            if isinstance(digest, str):
+                return digest
+        digest = file_sha256(recording)
+        self.entries[str(recording)] = {**stamp, "sha256": digest}
+        self.changed = True
+        return digest
+
+    def save(self) -> None:
+        if self.path is not None and self.changed:
+            text = json.dumps(self.entries, sort_keys=True, indent=1) + "\n"
+            write_atomically(self.path, lambda temporary: temporary.write_text(text))
+
+
+def plan_tasks(sweep: Sweep, results_dir: Path, *, hashes: HashCache | None = None) -> list[Task]:
     """Every task of ``sweep``, in the stable order the rows take.
 
-    Hashes each recording file (one sequential read; ``on_hashing`` is told which, for a display).
+    Hashes each recording file (one sequential read), or takes its hash from ``hashes``.
     """
     results_dir = Path(results_dir).absolute()
+    hashes = hashes if hashes is not None else HashCache(None)
     sources = []
     for path in sweep.recordings:
-        if on_hashing is not None:
-            on_hashing(path)
-        sources.append(Source(path, file_sha256(path)))
+        sources.append(Source(path, hashes.sha256(path)))
     for config in sweep.renders:
         path, identity = render_path(results_dir, config)
         sources.append(Source(path, identity, config))
@@ -374,15 +413,16 @@ def run_sweep(
     force: bool = False,
     extra_figures: Sequence[str] = (),
     client: Any | None = None,
-    on_plan: Callable[[Sequence[Task], int], None] | None = None,
+    on_plan: Callable[[Sequence[Task], Sequence[Task]], None] | None = None,
     on_result: Callable[[Task, TaskResult, bool], None] | None = None,
 ) -> SweepRun:
     """Run every task of ``sweep`` not already done in ``results_dir``; write the tables.
 
-    ``on_plan(tasks, to_run)`` is called once before work starts; ``on_result(task, result,
-    reused)`` once per task as it finishes (reused ones first). Results arrive in completion
-    order; the tables are in task order and hold the sweep's figures and ``extra_figures``.
-    A failed task does not stop the others; :meth:`SweepRun.check` says whether any failed.
+    ``on_plan(tasks, to_run)`` is called once before work starts (every task, and those to run);
+    ``on_result(task, result, reused)`` once per task as it finishes (reused ones first). Results
+    arrive in completion order; the tables are in task order and hold the sweep's figures and
+    ``extra_figures``. A failed task does not stop the others; :meth:`SweepRun.check` says whether
+    any failed.
     ``client``: a Dask client to use (and leave open) instead of starting one (a bench, a notebook).
     """
     results_dir = Path(results_dir).absolute()
@@ -392,7 +432,9 @@ def run_sweep(
         (results_dir / TASKS_FOLDER).mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise InputError(f"cannot create: {err.strerror or err}", path=results_dir) from err
-    tasks = plan_tasks(sweep, results_dir)
+    hashes = HashCache(results_dir / HASHES_FILE, use=not force)
+    tasks = plan_tasks(sweep, results_dir, hashes=hashes)
+    hashes.save()
     results: dict[int, TaskResult] = {}
     if not force:
         for task in tasks:
@@ -402,7 +444,7 @@ def run_sweep(
     reused = len(results)
     pending = [task for task in tasks if task.index not in results]
     if on_plan is not None:
-        on_plan(tasks, len(pending))
+        on_plan(tasks, pending)
     if on_result is not None:
         for index in sorted(results):
             on_result(tasks[index], results[index], True)

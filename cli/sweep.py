@@ -129,9 +129,13 @@ class _PlainDisplay:
     def __exit__(self, *exc: object) -> None:
         return None
 
-    def plan(self, tasks: Any, to_run: int) -> None:
+    def plan(self, tasks: Any, to_run: Any) -> None:
         self.total = len(tasks)
-        self.terminal.info(f"{len(tasks)} tasks, {len(tasks) - to_run} already done, {to_run} to run")
+        renders = len({t.source.path for t in to_run if t.source.render is not None})
+        rendering = f" (first rendering {renders} recording{'s' if renders != 1 else ''})" if renders else ""
+        self.terminal.info(
+            f"{len(tasks)} tasks, {len(tasks) - len(to_run)} already done, {len(to_run)} to run{rendering}"
+        )
 
     def result(self, task: Task, result: TaskResult, reused: bool) -> None:
         self.done += 1
@@ -187,8 +191,11 @@ class _LiveDisplay:
     def __exit__(self, *exc: object) -> None:
         self.live.__exit__(None, None, None)
 
-    def plan(self, tasks: Any, to_run: int) -> None:
+    def plan(self, tasks: Any, to_run: Any) -> None:
         self.progress.update(self.bar, total=len(tasks))
+        renders = len({t.source.path for t in to_run if t.source.render is not None})
+        if renders:
+            self.terminal.console.print(f"rendering {renders} recording{'s' if renders != 1 else ''} first")
 
     def result(self, task: Task, result: TaskResult, reused: bool) -> None:
         from rich.text import Text

@@ -372,3 +372,21 @@ def test_several_grids_run_in_turn_and_every_row_shows_the_effective_values(tmp_
     bad.write_text("[[render]]\n[[grid]]\nbeta = 1.0\n[[grid]]\nbeta = -1.0\n")
     with pytest.raises(ConfigError, match="grid #2: beta must be a positive number"):
         read_sweep_file(bad)
+
+
+def test_recording_hashes_are_kept_while_path_size_and_mtime_hold(recordings, tmp_path):
+    from aslam.app.sweep import HashCache, file_sha256
+
+    recording = tmp_path / "r.mcap"
+    recording.write_bytes((recordings / "good.mcap").read_bytes())
+    real = file_sha256(recording)
+    cache = HashCache(tmp_path / "hashes.json")
+    assert cache.sha256(recording) == real
+    cache.save()
+    saved = json.loads((tmp_path / "hashes.json").read_text())
+    saved[str(recording)]["sha256"] = "0" * 64  # what a re-run would take without reading the file
+    (tmp_path / "hashes.json").write_text(json.dumps(saved))
+    assert HashCache(tmp_path / "hashes.json").sha256(recording) == "0" * 64
+    assert HashCache(tmp_path / "hashes.json", use=False).sha256(recording) == real  # --force
+    os.utime(recording, ns=(0, 0))
+    assert HashCache(tmp_path / "hashes.json").sha256(recording) == real  # touched: read again
