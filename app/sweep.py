@@ -425,6 +425,10 @@ def run_sweep(
     any failed.
     ``client``: a Dask client to use (and leave open) instead of starting one (a bench, a notebook).
     """
+    if scheduler is not None and workers is not None:
+        raise InputError("--workers sizes a local cluster; the cluster at --scheduler has its own workers")
+    if workers is not None and workers < 1:
+        raise InputError(f"--workers must be at least 1, got {workers}")
     results_dir = Path(results_dir).absolute()
     if results_dir.exists() and not results_dir.is_dir():
         raise InputError("is not a folder", path=results_dir)

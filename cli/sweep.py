@@ -68,10 +68,6 @@ def sweep(
     terminal = Terminal(quiet=quiet, verbose=verbose)
     objectives = resolve_objectives(pareto) if pareto is not None else []
     spec = read_sweep_file(sweep_file)
-    if workers is not None and workers < 1:
-        from aslam.core.errors import InputError
-
-        raise InputError(f"--workers must be at least 1, got {workers}")
     display = (
         _LiveDisplay(terminal, spec.figures)
         if terminal.shows_progress
