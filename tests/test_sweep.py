@@ -390,3 +390,19 @@ def test_recording_hashes_are_kept_while_path_size_and_mtime_hold(recordings, tm
     assert HashCache(tmp_path / "hashes.json", use=False).sha256(recording) == real  # --force
     os.utime(recording, ns=(0, 0))
     assert HashCache(tmp_path / "hashes.json").sha256(recording) == real  # touched: read again
+
+
+def test_pareto_prints_the_undominated_tasks_on_stdout(local_run, recordings, capsys):
+    _code, results = local_run
+    sweep = _write_sweep(recordings)
+    code = main(["sweep", str(sweep), "-o", str(results), "--pareto", "precision,recall,best.x_m.mean", "-q"])
+    assert code == 3  # the corrupt recording fails again
+    out = capsys.readouterr().out
+    assert "Pareto set:" in out and "↑ loop_closure.precision" in out and "↓ error.best.x_m.mean" in out
+    ok = [r for r in _rows(results) if r["status"] == "ok"]
+    objectives = resolve_objectives("precision,recall,best.x_m.mean")
+    expected = pareto_front(
+        [TaskResult(r["task"], r["key"], r, None, (), 1.0, 1.0, "w") for r in ok], objectives
+    )
+    listed = {int(line.split("│")[1]) for line in out.splitlines() if line.startswith("│")}
+    assert listed == {r.index for r in expected} and 1 not in listed and listed
