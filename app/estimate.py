@@ -6,7 +6,6 @@ warnings out through callbacks, a typed summary back; no terminal.
 
 from __future__ import annotations
 
-import hashlib
 import threading
 import time
 from collections.abc import Callable
@@ -28,7 +27,7 @@ from aslam.data_formats.estimate import (
     Timing,
     check_output_path,
 )
-from aslam.data_formats.files import source_files
+from aslam.data_formats.files import source_files, source_sha256
 from aslam.data_formats.provenance import tool_version
 from aslam.data_formats.sources import TopicChoice, open_input
 
@@ -79,25 +78,16 @@ class FileHasher:
         self.path = path
         self.files = source_files(path)
         self._digest: str | None = None
-        self._error: OSError | None = None
+        self._error: InputError | None = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="aslam-sha256", daemon=True)
         self._thread.start()
 
     def _run(self) -> None:
-        sha = hashlib.sha256()
         try:
-            for file in self.files:
-                with file.open("rb") as f:
-                    while not self._stop.is_set():
-                        block = f.read(4 * 1024 * 1024)
-                        if not block:
-                            break
-                        sha.update(block)
-        except OSError as err:
+            self._digest = source_sha256(self.path, self._stop)
+        except InputError as err:
             self._error = err
-            return
-        self._digest = sha.hexdigest()
 
     def cancel(self) -> None:
         self._stop.set()
@@ -106,7 +96,7 @@ class FileHasher:
     def result(self) -> str:
         self._thread.join()
         if self._error is not None:
-            raise InputError(f"cannot read: {self._error.strerror or self._error}", path=self.path)
+            raise self._error
         assert self._digest is not None
         return self._digest
 
@@ -120,6 +110,7 @@ def estimate(
     force: bool = False,
     timing: bool = True,
     workers: int = DEFAULT_WORKERS,
+    reader_process: bool = True,
     on_progress: Callable[[EstimateProgress], None] | None = None,
     on_warning: Callable[[str], None] | None = None,
 ) -> EstimateSummary:
@@ -129,6 +120,7 @@ def estimate(
     ``.bag``); topics left None are the recording's standard ones or found in the bag. Streams.
     ``output`` appears only when complete; any failure or interrupt leaves nothing under it. With
     ``timing=False`` the same inputs give a byte-identical file.
+    ``reader_process=False`` reads in this process (see :func:`aslam.app.pipeline.run_estimate`).
     """
     if workers < 1:
         raise InputError(f"--workers must be at least 1, got {workers}")
@@ -153,7 +145,15 @@ def estimate(
     try:
         with (
             EstimateWriter(output, tool_version=tool_version(), force=force) as writer,
-            closing(run_estimate(source.samples(), estimator, counts=counts, workers=workers)) as steps,
+            closing(
+                run_estimate(
+                    source.samples(),
+                    estimator,
+                    counts=counts,
+                    workers=workers,
+                    reader_process=reader_process,
+                )
+            ) as steps,
         ):
             last_update = 0.0
             actions = []

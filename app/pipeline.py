@@ -184,10 +184,17 @@ def run_estimate(
     counts: PipelineCounts | None = None,
     workers: int = DEFAULT_WORKERS,
     depth: int = DEFAULT_DEPTH,
+    reader_process: bool = True,
 ) -> Iterator[StepResult]:
-    """Feed ``samples`` through ``estimator``; one ``StepResult`` per keyframe, in order."""
+    """Feed ``samples`` through ``estimator``; one ``StepResult`` per keyframe, in order.
+
+    ``reader_process=False`` keeps the reader in this process: needed where this process may not
+    have children (a daemonic process, such as a Dask worker), and right where one core per run
+    is wanted (a sweep running one task per core).
+    """
     counts = counts if counts is not None else PipelineCounts()
-    produce = keyframes_from_child_process if can_fork() else keyframe_histograms
+    in_child = reader_process and can_fork()
+    produce = keyframes_from_child_process if in_child else keyframe_histograms
     keyframes = produce(
         samples,
         estimator.keyframe_action,

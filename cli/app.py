@@ -18,6 +18,7 @@ from aslam.data_formats.provenance import tool_version
 
 EXIT_OK = 0
 EXIT_BAD_INPUT = 2
+EXIT_TASKS_FAILED = 3  # `aslam sweep`: some tasks failed (aslam.app.sweep.TasksFailed)
 EXIT_INTERNAL = 70
 EXIT_INTERRUPTED = 130
 
@@ -55,12 +56,12 @@ def _root(
     """Appearance-based SLAM with a tree of path hypotheses, over MCAP recordings.
 
     record → estimate → report.  Exit codes: 0 success, 1 a `report --fail-on` gate failed,
-    2 bad input or usage, 70 internal error (a bug), 130 interrupted.
+    2 bad input or usage, 3 some `sweep` tasks failed, 70 internal error (a bug), 130 interrupted.
     """
 
 
 def _register_commands() -> None:
-    from aslam.cli import estimate, import_folder, info, record, report  # noqa: F401  (registers the commands)
+    from aslam.cli import estimate, import_folder, info, record, report, sweep  # noqa: F401  (registers the commands)
 
 
 def error_line(message: str) -> None:

@@ -7,7 +7,9 @@ never leaves a half file under the final name.
 
 from __future__ import annotations
 
+import hashlib
 import os
+import threading
 from collections.abc import Callable
 from pathlib import Path
 from typing import IO
@@ -114,3 +116,21 @@ def source_files(path: Path) -> list[Path]:
     if path.is_dir():
         return sorted(p for p in path.iterdir() if p.is_file())
     return [path]
+
+
+def source_sha256(path: Path, stop: threading.Event | None = None) -> str:
+    """SHA-256 of a recording's bytes (one file, or a bag folder's files in name order): its identity,
+    wherever it lives. ``stop`` set: return early (the digest is then meaningless). InputError on a
+    read failure."""
+    sha = hashlib.sha256()
+    try:
+        for file in source_files(path):
+            with file.open("rb") as f:
+                while not (stop is not None and stop.is_set()):
+                    block = f.read(4 * 1024 * 1024)
+                    if not block:
+                        break
+                    sha.update(block)
+    except OSError as err:
+        raise InputError(f"cannot read: {err.strerror or err}", path=path) from err
+    return sha.hexdigest()

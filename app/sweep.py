@@ -1,0 +1,680 @@
+"""``run_sweep()``: every (recording, parameter set) of a sweep file as a task on Dask distributed.
+
+Shaped like ``aslam.app.estimate.estimate``: paths and typed inputs in, progress through
+callbacks, a typed result back; no terminal. A task calls the application layer
+(:func:`aslam.app.estimate.estimate`, then :func:`aslam.app.score.score`) on a worker, from files
+the worker can reach: the recordings and ``RESULTS_DIR`` (on a cluster: a shared filesystem, at
+the same path on every machine). A recording to render is one render task whose future the
+estimate tasks that read it depend on, so it is rendered once, before them, on some worker.
+
+Tasks never raise: a failure becomes a row with its error, and the sweep goes on. Each finished
+task is saved at once as ``RESULTS_DIR/tasks/KEY.json``, so an interrupted sweep loses nothing;
+a re-run skips tasks whose successful result is saved (``force`` recomputes). A task's key is the
+SHA-256 of its recording's identity (the file's SHA-256, or for a recording to render its
+configuration, which decides its bytes), its full estimator configuration, the scoring options
+and the aslam version. The tables (``results.parquet``, ``results.csv``) hold one row per task, in task order
+(recordings in file order, then parameter sets in grid order), so the same sweep gives the same
+rows, except the timing and worker columns.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import socket
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from aslam.app.sweep_file import ScoreOptions, Sweep
+from aslam.core.config import EstimatorConfig
+from aslam.core.errors import AslamError, InputError
+from aslam.data_formats.files import source_sha256, write_atomically
+from aslam.data_formats.provenance import tool_version
+from aslam.recorder.config import RecordConfig
+
+RESULTS_PARQUET = "results.parquet"
+RESULTS_CSV = "results.csv"
+TASKS_FOLDER = "tasks"
+HASHES_FILE = "hashes.json"
+ESTIMATES_FOLDER = "estimates"
+RENDERS_FOLDER = "recordings"
+#: The Dask setting through which the nanny gives worker processes ``MALLOC_TRIM_THRESHOLD_``.
+NANNY_MALLOC_TRIM = "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_"
+#: Columns of every row besides the parameters (``param.NAME``) and the figures (summary keys).
+TIMING_COLUMNS = ("estimate_wall_s", "keyframes_per_second", "task_cpu_s")
+#: Columns that legitimately differ between two runs of the same sweep.
+VARYING_COLUMNS = (*TIMING_COLUMNS, "timing.keyframes_per_second", "worker")
+
+
+class TasksFailed(AslamError):
+    """Some tasks of a sweep failed; their rows say why (exit 3). The others' results are written."""
+
+    exit_code = 3
+
+
+def _digest(value: Any) -> str:
+    text = json.dumps(value, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+# --- the plan --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Source:
+    """Where a task's recording comes from: a file given in the sweep, or a render."""
+
+    path: Path
+    """The recording file (for a render: where the render task writes it, under RESULTS_DIR)."""
+    identity: str
+    """SHA-256 of the file, or of the render configuration (which decides the file's bytes)."""
+    render: RecordConfig | None = None
+
+    @property
+    def label(self) -> str:
+        if self.render is None:
+            return self.path.name
+        return f"render {Path(self.render.route).stem} seed {self.render.seed} ({self.path.name})"
+
+
+@dataclass(frozen=True)
+class Task:
+    """One estimate + score: a recording under one parameter set."""
+
+    index: int
+    source: Source
+    parameters: tuple[tuple[str, Any], ...]
+    """Its grid's values for this task (the rest of the configuration is the default)."""
+    config: EstimatorConfig
+    score: ScoreOptions
+    key: str
+    estimate_path: Path
+
+
+def render_path(results_dir: Path, config: RecordConfig) -> tuple[Path, str]:
+    """Where a render of ``config`` goes, and its identity (the configuration's SHA-256)."""
+    identity = _digest({"render": asdict(config), "version": tool_version()})
+    name = f"{Path(config.route).stem}-seed{config.seed}-{identity[:12]}.mcap"
+    return results_dir / RENDERS_FOLDER / name, identity
+
+
+class HashCache:
+    """Recordings' SHA-256 kept in ``RESULTS_DIR/hashes.json``, valid while path, size and mtime hold.
+
+    A re-run then reads no recording it has hashed before; a recording rewritten since (another
+    size or mtime) is hashed again. The identity stays the content's hash, so a copied or moved
+    recording is still the same task.
+    """
+
+    def __init__(self, path: Path | None, *, use: bool = True) -> None:
+        self.path = path
+        self.entries: dict[str, dict[str, Any]] = {}
+        if path is not None and use:
+            try:
+                loaded = json.loads(path.read_text())
+                self.entries = loaded if isinstance(loaded, dict) else {}
+            except (OSError, ValueError):
+                self.entries = {}
+        self.changed = False
+
+    def sha256(self, recording: Path) -> str:
+        try:
+            stat = recording.stat()  # a bag folder's mtime changes when its files are replaced
+        except OSError as err:
+            raise InputError(f"cannot read: {err.strerror or err}", path=recording) from err
+        stamp = {"size": stat.st_size, "mtime_ns": stat.st_mtime_ns}
+        entry = self.entries.get(str(recording))
+        if isinstance(entry, dict) and all(entry.get(k) == v for k, v in stamp.items()):
+            digest = entry.get("sha256")
+            if isinstance(digest, str):
+                return digest
+        digest = source_sha256(recording)
+        self.entries[str(recording)] = {**stamp, "sha256": digest}
+        self.changed = True
+        return digest
+
+    def save(self) -> None:
+        if self.path is not None and self.changed:
+            text = json.dumps(self.entries, sort_keys=True, indent=1) + "\n"
+            write_atomically(self.path, lambda temporary: temporary.write_text(text))
+
+
+def plan_tasks(sweep: Sweep, results_dir: Path, *, hashes: HashCache | None = None) -> list[Task]:
+    """Every task of ``sweep``, in the stable order the rows take.
+
+    Hashes each recording file (one sequential read), or takes its hash from ``hashes``.
+    """
+    results_dir = Path(results_dir).absolute()
+    hashes = hashes if hashes is not None else HashCache(None)
+    sources = []
+    for path in sweep.recordings:
+        sources.append(Source(path, hashes.sha256(path)))
+    for config in sweep.renders:
+        path, identity = render_path(results_dir, config)
+        sources.append(Source(path, identity, config))
+    tasks = []
+    for source in sources:
+        for parameters in sweep.parameter_sets():
+            config = EstimatorConfig(**dict(parameters))
+            key = _digest(
+                {
+                    "recording": source.identity,
+                    "config": asdict(config),
+                    "score": asdict(sweep.score),
+                    "version": tool_version(),
+                }
+            )
+            tasks.append(
+                Task(
+                    index=len(tasks),
+                    source=source,
+                    parameters=parameters,
+                    config=config,
+                    score=sweep.score,
+                    key=key,
+                    estimate_path=results_dir / ESTIMATES_FOLDER / f"{key[:16]}.mcap",
+                )
+            )
+    return tasks
+
+
+# --- what runs on a worker -------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Rendered:
+    """A render task's outcome, handed to the estimate tasks that depend on it."""
+
+    path: Path
+    error: str | None = None
+    seconds: float = 0.0
+
+
+@dataclass(frozen=True)
+class TaskResult:
+    """What a task sends back: the whole summary (every figure), timings, or the error."""
+
+    index: int
+    key: str
+    summary: dict[str, Any] | None
+    """Every dotted leaf of the report summary; None when the task failed."""
+    error: str | None
+    warnings: tuple[str, ...]
+    estimate_wall_s: float | None
+    keyframes_per_second: float | None
+    worker: str
+    task_cpu_s: float | None = None
+    """CPU seconds of the worker process during the task (estimate and score; its threads too)."""
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None
+
+
+def error_text(err: BaseException) -> str:
+    """The one line a failed task shows: an ``AslamError``'s message, else the type and message."""
+    text = str(err) if isinstance(err, AslamError) else f"{type(err).__name__}: {err}"
+    return " ".join(text.split())
+
+
+def worker_name() -> str:
+    """The Dask worker's address, or host:pid outside a worker."""
+    try:
+        from distributed import get_worker
+
+        return str(get_worker().address)
+    except (ImportError, ValueError):
+        return f"{socket.gethostname()}:{os.getpid()}"
+
+
+def render_task(config: RecordConfig, path: Path, force: bool) -> Rendered:
+    """Render ``config`` to ``path`` unless it is already there (renders are atomic and deterministic)."""
+    from aslam.recorder.record import record
+
+    start = time.perf_counter()
+    try:
+        if force or not path.exists():
+            path.parent.mkdir(parents=True, exist_ok=True)
+            record(config, path, force=True)
+    except Exception as err:
+        return Rendered(path, f"render failed: {error_text(err)}", time.perf_counter() - start)
+    return Rendered(path, None, time.perf_counter() - start)
+
+
+def run_task(task: Task, rendered: Rendered | None = None) -> TaskResult:
+    """Estimate and score one task, in this process; every failure becomes the result's error.
+
+    The pipeline reads in this process (``reader_process=False``, one histogram thread): a Dask
+    worker process is daemonic and may not fork a reader, and one task per core is the sweep's
+    parallelism.
+    """
+    from aslam.app.estimate import estimate
+    from aslam.app.score import leaves, score
+
+    warnings: list[str] = []
+    worker = worker_name()
+    cpu_start = time.process_time()
+
+    def failed(error: str) -> TaskResult:
+        return TaskResult(task.index, task.key, None, error, tuple(warnings), None, None, worker)
+
+    if rendered is not None and rendered.error is not None:
+        return failed(rendered.error)
+    try:
+        task.estimate_path.parent.mkdir(parents=True, exist_ok=True)
+        summary = estimate(
+            task.source.path,
+            task.estimate_path,
+            task.config,
+            force=True,
+            workers=1,
+            reader_process=False,
+            on_warning=warnings.append,
+        )
+        report = score(
+            task.estimate_path,
+            recording=task.source.path,
+            radius_m=task.score.radius_m,
+            heading_deg=task.score.heading_deg,
+            on_warning=warnings.append,
+        )
+    except Exception as err:
+        return failed(error_text(err))
+    return TaskResult(
+        task.index,
+        task.key,
+        leaves(report.summary),
+        None,
+        tuple(warnings),
+        summary.wall_s,
+        summary.keyframes_per_second,
+        worker,
+        time.process_time() - cpu_start,
+    )
+
+
+# --- saved results ---------------------------------------------------------------------------------
+
+
+def _task_file(results_dir: Path, key: str) -> Path:
+    return results_dir / TASKS_FOLDER / f"{key[:16]}.json"
+
+
+def save_result(results_dir: Path, result: TaskResult) -> None:
+    """Keep a finished task's result (atomically), so that a re-run can skip it."""
+    path = _task_file(results_dir, result.key)
+    text = json.dumps(asdict(result), sort_keys=True, indent=1) + "\n"
+    write_atomically(path, lambda temporary: temporary.write_text(text))
+
+
+def load_result(results_dir: Path, task: Task) -> TaskResult | None:
+    """The saved successful result of ``task``, or None (absent, failed, unreadable or another task's)."""
+    path = _task_file(results_dir, task.key)
+    try:
+        data = json.loads(path.read_text())
+        result = TaskResult(**{**data, "index": task.index, "warnings": tuple(data["warnings"])})
+    except (OSError, ValueError, TypeError, KeyError):
+        return None
+    return result if result.ok and result.key == task.key else None
+
+
+# --- running ---------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SweepRun:
+    """A finished sweep: every task with its result, and the tables written."""
+
+    tasks: tuple[Task, ...]
+    results: tuple[TaskResult, ...]
+    """In task order."""
+    reused: int
+    """Results taken from an earlier run instead of computed."""
+    parquet: Path
+    csv: Path
+
+    @property
+    def failed(self) -> int:
+        return sum(not r.ok for r in self.results)
+
+    def check(self) -> None:
+        """Raise :class:`TasksFailed` (exit 3) if any task failed."""
+        if self.failed:
+            raise TasksFailed(
+                f"{self.failed} of {len(self.tasks)} tasks failed; their rows say why", path=self.csv
+            )
+
+
+def open_client(*, workers: int | None, scheduler: str | None) -> Any:
+    """A Dask client: of the cluster at ``scheduler``, or of a new local cluster of worker processes.
+
+    The local cluster has ``workers`` processes (default: one per core) of one thread each: the
+    estimator holds the GIL, so processes, not threads, use the cores. Its workers start without
+    the ``MALLOC_TRIM_THRESHOLD_=65536`` Dask's nanny sets by default: that fixed threshold also
+    turns off glibc's adaptive mmap threshold, and every decoded image then costs an mmap/munmap
+    and its page faults (measured: twice the CPU time of a task).
+    """
+    import logging
+
+    import dask
+    from distributed import Client, LocalCluster
+
+    if scheduler is not None:
+        if workers is not None:
+            raise InputError(
+                "--workers sizes a local cluster; the cluster at --scheduler has its own workers"
+            )
+        try:
+            return Client(scheduler, timeout="10s")
+        except (OSError, TimeoutError, ValueError) as err:  # ValueError: not an address
+            raise InputError(f"cannot reach the Dask scheduler at {scheduler}: {err}") from err
+    count = (
+        workers
+        if workers is not None
+        else (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
+    )
+    if count < 1:
+        raise InputError(f"--workers must be at least 1, got {count}")
+    # None: the variable is not set (Dask's convention). No statistical profiler either: it samples
+    # the task's stack every 10 ms for a dashboard nobody looks at here (measured: 12 % of CPU).
+    with dask.config.set({NANNY_MALLOC_TRIM: None, "distributed.worker.profile.enabled": False}):
+        cluster = LocalCluster(
+            n_workers=count,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            silence_logs=logging.CRITICAL,  # a failing task is a row; shutdown chatter is noise
+        )
+    return Client(cluster)
+
+
+def run_sweep(
+    sweep: Sweep,
+    results_dir: Path,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    force: bool = False,
+    extra_figures: Sequence[str] = (),
+    client: Any | None = None,
+    on_plan: Callable[[Sequence[Task], Sequence[Task]], None] | None = None,
+    on_result: Callable[[Task, TaskResult, bool], None] | None = None,
+) -> SweepRun:
+    """Run every task of ``sweep`` not already done in ``results_dir``; write the tables.
+
+    ``on_plan(tasks, to_run)`` is called once before work starts (every task, and those to run);
+    ``on_result(task, result, reused)`` once per task as it finishes (reused ones first). Results
+    arrive in completion order; the tables are in task order and hold the sweep's figures and
+    ``extra_figures``. A failed task does not stop the others; :meth:`SweepRun.check` says whether
+    any failed.
+    ``client``: a Dask client to use (and leave open) instead of starting one (a bench, a notebook).
+    """
+    if scheduler is not None and workers is not None:
+        raise InputError("--workers sizes a local cluster; the cluster at --scheduler has its own workers")
+    if workers is not None and workers < 1:
+        raise InputError(f"--workers must be at least 1, got {workers}")
+    results_dir = Path(results_dir).absolute()
+    if results_dir.exists() and not results_dir.is_dir():
+        raise InputError("is not a folder", path=results_dir)
+    try:
+        (results_dir / TASKS_FOLDER).mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(f"cannot create: {err.strerror or err}", path=results_dir) from err
+    hashes = HashCache(results_dir / HASHES_FILE, use=not force)
+    tasks = plan_tasks(sweep, results_dir, hashes=hashes)
+    hashes.save()
+    results: dict[int, TaskResult] = {}
+    if not force:
+        for task in tasks:
+            saved = load_result(results_dir, task)
+            if saved is not None:
+                results[task.index] = saved
+    reused = len(results)
+    pending = [task for task in tasks if task.index not in results]
+    if on_plan is not None:
+        on_plan(tasks, pending)
+    if on_result is not None:
+        for index in sorted(results):
+            on_result(tasks[index], results[index], True)
+    if pending:
+        own = client is None
+        client = open_client(workers=workers, scheduler=scheduler) if own else client
+        try:
+            for task, result in _compute(client, pending, force=force):
+                save_result(results_dir, result)
+                results[task.index] = result
+                if on_result is not None:
+                    on_result(task, result, False)
+        finally:
+            if own:
+                _close(client, local=scheduler is None)
+    ordered = tuple(results[task.index] for task in tasks)
+    parquet, csv = write_tables(results_dir, sweep, tasks, ordered, extra_figures)
+    return SweepRun(tuple(tasks), ordered, reused, parquet, csv)
+
+
+def _compute(client: Any, tasks: Sequence[Task], *, force: bool) -> Iterable[tuple[Task, TaskResult]]:
+    """Submit the render tasks, then the estimate tasks depending on them; yield as they finish."""
+    from distributed import as_completed
+
+    renders: dict[Path, Any] = {}
+    futures: dict[Any, Task] = {}
+    for task in tasks:
+        dependency = None
+        render = task.source.render
+        if render is not None:
+            if task.source.path not in renders:
+                renders[task.source.path] = client.submit(
+                    render_task, render, task.source.path, force, key=f"render-{task.source.identity[:16]}"
+                )
+            dependency = renders[task.source.path]
+        future = client.submit(run_task, task, dependency, key=f"estimate-{task.key[:16]}", retries=0)
+        futures[future] = task
+    for future in as_completed(futures):
+        task = futures[future]
+        if future.status == "finished":
+            result = future.result()
+        else:  # the worker died, or the task could not be shipped: still one row
+            try:
+                error = error_text(future.exception())
+            except Exception as err:  # cancelled futures have no exception to fetch
+                error = error_text(err)
+            result = TaskResult(task.index, task.key, None, error, (), None, None, "")
+        future.release()
+        yield task, result
+
+
+def _close(client: Any, *, local: bool) -> None:
+    cluster = client.cluster if local else None
+    client.close()
+    if cluster is not None:
+        cluster.close()
+
+
+# --- tables ----------------------------------------------------------------------------------------
+
+
+def columns(sweep: Sweep, extra_figures: Iterable[str] = ()) -> list[str]:
+    """The table's columns, in order."""
+    params = [f"param.{name}" for name in sweep.parameter_names()]
+    figures = list(dict.fromkeys([*sweep.figures, *extra_figures]))
+    return [
+        "task",
+        "key",
+        "status",
+        "recording",
+        "render",
+        *params,
+        *figures,
+        *TIMING_COLUMNS,
+        "error",
+        "warnings",
+        "worker",
+        "config",
+    ]
+
+
+def rows(
+    sweep: Sweep, tasks: Sequence[Task], results: Sequence[TaskResult], extra_figures: Iterable[str] = ()
+) -> list[dict[str, Any]]:
+    """One dict per task, keyed by :func:`columns`."""
+    figures = list(dict.fromkeys([*sweep.figures, *extra_figures]))
+    out = []
+    for task, result in zip(tasks, results, strict=True):
+        summary = result.summary or {}
+        row: dict[str, Any] = {
+            "task": task.index,
+            "key": task.key[:16],
+            "status": "ok" if result.ok else "error",
+            "recording": str(task.source.path),
+            "render": "" if task.source.render is None else _render_text(task.source.render),
+        }
+        row.update({f"param.{name}": getattr(task.config, name) for name in sweep.parameter_names()})
+        row.update({key: summary.get(key) for key in figures})
+        row.update(
+            {
+                "estimate_wall_s": result.estimate_wall_s,
+                "keyframes_per_second": result.keyframes_per_second,
+                "task_cpu_s": result.task_cpu_s,
+                "error": result.error or "",
+                "warnings": "; ".join(result.warnings),
+                "worker": result.worker,
+                "config": json.dumps(asdict(task.config), sort_keys=True),
+            }
+        )
+        out.append(row)
+    return out
+
+
+def _render_text(config: RecordConfig) -> str:
+    cam = config.camera
+    parts = [
+        f"route={config.route}",
+        f"seed={config.seed}",
+        f"laps={config.laps}",
+        f"size={cam.width_px}x{cam.height_px}",
+        f"noise={config.noise.noise:g}",
+        f"aliasing={config.aliasing:g}",
+    ]
+    return " ".join(parts)
+
+
+def arrow_table(
+    sweep: Sweep, tasks: Sequence[Task], results: Sequence[TaskResult], extra_figures: Iterable[str] = ()
+) -> Any:
+    """The rows as a ``pyarrow.Table``: one typed column each (int, float, bool or string; nulls kept)."""
+    import pyarrow as pa
+
+    extra_figures = list(extra_figures)
+    names = columns(sweep, extra_figures)
+    data = rows(sweep, tasks, results, extra_figures)
+    arrays = {}
+    for name in names:
+        values = [row.get(name) for row in data]
+        arrays[name] = pa.array(values, type=_arrow_type(values))
+    return pa.table(arrays)
+
+
+def _arrow_type(values: list[Any]) -> Any:
+    import pyarrow as pa
+
+    present = [v for v in values if v is not None]
+    if present and all(isinstance(v, bool) for v in present):
+        return pa.bool_()
+    if present and all(isinstance(v, int) and not isinstance(v, bool) for v in present):
+        return pa.int64()
+    if all(isinstance(v, int | float) and not isinstance(v, bool) for v in present):
+        return pa.float64()  # also an all-null figure column: a number that could not be measured
+    return pa.string()
+
+
+def write_tables(
+    results_dir: Path,
+    sweep: Sweep,
+    tasks: Sequence[Task],
+    results: Sequence[TaskResult],
+    extra_figures: Iterable[str] = (),
+) -> tuple[Path, Path]:
+    """``results.parquet`` and ``results.csv``, each written under a temporary name and renamed."""
+    import pyarrow.csv
+    import pyarrow.parquet
+
+    table = arrow_table(sweep, tasks, results, extra_figures)
+    parquet = results_dir / RESULTS_PARQUET
+    csv = results_dir / RESULTS_CSV
+    write_atomically(parquet, lambda temporary: pyarrow.parquet.write_table(table, temporary))
+    write_atomically(csv, lambda temporary: pyarrow.csv.write_csv(table, temporary))
+    return parquet, csv
+
+
+# --- selection -------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Objective:
+    """A figure to optimise, and in which direction."""
+
+    key: str
+    maximise: bool
+
+
+def lower_is_better(key: str) -> bool:
+    """Errors and delays are better small; every other figure (precision, recall, speed) large."""
+    return key.startswith("error.") or "delay" in key
+
+
+def resolve_objectives(text: str) -> list[Objective]:
+    """``precision,recall,-hypotheses.max`` → objectives; a name is a summary key or its unique tail.
+
+    ``+NAME``/``-NAME`` force maximising/minimising; otherwise :func:`lower_is_better` decides.
+    """
+    from aslam.app.score import summary_keys
+
+    known = sorted(summary_keys())
+    objectives = []
+    problems = []
+    for raw in (part.strip() for part in text.split(",")):
+        if not raw:
+            continue
+        sign, name = (raw[0], raw[1:]) if raw[0] in "+-" else ("", raw)
+        matches = [key for key in known if key == name] or [key for key in known if key.endswith("." + name)]
+        if len(matches) != 1:
+            what = f"is ambiguous ({', '.join(matches)})" if matches else "is not a summary key"
+            problems.append(f"--pareto: '{name}' {what}")
+            continue
+        key = matches[0]
+        maximise = sign == "+" if sign else not lower_is_better(key)
+        objectives.append(Objective(key, maximise))
+    if problems:
+        raise InputError("; ".join(problems) + f" (keys: {', '.join(known)})")
+    if not objectives:
+        raise InputError("--pareto needs at least one figure name")
+    return objectives
+
+
+def pareto_front(results: Sequence[TaskResult], objectives: Sequence[Objective]) -> list[TaskResult]:
+    """The successful results no other dominates (at least as good on every objective, better on one).
+
+    Results missing any objective's value (null: not measurable) take no part. Order is kept.
+    """
+    candidates = []
+    for result in results:
+        if not result.ok or result.summary is None:
+            continue
+        values = [result.summary.get(o.key) for o in objectives]
+        if any(v is None for v in values):
+            continue
+        candidates.append(
+            (result, [v if o.maximise else -v for v, o in zip(values, objectives, strict=True)])
+        )
+
+    def dominates(a: list[float], b: list[float]) -> bool:
+        return all(x >= y for x, y in zip(a, b, strict=True)) and any(
+            x > y for x, y in zip(a, b, strict=True)
+        )
+
+    return [r for r, v in candidates if not any(dominates(w, v) for _other, w in candidates)]

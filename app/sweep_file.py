@@ -1,0 +1,338 @@
+"""The sweep file: which recordings, times which estimator parameters, scored how, collecting what.
+
+A TOML file (``docs/sweep.md``, example in ``docs/examples/sweep.toml``) read into frozen
+dataclasses. Every problem in it (unknown keys, wrong types, globs that match nothing, parameter
+values the estimator refuses, unknown summary keys) is found in one pass and reported at once,
+as one :class:`ConfigError` line naming the file. Paths in the file are relative to its folder.
+"""
+
+from __future__ import annotations
+
+import glob
+import itertools
+import re
+import tomllib
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from aslam.core.config import EstimatorConfig
+from aslam.core.errors import ConfigError
+from aslam.recorder.config import CameraSpec, NoiseParams, RecordConfig, parse_size
+
+DEFAULT_FIGURES = (
+    "keyframes",
+    "loop_closure.precision",
+    "loop_closure.recall",
+    "relocalisation.mean_delay_keyframes",
+    "error.best.x_m.mean",
+    "error.best.y_m.mean",
+    "error.best.heading_deg.mean",
+    "timing.keyframes_per_second",
+)
+
+TOP_LEVEL_KEYS = ("figures", "recordings", "render", "grid", "score")
+RECORDINGS_KEYS = ("paths",)
+SCORE_KEYS = {"radius_m": float, "heading_deg": float}
+#: Keys of a ``[[render]]`` table and their types; each may also be a list of such values.
+RENDER_KEYS: dict[str, type] = {
+    "route": str,
+    "seeds": int,
+    "laps": int,
+    "noise": float,
+    "drift_deg_per_m": float,
+    "jitter_m": float,
+    "jitter_deg": float,
+    "aliasing": float,
+    "world": str,
+    "size": str,
+    "fov_deg": float,
+    "camera_height_m": float,
+    "fps": float,
+    "jpeg_quality": int,
+}
+
+
+@dataclass(frozen=True)
+class ScoreOptions:
+    """How every estimate is scored (``aslam.app.score.score``'s options)."""
+
+    radius_m: float = 0.5
+    heading_deg: float = 45.0
+
+
+Grid = tuple[tuple[str, tuple[Any, ...]], ...]
+"""Estimator parameters and their values, in file order; its parameter sets are their product."""
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """A checked sweep file: every recording and parameter set it names, in a stable order."""
+
+    path: Path
+    recordings: tuple[Path, ...]
+    """Recording files (absolute), in the order given; each glob's matches sorted by name."""
+    renders: tuple[RecordConfig, ...]
+    """Recordings to render first, in the order of the ``[[render]]`` tables and their value lists."""
+    grids: tuple[Grid, ...]
+    """The ``[grid]`` table, or the ``[[grid]]`` tables in file order (none: the defaults)."""
+    figures: tuple[str, ...] = DEFAULT_FIGURES
+    score: ScoreOptions = field(default_factory=ScoreOptions)
+
+    def parameter_sets(self) -> Iterator[tuple[tuple[str, Any], ...]]:
+        """Every grid's combinations in turn, the last key varying fastest (one empty set for no grid)."""
+        for grid in self.grids or ((),):
+            names = [name for name, _values in grid]
+            for values in itertools.product(*(values for _name, values in grid)):
+                yield tuple(zip(names, values, strict=True))
+
+    def parameter_names(self) -> tuple[str, ...]:
+        """Every parameter some grid names, in order of first appearance."""
+        return tuple(dict.fromkeys(name for grid in self.grids for name, _values in grid))
+
+
+def _as_list(value: Any) -> list[Any]:
+    return list(value) if isinstance(value, list) else [value]
+
+
+def _type_problem(where: str, value: Any, kind: type) -> str | None:
+    """Why ``value`` is not a ``kind`` (ints are accepted for floats, booleans for nothing), or None."""
+    if kind is float:
+        ok = isinstance(value, int | float) and not isinstance(value, bool)
+        want = "a number"
+    elif kind is int:
+        ok = isinstance(value, int) and not isinstance(value, bool)
+        want = "a whole number"
+    else:
+        ok = isinstance(value, kind)
+        want = "a string"
+    return None if ok else f"{where} must be {want}, got {value!r}"
+
+
+def read_sweep_file(path: Path) -> Sweep:
+    """Read and check ``path``; :class:`ConfigError` (exit 2) listing every problem at once."""
+    path = Path(path)
+    try:
+        with path.open("rb") as f:
+            document = tomllib.load(f)
+    except FileNotFoundError as err:
+        raise ConfigError("no such sweep file", path=path) from err
+    except IsADirectoryError as err:
+        raise ConfigError("is a directory, not a sweep file", path=path) from err
+    except OSError as err:
+        raise ConfigError(f"cannot read: {err.strerror or err}", path=path) from err
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise ConfigError(f"not valid TOML ({err})", path=path) from err
+    problems: list[str] = []
+    base = path.absolute().parent
+    problems += [
+        f"unknown key '{key}' (known: {', '.join(TOP_LEVEL_KEYS)})"
+        for key in document
+        if key not in TOP_LEVEL_KEYS
+    ]
+    recordings = _recordings(document.get("recordings", {}), base, problems)
+    renders = _renders(document.get("render", []), base, problems)
+    if not recordings and not renders and not any("recordings" in p or "render" in p for p in problems):
+        problems.append("no recordings: give [recordings] paths and/or [[render]] tables")
+    grids = _grids(document.get("grid", []), problems)
+    figures = _figures(document.get("figures", list(DEFAULT_FIGURES)), problems)
+    score = _score(document.get("score", {}), problems)
+    if problems:
+        raise ConfigError("; ".join(dict.fromkeys(problems)), path=path)
+    return Sweep(path.absolute(), recordings, renders, grids, figures, score)
+
+
+def _table(value: Any, name: str, known: Any, problems: list[str]) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        problems.append(f"'{name}' must be a table ([{name}])")
+        return {}
+    for key in value:
+        if key not in known:
+            problems.append(f"unknown key '{name}.{key}' (known: {', '.join(known)})")
+    return {key: item for key, item in value.items() if key in known}
+
+
+def _recordings(value: Any, base: Path, problems: list[str]) -> tuple[Path, ...]:
+    table = _table(value, "recordings", RECORDINGS_KEYS, problems)
+    patterns = table.get("paths", [])
+    if not isinstance(patterns, list) or not all(isinstance(p, str) for p in patterns):
+        problems.append(f"recordings.paths must be a list of strings (paths or globs), got {patterns!r}")
+        return ()
+    found: dict[Path, None] = {}
+    for pattern in patterns:
+        full = Path(pattern).expanduser()
+        full = full if full.is_absolute() else base / full
+        if glob.has_magic(str(full)):
+            matches = sorted(Path(p) for p in glob.glob(str(full), recursive=True) if Path(p).exists())
+            if not matches:
+                problems.append(f"recordings.paths: '{pattern}' matches nothing")
+            found.update(dict.fromkeys(m.absolute() for m in matches))
+        elif not full.exists():
+            problems.append(f"recordings.paths: '{pattern}' does not exist (a recording or a bag)")
+        else:
+            found[full.absolute()] = None
+    return tuple(found)
+
+
+def _renders(value: Any, base: Path, problems: list[str]) -> tuple[RecordConfig, ...]:
+    if isinstance(value, dict):
+        value = [value]
+    if not isinstance(value, list) or not all(isinstance(t, dict) for t in value):
+        problems.append("'render' must be tables ([[render]])")
+        return ()
+    configs: dict[RecordConfig, None] = {}
+    for number, raw in enumerate(value, start=1):
+        where = f"render #{number}"
+        table = _table(raw, "render", RENDER_KEYS, problems)
+        lists: dict[str, list[Any]] = {}
+        bad = False
+        for key, item in table.items():
+            items = _as_list(item)
+            if not items:
+                problems.append(f"{where}: {key} is an empty list")
+                bad = True
+            for one in items:
+                problem = _type_problem(f"{where}: {key}", one, RENDER_KEYS[key])
+                if problem:
+                    problems.append(problem)
+                    bad = True
+            lists[key] = items
+        if bad:
+            continue
+        lists.setdefault("route", ["paper"])
+        lists.setdefault("seeds", [0])
+        names = list(lists)
+        for combination in itertools.product(*(lists[name] for name in names)):
+            config = _record_config(dict(zip(names, combination, strict=True)), base, where, problems)
+            if config is not None:
+                configs[config] = None
+    return tuple(configs)
+
+
+def _record_config(knobs: dict[str, Any], base: Path, where: str, problems: list[str]) -> RecordConfig | None:
+    from aslam.recorder.routes import PRESETS
+
+    route = knobs["route"]
+    if route not in PRESETS:
+        route_path = Path(route) if Path(route).is_absolute() else base / route
+        if not route_path.is_file():
+            problems.append(f"{where}: route '{route}' is neither a preset ({', '.join(PRESETS)}) nor a file")
+            return None
+        route = str(route_path)
+    world = knobs.get("world")
+    if world is not None:
+        world_path = Path(world) if Path(world).is_absolute() else base / world
+        if not world_path.is_file():
+            problems.append(f"{where}: world '{world}' is not a file")
+            return None
+        world = world_path
+    width, height = CameraSpec().width_px, CameraSpec().height_px
+    size_problem = None
+    if "size" in knobs:
+        try:
+            width, height = parse_size(knobs["size"])
+        except ConfigError as err:
+            size_problem = f"{where}: {_option_to_key(err.problem)}"
+    noise = NoiseParams()
+    config = RecordConfig(
+        route=route,
+        laps=knobs.get("laps"),
+        seed=knobs["seeds"],
+        noise=NoiseParams(
+            noise=float(knobs.get("noise", noise.noise)),
+            drift_deg_per_m=float(knobs.get("drift_deg_per_m", noise.drift_deg_per_m)),
+            jitter_m=float(knobs.get("jitter_m", noise.jitter_m)),
+            jitter_deg=float(knobs.get("jitter_deg", noise.jitter_deg)),
+        ),
+        aliasing=float(knobs.get("aliasing", 0.0)),
+        world=world,
+        camera=CameraSpec(
+            width_px=width,
+            height_px=height,
+            fov_deg=float(knobs.get("fov_deg", CameraSpec().fov_deg)),
+            height_m=float(knobs.get("camera_height_m", CameraSpec().height_m)),
+        ),
+        fps=None if knobs.get("fps") is None else float(knobs["fps"]),
+        jpeg_quality=knobs.get("jpeg_quality"),
+    )
+    found = [f"{where}: {_option_to_key(p)}" for p in config.problems()]
+    if size_problem is not None:
+        found.insert(0, size_problem)
+    problems += found
+    return None if found else config
+
+
+def _option_to_key(message: str) -> str:
+    """``--fov-deg must …`` (the recorder speaks in options) → ``fov_deg must …`` (sweep-file keys)."""
+    return re.sub(r"--([a-z][a-z-]*)", lambda m: m.group(1).replace("-", "_"), message)
+
+
+def _grids(value: Any, problems: list[str]) -> tuple[Grid, ...]:
+    """``[grid]`` (one table) or ``[[grid]]`` (several, each a product; their sets run in turn)."""
+    if isinstance(value, dict):
+        return (_grid(value, "grid", problems),)
+    if not isinstance(value, list) or not all(isinstance(t, dict) for t in value):
+        problems.append("'grid' must be a table ([grid]) or tables ([[grid]])")
+        return ()
+    return tuple(
+        _grid(table, f"grid #{n}" if len(value) > 1 else "grid", problems) for n, table in enumerate(value, 1)
+    )
+
+
+def _grid(value: dict[str, Any], where: str, problems: list[str]) -> Grid:
+    types = {name: kind for name, kind, _default, _help in EstimatorConfig.parameters()}
+    table = _table(value, "grid", types, problems)
+    grid: list[tuple[str, tuple[Any, ...]]] = []
+    bad = False
+    for key, item in table.items():
+        values = _as_list(item)
+        if not values:
+            problems.append(f"{where}: {key} is an empty list")
+            bad = True
+        for one in values:
+            problem = _type_problem(f"{where}: {key}", one, types[key])
+            if problem:
+                problems.append(problem)
+                bad = True
+        grid.append((key, tuple(values)))
+    if bad:
+        return tuple(grid)
+    grid = [(key, tuple(types[key](v) for v in values)) for key, values in grid]
+    names = [name for name, _values in grid]
+    for combination in itertools.product(*(values for _name, values in grid)):
+        try:
+            EstimatorConfig(**dict(zip(names, combination, strict=True)))
+        except ConfigError as err:
+            problems.append(f"{where}: {err.problem}")
+    return tuple(grid)
+
+
+def _figures(value: Any, problems: list[str]) -> tuple[str, ...]:
+    from aslam.app.score import summary_keys
+
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        problems.append(f"figures must be a list of summary keys, got {value!r}")
+        return DEFAULT_FIGURES
+    known = summary_keys()
+    for key in value:
+        if key not in known:
+            problems.append(f"figures: unknown summary key '{key}' (known: {', '.join(sorted(known))})")
+    return tuple(dict.fromkeys(value))
+
+
+def _score(value: Any, problems: list[str]) -> ScoreOptions:
+    table = _table(value, "score", SCORE_KEYS, problems)
+    values = {}
+    for key, item in table.items():
+        problem = _type_problem(f"score.{key}", item, float)
+        if problem:
+            problems.append(problem)
+        else:
+            values[key] = float(item)
+    options = ScoreOptions(**values)
+    if not options.radius_m > 0:
+        problems.append(f"score.radius_m must be positive, got {options.radius_m}")
+    if not 0 < options.heading_deg <= 180:
+        problems.append(f"score.heading_deg must be in (0, 180], got {options.heading_deg}")
+    return options

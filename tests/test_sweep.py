@@ -1,0 +1,409 @@
+"""`aslam sweep` on real Dask clusters (a LocalCluster, and a scheduler + worker started as processes).
+
+The recordings are tiny renders (64×48, paper route, 2 laps) so that a sweep takes seconds; the
+corrupt one is garbage bytes under a .mcap name.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pyarrow.csv
+import pyarrow.parquet
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from aslam.app.sweep import (
+    VARYING_COLUMNS,
+    Objective,
+    TaskResult,
+    pareto_front,
+    plan_tasks,
+    resolve_objectives,
+    rows,
+    run_sweep,
+)
+from aslam.app.sweep_file import read_sweep_file
+from aslam.cli.app import main
+from aslam.core.errors import ConfigError, InputError
+from aslam.recorder.config import CameraSpec, RecordConfig
+from aslam.recorder.record import record
+
+FIGURES = ["keyframes", "loop_closure.precision", "loop_closure.recall", "error.best.x_m.mean"]
+
+
+@pytest.fixture(scope="module")
+def recordings(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("recordings")
+    record(RecordConfig(route="paper", laps=2, seed=0, camera=CameraSpec(64, 48)), folder / "good.mcap")
+    (folder / "corrupt.mcap").write_bytes(os.urandom(4096))
+    return folder
+
+
+def _write_sweep(folder: Path) -> Path:
+    """3 tasks: a recording file, a corrupt file, and a recording rendered by the sweep itself."""
+    path = folder / "sweep.toml"
+    path.write_text(
+        f"""
+figures = {json.dumps(FIGURES)}
+
+[recordings]
+paths = ["good.mcap", "corrupt.mcap"]
+
+[[render]]
+route = "paper"
+seeds = [1]
+laps = 2
+size = "64x48"
+
+[grid]
+beta = 3.0
+
+[score]
+radius_m = 0.5
+"""
+    )
+    return path
+
+
+@pytest.fixture(scope="module")
+def local_run(recordings, tmp_path_factory):
+    """The sweep on a local cluster of 2 worker processes, through the command line."""
+    results = tmp_path_factory.mktemp("local")
+    code = main(["sweep", str(_write_sweep(recordings)), "-o", str(results), "--workers", "2", "-q"])
+    return code, results
+
+
+def _rows(results: Path) -> list[dict]:
+    return pyarrow.parquet.read_table(results / "results.parquet").to_pylist()
+
+
+def test_local_cluster_runs_three_tasks_one_failing_on_a_corrupt_recording(local_run, recordings):
+    code, results = local_run
+    assert code == 3  # some tasks failed
+    rows = _rows(results)
+    assert [row["task"] for row in rows] == [0, 1, 2]
+    good, corrupt, rendered = rows
+    for row in (good, rendered):
+        assert row["status"] == "ok" and row["error"] == ""
+        assert row["keyframes"] > 20
+        assert 0 <= row["loop_closure.precision"] <= 1 and 0 < row["loop_closure.recall"] <= 1
+        assert row["error.best.x_m.mean"] is not None
+        assert row["estimate_wall_s"] > 0 and row["keyframes_per_second"] > 0
+        assert row["worker"].startswith("tcp://")
+        assert row["param.beta"] == 3.0
+    assert good["recording"] == str(recordings / "good.mcap")
+    assert rendered["render"].startswith("route=paper seed=1")
+    assert Path(rendered["recording"]).is_file()
+    assert corrupt["status"] == "error"
+    assert str(recordings / "corrupt.mcap") in corrupt["error"] and "not a recording or a bag" in corrupt["error"]
+    assert corrupt["loop_closure.precision"] is None and corrupt["keyframes"] is None
+    csv = pyarrow.csv.read_csv(results / "results.csv")
+    assert csv.num_rows == 3 and csv.column("status").to_pylist() == ["ok", "error", "ok"]
+    assert not list(results.glob(".*partial*"))
+
+
+def _figures(rows: list[dict]) -> list[dict]:
+    """What must not depend on where or how fast a task ran."""
+    drop = {*VARYING_COLUMNS, "recording"}  # a render's path is under its results folder
+    return [{k: v for k, v in row.items() if k not in drop} for row in rows]
+
+
+def test_a_cluster_started_separately_gives_the_same_rows(local_run, recordings, tmp_path):
+    """`dask scheduler` and `dask worker` as real processes; the sweep joins with --scheduler."""
+    dask = Path(sys.executable).with_name("dask")
+    scheduler_file = tmp_path / "scheduler.json"
+    processes = [
+        subprocess.Popen(
+            [
+                str(dask),
+                "scheduler",
+                "--port",
+                "0",
+                "--no-dashboard",
+                "--scheduler-file",
+                str(scheduler_file),
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+    ]
+    try:
+        deadline = time.monotonic() + 60
+        while not scheduler_file.exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        address = json.loads(scheduler_file.read_text())["address"]
+        processes.append(
+            subprocess.Popen(
+                [str(dask), "worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard"],
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )
+        )
+        results = tmp_path / "results"
+        code = main(
+            ["sweep", str(_write_sweep(recordings)), "-o", str(results), "--scheduler", address, "-q"]
+        )
+    finally:
+        for process in reversed(processes):
+            process.terminate()
+        for process in reversed(processes):
+            process.wait(timeout=30)
+    assert code == 3
+    rows = _rows(results)
+    assert all(row["worker"].startswith("tcp://") for row in rows if row["status"] == "ok")
+    assert _figures(rows) == _figures(_rows(local_run[1]))
+
+
+def test_a_rerun_skips_the_done_tasks_and_force_recomputes(local_run, recordings):
+    _code, results = local_run
+    sweep = read_sweep_file(_write_sweep(recordings))
+    estimates = {p: p.stat().st_mtime_ns for p in (results / "estimates").glob("*.mcap")}
+    assert len(estimates) == 2
+    seen: list[tuple[int, bool]] = []
+    run = run_sweep(
+        sweep, results, workers=1, on_result=lambda task, _r, reused: seen.append((task.index, reused))
+    )
+    assert run.reused == 2 and run.failed == 1
+    assert sorted(seen) == [(0, True), (1, False), (2, True)]  # the failed task is tried again
+    assert {p: p.stat().st_mtime_ns for p in (results / "estimates").glob("*.mcap")} == estimates
+    assert _figures(_rows(results)) == _figures(_rows(local_run[1]))
+    forced = run_sweep(sweep, results, workers=1, force=True)
+    assert forced.reused == 0
+    assert all(p.stat().st_mtime_ns != mtime for p, mtime in estimates.items())
+    assert _same_but_timing(forced.results, run.results)
+
+
+def _same_but_timing(a: tuple[TaskResult, ...], b: tuple[TaskResult, ...]) -> bool:
+    def strip(results):
+        return [
+            None if r.summary is None else {k: v for k, v in r.summary.items() if not k.startswith("timing.")}
+            for r in results
+        ]
+
+    return strip(a) == strip(b)
+
+
+def test_task_keys_follow_the_recording_bytes_and_the_parameters(recordings, tmp_path):
+    sweep = read_sweep_file(_write_sweep(recordings))
+    first = plan_tasks(sweep, tmp_path)
+    assert [t.key for t in first] == [t.key for t in plan_tasks(sweep, tmp_path / "elsewhere")]
+    assert len({t.key for t in first}) == 3
+    copy = tmp_path / "copy.mcap"
+    copy.write_bytes((recordings / "good.mcap").read_bytes())
+    other = tmp_path / "sweep.toml"
+    other.write_text(f'[recordings]\npaths = ["{copy}"]\n[grid]\nbeta = [3.0, 2.0]\n')
+    copied = plan_tasks(read_sweep_file(other), tmp_path)
+    assert copied[0].key == first[0].key  # the same bytes and parameters: the same task
+    assert copied[1].key != first[0].key
+    assert [t.parameters for t in copied] == [(("beta", 3.0),), (("beta", 2.0),)]
+
+
+def test_sweep_file_problems_are_one_line_exit_2_naming_the_file(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(
+        'bogus = 1\nfigures = ["loop_closure.nope"]\n[recordings]\npaths = ["*.nothing"]\n'
+        '[grid]\nbeta = ["x"]\nmax_hypotheses = 2.5\nwhat = 3\n[[render]]\nseeds = [-1]\ncolour = "red"\n'
+    )
+    assert main(["sweep", str(bad), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"aslam: error: {bad}: ")
+    for needle in [
+        "unknown key 'bogus'",
+        "unknown summary key 'loop_closure.nope'",
+        "'*.nothing' matches nothing",
+        "grid: beta must be a number, got 'x'",
+        "grid: max_hypotheses must be a whole number, got 2.5",
+        "unknown key 'grid.what'",
+        "seed must be ≥ 0, got -1",
+        "unknown key 'render.colour'",
+    ]:
+        assert needle in err
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    ("text", "needle"),
+    [
+        ("[grid]\nbeta = [-1.0, 3.0]\n", "beta must be a positive number, got -1.0"),
+        ("[grid]\ncandidate_search = ['graph', 'sideways']\n", "candidate_search must be 'graph' or 'path'"),
+        ("[score]\nradius_m = 0\n[[render]]\nseeds = 1\n", "score.radius_m must be positive"),
+        ("[grid]\nbeta = 3.0\n", "no recordings"),
+        ("[[render]]\nroute = 'nowhere'\n", "route 'nowhere' is neither a preset"),
+        ("[[render]\n", "not valid TOML"),
+    ],
+)
+def test_sweep_file_values_are_checked_by_building_the_configs(tmp_path, text, needle):
+    path = tmp_path / "s.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as caught:
+        read_sweep_file(path)
+    assert needle in str(caught.value) and str(path) in str(caught.value)
+
+
+def test_render_lists_multiply_and_grids_multiply_in_file_order(tmp_path):
+    path = tmp_path / "s.toml"
+    path.write_text(
+        "[[render]]\nseeds = [1, 2]\nnoise = [0.01, 0.05]\nsize = '64x48'\n"
+        "[grid]\ncells_x = [1, 2]\nbeta = [2, 3]\n"
+    )
+    sweep = read_sweep_file(path)
+    assert [(c.seed, c.noise.noise) for c in sweep.renders] == [(1, 0.01), (1, 0.05), (2, 0.01), (2, 0.05)]
+    assert [dict(p) for p in sweep.parameter_sets()] == [
+        {"cells_x": 1, "beta": 2.0},
+        {"cells_x": 1, "beta": 3.0},
+        {"cells_x": 2, "beta": 2.0},
+        {"cells_x": 2, "beta": 3.0},
+    ]
+    assert len(plan_tasks(sweep, tmp_path)) == 16
+
+
+def test_pareto_names_map_to_summary_keys_with_a_direction():
+    objectives = resolve_objectives(
+        "precision,recall,keyframes_per_second,first_delay_keyframes,best.x_m.max"
+    )
+    assert objectives == [
+        Objective("loop_closure.precision", True),
+        Objective("loop_closure.recall", True),
+        Objective("timing.keyframes_per_second", True),
+        Objective("relocalisation.first_delay_keyframes", False),
+        Objective("error.best.x_m.max", False),
+    ]
+    assert resolve_objectives("-hypotheses.max,+error.best.x_m.max") == [
+        Objective("hypotheses.max", False),
+        Objective("error.best.x_m.max", True),
+    ]
+    with pytest.raises(InputError, match=r"'max' is ambiguous .*'nope' is not a summary key"):
+        resolve_objectives("max,nope")
+
+
+def _result(index: int, values: list[float | None]) -> TaskResult:
+    summary = {f"f{i}": v for i, v in enumerate(values)}
+    return TaskResult(index, str(index), summary, None, (), 1.0, 1.0, "w")
+
+
+@given(st.lists(st.lists(st.integers(0, 4), min_size=2, max_size=2), min_size=1, max_size=25))
+def test_the_pareto_front_is_exactly_the_undominated_results(points):
+    objectives = [Objective("f0", True), Objective("f1", False)]
+    results = [_result(i, p) for i, p in enumerate(points)]
+    front = pareto_front(results, objectives)
+
+    def better_or_equal(a, b):
+        return a[0] >= b[0] and a[1] <= b[1]
+
+    for r in results:
+        p = points[r.index]
+        dominated = any(better_or_equal(q, p) and q != p for q in points)
+        assert (r in front) == (not dominated)
+    assert [r.index for r in front] == sorted(r.index for r in front)
+
+
+def test_the_pareto_front_leaves_out_failed_and_unmeasured_results():
+    failed = TaskResult(9, "9", None, "boom", (), None, None, "w")
+    front = pareto_front(
+        [_result(0, [1, None]), _result(1, [0, 0]), failed], [Objective("f0", True), Objective("f1", True)]
+    )
+    assert [r.index for r in front] == [1]
+
+
+def test_the_example_sweep_file_is_valid(tmp_path):
+    example = Path(__file__).resolve().parents[1] / "docs" / "examples" / "sweep.toml"
+    sweep = read_sweep_file(example)
+    assert len(sweep.renders) == 5 and len(list(sweep.parameter_sets())) == 7
+    assert len(plan_tasks(sweep, tmp_path)) == 35
+
+
+def test_estimate_with_the_reader_in_process_writes_the_same_bytes(recordings, tmp_path):
+    """What sweep tasks run (no reader child: Dask workers are daemonic) is what `aslam estimate` runs."""
+    from aslam.app.estimate import estimate
+    from aslam.core.config import EstimatorConfig
+
+    recording = recordings / "good.mcap"
+    forked, in_process = tmp_path / "forked.mcap", tmp_path / "in_process.mcap"
+    estimate(recording, forked, EstimatorConfig(), timing=False)
+    summary = estimate(
+        recording, in_process, EstimatorConfig(), timing=False, workers=1, reader_process=False
+    )
+    assert summary.keyframes > 20
+    assert forked.read_bytes() == in_process.read_bytes()
+
+
+def test_a_bad_scheduler_address_is_exit_2(recordings, tmp_path, capsys):
+    sweep = _write_sweep(tmp_path)
+    (tmp_path / "good.mcap").symlink_to(recordings / "good.mcap")
+    (tmp_path / "corrupt.mcap").symlink_to(recordings / "corrupt.mcap")
+    assert main(["sweep", str(sweep), "-o", str(tmp_path / "out"), "--scheduler", "nonsense", "-q"]) == 2
+    assert "cannot reach the Dask scheduler at nonsense" in capsys.readouterr().err
+    code = main(
+        ["sweep", str(sweep), "-o", str(tmp_path / "out"), "--scheduler", "tcp://x:1", "--workers", "2"]
+    )
+    assert code == 2 and "--workers sizes a local cluster" in capsys.readouterr().err
+
+
+def test_several_grids_run_in_turn_and_every_row_shows_the_effective_values(tmp_path, recordings):
+    path = tmp_path / "s.toml"
+    path.write_text(
+        f'[recordings]\npaths = ["{recordings / "good.mcap"}"]\n'
+        "[[grid]]\nbeta = [2.0, 3.0]\n"
+        "[[grid]]  # the paper's estimator\ncells_x = 1\ncandidate_search = 'path'\n"
+    )
+    sweep = read_sweep_file(path)
+    assert [dict(p) for p in sweep.parameter_sets()] == [
+        {"beta": 2.0},
+        {"beta": 3.0},
+        {"cells_x": 1, "candidate_search": "path"},
+    ]
+    assert sweep.parameter_names() == ("beta", "cells_x", "candidate_search")
+    tasks = plan_tasks(sweep, tmp_path)
+    results = [TaskResult(t.index, t.key, {}, None, (), 1.0, 1.0, "w") for t in tasks]
+    table = [{k: v for k, v in row.items() if k.startswith("param.")} for row in rows(sweep, tasks, results)]
+    assert table == [
+        {"param.beta": 2.0, "param.cells_x": 2, "param.candidate_search": "graph"},
+        {"param.beta": 3.0, "param.cells_x": 2, "param.candidate_search": "graph"},
+        {"param.beta": 3.0, "param.cells_x": 1, "param.candidate_search": "path"},
+    ]
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[[render]]\n[[grid]]\nbeta = 1.0\n[[grid]]\nbeta = -1.0\n")
+    with pytest.raises(ConfigError, match="grid #2: beta must be a positive number"):
+        read_sweep_file(bad)
+
+
+def test_recording_hashes_are_kept_while_path_size_and_mtime_hold(recordings, tmp_path):
+    from aslam.app.sweep import HashCache
+    from aslam.data_formats.files import source_sha256
+
+    recording = tmp_path / "r.mcap"
+    recording.write_bytes((recordings / "good.mcap").read_bytes())
+    real = source_sha256(recording)
+    cache = HashCache(tmp_path / "hashes.json")
+    assert cache.sha256(recording) == real
+    cache.save()
+    saved = json.loads((tmp_path / "hashes.json").read_text())
+    saved[str(recording)]["sha256"] = "0" * 64  # what a re-run would take without reading the file
+    (tmp_path / "hashes.json").write_text(json.dumps(saved))
+    assert HashCache(tmp_path / "hashes.json").sha256(recording) == "0" * 64
+    assert HashCache(tmp_path / "hashes.json", use=False).sha256(recording) == real  # --force
+    os.utime(recording, ns=(0, 0))
+    assert HashCache(tmp_path / "hashes.json").sha256(recording) == real  # touched: read again
+
+
+def test_pareto_prints_the_undominated_tasks_on_stdout(local_run, recordings, capsys):
+    _code, results = local_run
+    sweep = _write_sweep(recordings)
+    code = main(["sweep", str(sweep), "-o", str(results), "--pareto", "precision,recall,best.x_m.mean", "-q"])
+    assert code == 3  # the corrupt recording fails again
+    out = capsys.readouterr().out
+    assert "Pareto set:" in out and "↑ loop_closure.precision" in out and "↓ error.best.x_m.mean" in out
+    ok = [r for r in _rows(results) if r["status"] == "ok"]
+    objectives = resolve_objectives("precision,recall,best.x_m.mean")
+    expected = pareto_front(
+        [TaskResult(r["task"], r["key"], r, None, (), 1.0, 1.0, "w") for r in ok], objectives
+    )
+    listed = {int(line.split("│")[1]) for line in out.splitlines() if line.startswith("│")}
+    assert listed == {r.index for r in expected} and 1 not in listed and listed
