@@ -102,7 +102,8 @@ def test_local_cluster_runs_three_tasks_one_failing_on_a_corrupt_recording(local
     assert rendered["render"].startswith("route=paper seed=1")
     assert Path(rendered["recording"]).is_file()
     assert corrupt["status"] == "error"
-    assert str(recordings / "corrupt.mcap") in corrupt["error"] and "not a recording or a bag" in corrupt["error"]
+    assert str(recordings / "corrupt.mcap") in corrupt["error"]
+    assert "not a recording or a bag" in corrupt["error"]
     assert corrupt["loop_closure.precision"] is None and corrupt["keyframes"] is None
     csv = pyarrow.csv.read_csv(results / "results.csv")
     assert csv.num_rows == 3 and csv.column("status").to_pylist() == ["ok", "error", "ok"]
