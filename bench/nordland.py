@@ -1,0 +1,111 @@
+"""Nordland summer → winter: SeqSLAM against aslam's observation models, in one run, on real frames.
+
+The map is the summer journey, the queries the winter one; ``summer/images-N`` and
+``winter/images-N`` show the same place, and a match within ±1 file is correct (the dataset's
+usual tolerance). For each method: best-match accuracy, and over a confidence threshold the
+precision-recall curve, its area (AUC, average precision) and the recall at 100 % precision.
+
+    python bench/nordland.py [--data ../shared/data/nordland-64x32] [--first 10] [--last 17880]
+
+Prints one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from seqslam import SeqSlamParams, difference_matrix, enhance_contrast, patch_normalise, sequence_search
+
+from aslam.core.config import HistogramConfig
+from aslam.core.features import chi2_distances, orientation_histogram
+
+DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "nordland-64x32"
+TOLERANCE = 1
+
+
+def frames(folder: Path, first: int, last: int) -> tuple[list[int], np.ndarray]:
+    numbers = sorted(int(p.stem.split("-")[1]) for p in folder.glob("images-*.png"))
+    numbers = [n for n in numbers if first <= n <= last]
+    images = np.stack(
+        [cv2.imread(str(folder / f"images-{n:05d}.png"), cv2.IMREAD_GRAYSCALE) for n in numbers]
+    )
+    return numbers, images
+
+
+def place_recognition_scores(match: np.ndarray, confidence: np.ndarray) -> dict[str, float]:
+    """Query j's true reference is j (aligned lists); ``confidence``: higher is surer."""
+    correct = np.abs(match - np.arange(len(match))) <= TOLERANCE
+    order = np.argsort(-confidence, kind="stable")
+    hits = np.cumsum(correct[order])
+    claimed = np.arange(1, len(order) + 1)
+    precision = hits / claimed
+    recall = hits / len(match)
+    perfect = np.flatnonzero(precision >= 1.0)
+    average_precision = float(np.sum(precision * correct[order]) / len(match))
+    return {
+        "best_match_accuracy": float(correct.mean()),
+        "recall_at_full_precision": float(recall[perfect[-1]]) if perfect.size else 0.0,
+        "auc": average_precision,
+    }
+
+
+def seqslam(references: np.ndarray, queries: np.ndarray, length: int) -> dict[str, float]:
+    params = SeqSlamParams(sequence_length=length)
+    start = time.perf_counter()
+    d = difference_matrix(
+        patch_normalise(references, params.patch_px), patch_normalise(queries, params.patch_px)
+    )
+    match, confidence = sequence_search(enhance_contrast(d, params.contrast_window), params)
+    scores = place_recognition_scores(match, confidence)
+    return {**scores, "seconds": time.perf_counter() - start}
+
+
+def single_image(references: np.ndarray, queries: np.ndarray, config: HistogramConfig) -> dict[str, float]:
+    """aslam's observation (gradient-orientation histogram, χ²), best match per image alone."""
+    start = time.perf_counter()
+    stored = np.stack([orientation_histogram(image, config) for image in references])
+    match = np.empty(len(queries), int)
+    confidence = np.empty(len(queries))
+    for j, image in enumerate(queries):
+        distances = chi2_distances(orientation_histogram(image, config), stored)
+        best = int(np.argmin(distances))
+        outside = np.concatenate([distances[: max(best - 10, 0)], distances[best + 11 :]])
+        match[j] = best
+        confidence[j] = float(outside.min() - distances[best]) if outside.size else 0.0
+    return {**place_recognition_scores(match, confidence), "seconds": time.perf_counter() - start}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
+    parser.add_argument("--first", type=int, default=10)
+    parser.add_argument("--last", type=int, default=17880)
+    args = parser.parse_args()
+    summer_numbers, summer = frames(args.data / "summer", args.first, args.last)
+    winter_numbers, winter = frames(args.data / "winter", args.first, args.last)
+    if summer_numbers != winter_numbers:
+        raise SystemExit("summer and winter frame numbers differ")
+    result = {
+        "frames": len(summer_numbers),
+        "range": [summer_numbers[0], summer_numbers[-1]],
+        "tolerance_files": TOLERANCE,
+        "seqslam_length_10": seqslam(summer, winter, 10),
+        "seqslam_length_20": seqslam(summer, winter, 20),
+        "aslam_histogram_paper": single_image(summer, winter, HistogramConfig(bins=16, cells_x=1, cells_y=1)),
+        "aslam_histogram_cells": single_image(summer, winter, HistogramConfig(bins=16, cells_x=2, cells_y=1)),
+    }
+    print(json.dumps(result, indent=1))
+
+
+if __name__ == "__main__":
+    main()
