@@ -97,10 +97,6 @@ class Drift:
         return float(self.position_m.max())
 
     @property
-    def final_heading_deg(self) -> float:
-        return float(self.heading_deg[-1])
-
-    @property
     def max_heading_deg(self) -> float:
         return float(self.heading_deg.max())
 
