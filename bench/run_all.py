@@ -59,7 +59,7 @@ def log(message: str) -> None:
 # --- one scenario ----------------------------------------------------------------------------------
 
 
-def scores(evaluation: Evaluation, summary: dict[str, Any], scenario: Scenario) -> dict[str, Any]:
+def method_scores(evaluation: Evaluation, summary: dict[str, Any], scenario: Scenario) -> dict[str, Any]:
     """One method on one recording: the summary JSON and the counts the document adds to it."""
     start = scenario.second_lap_from
     lap2 = None
@@ -79,8 +79,9 @@ def scores(evaluation: Evaluation, summary: dict[str, Any], scenario: Scenario) 
 
 
 def series(values: np.ndarray) -> list[float | None]:
-    """A per-keyframe series for the JSON: micrometres are plenty for a plot, NaN becomes null."""
-    return [None if not np.isfinite(v) else round(float(v), 6) for v in values]
+    """A per-keyframe series for the JSON, NaN as null; full precision, so the plot drawn from the
+    JSON is the plot drawn from the measurement, byte for byte."""
+    return [None if not np.isfinite(v) else float(v) for v in values]
 
 
 def run_scenario(scenario: Scenario, threshold: float, work: Path, plots: Path | None, detail: bool) -> dict:
@@ -104,7 +105,7 @@ def run_scenario(scenario: Scenario, threshold: float, work: Path, plots: Path |
         steps = scenarios.estimate_steps(estimate)
         estimate.unlink()
         evaluation = evaluations[method] = evaluate(steps, keyframes.true_poses)
-        methods[method] = scores(evaluation, summary, scenario)
+        methods[method] = method_scores(evaluation, summary, scenario)
         methods[method] |= {"peak_rss_mib": result["peak_rss_mib"], "wall_s": result["wall_s"]}
         # The report and this bench must agree (same keyframes, same ground truth, same scoring).
         if len(steps) != n or summary["loop_closure"]["precision"] != evaluation.precision:
@@ -124,7 +125,7 @@ def run_scenario(scenario: Scenario, threshold: float, work: Path, plots: Path |
     for method, evaluation in (("nearest", nearest), ("odometry", odometry)):
         states = int((~evaluation.claims).sum())
         summary = build_summary(evaluation, states=states, links=0, keyframes_per_second=None)
-        methods[method] = scores(evaluation, summary, scenario)
+        methods[method] = method_scores(evaluation, summary, scenario)
     drift = baselines.odometry_drift(keyframes)
     run = {
         "scenario": {
