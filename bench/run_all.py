@@ -14,6 +14,12 @@
 
 ``--quick`` (two seeds, shorter runs, no 100,000-keyframe run) is for trying the script; it
 writes to bench/.cache/quick/ unless --results/--doc/--img are given.
+
+The results: ``machine`` (ordered rows), ``tuning`` (the nearest neighbour's threshold), ``families``
+(run names per scenario family; ``noise`` one list per σ in ``noises``), ``runs`` (per run: the
+scenario, ``methods`` with each method's ``aslam report`` summary plus the bench's scores, the
+odometry ``drift``, and per-keyframe ``series`` for the runs the document plots or narrates) and
+``speed`` (each speed bench's own ``--json`` output).
 """
 
 from __future__ import annotations
