@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 DEMO   := demo
 
-.PHONY: demo test lint bench sysdeps clean
+.PHONY: demo test lint bench bench-doc sysdeps clean
 
 # Headless OpenGL: Mesa's EGL renders on the CPU; OSMesa is the fallback. Installed only when
 # missing and only where apt-get can run (as root); otherwise the renderer says what is missing.
@@ -37,6 +37,11 @@ $(VENV)/.dev-installed: pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install -q --no-deps '$(PYOPENGL)'
 	touch $@ $(VENV)/.installed
 
+$(VENV)/.bench-installed: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install -q -e '.[bench]'
+	$(BIN)/python -m pip install -q --no-deps '$(PYOPENGL)'
+	touch $@ $(VENV)/.installed
+
 demo: sysdeps $(VENV)/.installed
 	@mkdir -p $(DEMO)
 	$(BIN)/aslam record --route paper -o $(DEMO)/paper.mcap --force --contact-sheet $(DEMO)/contact-sheet.png
@@ -52,8 +57,13 @@ lint: $(VENV)/.dev-installed
 	$(BIN)/ruff check --fix .
 	$(BIN)/ruff format .
 
-bench: sysdeps $(VENV)/.installed
+# Measures (~7 min, both cores), writes bench/results/benchmarks.json, then renders the document.
+bench: sysdeps $(VENV)/.bench-installed
 	$(BIN)/python bench/run_all.py
+
+# Only docs/benchmarks.md and its plot again from bench/results/benchmarks.json (seconds): for wording.
+bench-doc: $(VENV)/.bench-installed
+	$(BIN)/python bench/render.py
 
 clean:
 	rm -rf $(VENV) $(DEMO) build *.egg-info .pytest_cache .ruff_cache

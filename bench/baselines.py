@@ -10,7 +10,7 @@
   one recording (:func:`tune_threshold`) and then used unchanged everywhere.
 
 The keyframes are those of the estimator's own keyframe test (same ``Keyframer``), read with the
-same pipeline as ``aslam estimate`` (:func:`aslam.cli.pipeline.keyframe_histograms`), and the
+same pipeline as ``aslam estimate`` (:func:`aslam.app.pipeline.keyframe_histograms`), and the
 ground truth is matched to keyframe stamps as ``aslam report`` does (``truth_at_stamps``).
 """
 
@@ -24,15 +24,16 @@ from pathlib import Path
 
 import numpy as np
 
-from aslam.cli.pipeline import keyframe_histograms
+from aslam.app.pipeline import keyframe_histograms
+from aslam.app.score import truth_at_stamps
 from aslam.core import se2
 from aslam.core.config import EstimatorConfig
 from aslam.core.estimator import Keyframer
 from aslam.core.features import chi2_distances
 from aslam.core.metrics import Evaluation, evaluate
+from aslam.core.se2 import dead_reckoning
 from aslam.core.tree import Hypothesis
-from aslam.data_formats.recording import iter_ground_truth, iter_samples
-from aslam.data_formats.report import dead_reckoning, truth_at_stamps
+from aslam.data_formats.recording import Recording
 
 
 @dataclass(frozen=True)
@@ -54,13 +55,13 @@ def read_keyframes(recording: Path, config: EstimatorConfig | None = None) -> Ke
     keyframer = Keyframer(config.step_m, config.turn_deg, config.keyframe_slack)
     stamps, actions, histograms = [], [], []
     with closing(
-        keyframe_histograms(iter_samples(recording), keyframer.action_if_keyframe, config.histogram)
+        keyframe_histograms(Recording(recording).samples(), keyframer.action_if_keyframe, config.histogram)
     ) as keyframes:
         for keyframe in keyframes:
             stamps.append(keyframe.stamp_ns)
             actions.append(np.asarray(keyframe.action, float))
             histograms.append(keyframe.histogram)
-    with closing(iter_ground_truth(recording)) as truth:
+    with closing(Recording(recording).ground_truth()) as truth:
         true_poses = truth_at_stamps(stamps, truth)
     return Keyframes(stamps, np.array(actions).reshape(-1, 3), np.array(histograms), true_poses)
 
@@ -95,10 +96,6 @@ class Drift:
     @property
     def max_m(self) -> float:
         return float(self.position_m.max())
-
-    @property
-    def final_heading_deg(self) -> float:
-        return float(self.heading_deg[-1])
 
     @property
     def max_heading_deg(self) -> float:

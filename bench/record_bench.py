@@ -91,9 +91,8 @@ def main() -> None:
         print(json.dumps(result))
         return
     print(f"paper route, {args.laps} laps, {n} keyframes at {width}x{height}, best of {args.repeats}")
-    print(f"  record end-to-end : {n / best['end']:6.1f} keyframes/s  ({best['end']:.2f} s)")
-    print(f"  record loop       : {n / best['loop']:6.1f} keyframes/s  ({best['loop']:.2f} s)")
-    print(f"  bare pyrender loop: {n / best['bare']:6.1f} keyframes/s  ({best['bare']:.2f} s)")
+    for name, key in (("record end-to-end", "end"), ("record loop", "loop"), ("bare pyrender loop", "bare")):
+        print(f"  {name:<18}: {n / best[key]:6.1f} keyframes/s  ({best[key]:.2f} s)")
     print(f"  ratio record loop / bare loop      : {best['loop'] / best['bare']:.2f}")
     print(f"  ratio record end-to-end / bare loop: {best['end'] / best['bare']:.2f}")
 

@@ -42,8 +42,8 @@ def source_hash() -> str:
     digest = hashlib.sha256()
     files = [
         *sorted((ROOT / "recorder").glob("*.py")),
-        ROOT / "data_formats" / "recording.py",
-        ROOT / "data_formats" / "mcap_io.py",
+        ROOT / "data_formats" / "recording_writer.py",
+        ROOT / "data_formats" / "images.py",
         ROOT / "data_formats" / "ros_msgs.py",
     ]
     for path in files:

@@ -1,0 +1,251 @@
+"""`make bench-doc`: docs/benchmarks.md and the bench's plot from the results JSON alone, in seconds.
+
+    python bench/render.py [--results bench/results/benchmarks.json] [--doc docs/benchmarks.md] [--img DIR]
+
+The words are in ``bench/templates/benchmarks.md`` (Jinja2: the document's sentences depend on the
+figures, e.g. which targets were missed, and a template without conditions would push those
+sentences back into Python); this module computes the values and table rows it shows.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import tables
+from tables import Run, agg, fmt, mean, scores, summaries
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = ROOT / "bench" / "results" / "benchmarks.json"
+TEMPLATES = Path(__file__).resolve().parent / "templates"
+DRIFT_PLOT = "long-run-drift.png"
+
+
+def family(runs: list[Run], label: str | None = None) -> dict[str, Any]:
+    """What the document shows of a group of runs (five seeds of a scenario, or one route)."""
+    methods = tables.METHODS
+    f1 = {m: mean(scores(runs, m, "f1")) or 0.0 for m in methods}
+    return {
+        "runs": runs,
+        "first": runs[0],
+        "seeds": ", ".join(str(r["scenario"]["seed"]) for r in runs),
+        "lap2": tables.has_second_lap(runs),
+        "true_revisits": agg([r["true_revisits"] for r in runs], 0),
+        "drift": {
+            key: agg(tables.drift_values(runs, key), 1 if "heading" in key else 2)
+            for key in runs[0]["drift"]
+            if key != "error"
+        },
+        "loop": tables.loop_closing_rows(runs, label),
+        "errors": tables.error_rows(runs, label),
+        "cost": tables.cost_rows(runs, label),
+        "f1": f1,
+        "lap2_mean": mean(scores(runs, "aslam", "second_lap_accuracy")),
+        "precision": {m: mean(summaries(runs, m, "loop_closure.precision")) for m in methods},
+        "recall": {m: mean(summaries(runs, m, "loop_closure.recall")) for m in methods},
+        "winner": tables.METHOD_NAMES[max(("aslam", "paper-faithful", "nearest"), key=lambda m: f1[m])],
+        "first_delay": {
+            m: agg(summaries(runs, m, "relocalisation.first_delay_keyframes"), 1, "never") for m in methods
+        },
+        "wrong": {m: sum(scores(runs, m, "wrong_claims")) for m in methods},
+        "missed": {m: sum(scores(runs, m, "missed_revisits")) for m in methods},
+        "hypotheses_max": summaries(runs, "aslam", "hypotheses.max"),
+        "drift_max_mean": float(np.mean(tables.drift_values(runs, "max_m"))),
+        "f1_margin": f1["aslam"] - f1["nearest"],
+    }
+
+
+def comparison(seed1: Run, paper: list[Run]) -> dict[str, Any]:
+    """The paper's figures 8–11 set against seed 1 with the project defaults."""
+    s1 = seed1["methods"]["aslam"]["summary"]
+    lap = seed1["scenario"]["second_lap_from"]
+    counts = np.asarray(seed1["series"]["hypotheses"])
+    several = counts > 1
+    best = s1["error"]["best"]
+    firsts = summaries(paper, "aslam", "relocalisation.first_delay_keyframes")
+    firsts += summaries(paper, "paper-faithful", "relocalisation.first_delay_keyframes")
+    return {
+        "first_lap_max": int(counts[:lap].max(initial=1)),
+        "spans": tables.spans(several),
+        "back_to_one": int(np.flatnonzero(several)[-1]) + 1 if several.any() and counts[-1] == 1 else None,
+        "final": int(counts[-1]),
+        "within_jitter": best["x_m"]["max"] is not None
+        and max(best["x_m"]["max"], best["y_m"]["max"]) <= 0.25,
+        "sooner": all(d is not None and d < 14 for d in firsts),
+    }
+
+
+def notes(speed: dict[str, Any], search_max_states: int) -> dict[str, Any]:
+    """The figures behind the notes on missed speed targets."""
+    estimate = []
+    for key in ("estimate_laps4", "estimate_laps10"):
+        d = speed[key]
+        if d["ratio"] > 1.25:
+            gap, allowed = d["estimate_s"] - d["floor_s"], 0.25 * d["floor_s"]
+            step_ms = d["slam_only_s"] / d["keyframes"] * 1e3
+            estimate.append(
+                d
+                | {
+                    "gap": gap,
+                    "allowed": allowed,
+                    "step_ms": step_ms,
+                    "target_step_ms": max(d["slam_only_s"] - (gap - allowed), 0) / d["keyframes"] * 1e3,
+                    "search_pct": speed["estimate_laps10"].get("profile", {}).get("_search", float("nan"))
+                    * 100,
+                }
+            )
+    small, big = speed["scaling_blocks"], speed["scaling_big"]
+    rows = tables.target_rows(speed)
+    return {
+        "estimate": estimate,
+        "scaling": [
+            speed[k]
+            for k in ("scaling_blocks", "scaling_random", "scaling_big")
+            if speed[k]["ratio_last_over_first"] > 1.3
+        ],
+        "blocks": {
+            "small": small,
+            "big": big,
+            "growth": big["last_ms"] / small["last_ms"],
+            "cap": search_max_states,
+        },
+        "targets": rows,
+        "missed": [r for r in rows if not r[3]],
+        "edge": [name for name, goal, measured, ok in rows if not ok and tables.near_target(goal, measured)],
+    }
+
+
+def context(results: dict[str, Any], rel_img: str) -> dict[str, Any]:
+    """Every value the template shows, from the results JSON."""
+    runs = results["runs"]
+    by_name = {
+        name: [runs[n] for n in names] for name, names in results["families"].items() if name != "noise"
+    }
+    noise = [
+        (sigma, [runs[n] for n in names])
+        for sigma, names in zip(results["noises"], results["families"]["noise"], strict=True)
+    ]
+    paper, aliasing = by_name["paper"], by_name["aliasing"]
+    seed1 = paper[0]["scenario"]
+    minutes, seconds = divmod(round(results["total_s"]), 60)
+    every = paper + aliasing + by_name["routes"] + by_name["long"]
+    routes = [(r, family([r], r["scenario"]["route"])) for r in by_name["routes"]]
+    later = [(r, family([r])) for r in by_name["routes"] + by_name["long"]]
+    shown = {name: family(by_name[name]) for name in ("paper", "aliasing", "long")}
+    margins = [("paper route", shown["paper"]["f1_margin"]), ("aliasing", shown["aliasing"]["f1_margin"])]
+    margins += [(f"{r['scenario']['route']} ×{r['scenario']['laps']}", f["f1_margin"]) for r, f in later]
+    return shown | {
+        "results": results,
+        "started": f"{datetime.datetime.fromisoformat(results['started']):%Y-%m-%d %H:%M %Z}",
+        "minutes": minutes,
+        "seconds": seconds,
+        "img": rel_img,
+        "images": results["images"] + [DRIFT_PLOT],
+        "speed": results["speed"],
+        "tuning": results["tuning"],
+        "lap": seed1["second_lap_from"],
+        "commands": {
+            "paper": seed1["command"].replace(f"--seed {seed1['seed']}", "--seed S"),
+            "noise": noise[0][1][0]["scenario"]["command"]
+            .replace(f"--seed {noise[0][1][0]['scenario']['seed']}", "--seed S")
+            .replace(f"--noise {noise[0][0]:g}", "--noise σ"),
+            "aliasing": aliasing[0]["scenario"]["command"].replace(
+                f"--seed {aliasing[0]['scenario']['seed']}", "--seed S"
+            ),
+        },
+        "noises": ", ".join(f"{n:g}" for n in results["noises"]),
+        "routes": routes,
+        "route_rows": {key: [row for _, f in routes for row in f[key]] for key in ("loop", "errors", "cost")}
+        | {"lap2": tables.has_second_lap(by_name["routes"])},
+        "later": later,
+        "earns": [(name, margin) for name, margin in margins if margin >= 0.02],
+        "level": [(name, margin) for name, margin in margins if margin < 0.02],
+        "noise": [(sigma, family(group)) for sigma, group in noise],
+        "noise_rows": {"loop": tables.noise_rows(noise), "lap2": tables.has_second_lap(noise[0][1])},
+        "per_seed": tables.per_seed_rows(paper),
+        "mismatches": [(r["scenario"]["name"], m) for r in every for m in r["mismatch"]],
+        "comparison": comparison(paper[0], paper),
+        "nearest_recent": sum(r["nearest_wrong_recent"] for r in paper),
+        "nearest_far": max(r["methods"]["nearest"]["worst_claim_m"] for r in aliasing),
+        "all_max": max(summaries(every, "aslam", "hypotheses.max")),
+        "all_mean": max(summaries(every, "aslam", "hypotheses.mean")),
+        "pf_max": max(summaries(every, "paper-faithful", "hypotheses.max")),
+        "estimate_rows": tables.estimate_rows(results["speed"]),
+        "scaling_rows": tables.scaling_rows(results["speed"]),
+        "notes": notes(results["speed"], results["estimator_defaults"]["search_max_states"]),
+    }
+
+
+def drift_plot(run: Run, path: Path) -> None:
+    """Odometry drift against the estimator's best-hypothesis error, per keyframe (long run)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    series = run["series"]
+    odometry = np.array(series["odometry_error_m"], dtype=float)
+    best = np.array([np.nan if v is None else v for v in series["best_error_m"]], dtype=float)
+    t = np.arange(run["keyframes"])
+    fig, ax = plt.subplots(figsize=(9, 3.6))
+    ax.plot(t, odometry, color="tab:red", lw=1.2, label="odometry only: |odometry − truth|")
+    ax.plot(t, best, ".", ms=2, color="tab:blue", label="aslam best hypothesis: revisit position error")
+    ax.set_xlabel("keyframe")
+    ax.set_ylabel("position error (m)")
+    ax.set_ylim(bottom=0)
+    ax.set_title(f"{run['scenario']['short_name']}: what the error grows to without loop closure")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper left", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def render_text(results: dict[str, Any], rel_img: str = "img") -> str:
+    """The document for ``results`` (no file written)."""
+    import jinja2
+
+    environment = jinja2.Environment(
+        loader=jinja2.FileSystemLoader(TEMPLATES),
+        undefined=jinja2.StrictUndefined,
+        trim_blocks=True,
+        lstrip_blocks=True,
+        keep_trailing_newline=True,
+    )
+    environment.filters |= {"fmt": fmt, "agg": agg, "f": format}
+    environment.globals["table"] = tables.table
+    text = environment.get_template("benchmarks.md").render(context(results, rel_img))
+    return text.rstrip() + "\n"
+
+
+def render(results_path: Path, doc: Path, img: Path) -> None:
+    """Write ``doc`` and the bench's plot in ``img`` from the results JSON at ``results_path``."""
+    results = json.loads(results_path.read_text())
+    img.mkdir(parents=True, exist_ok=True)
+    long_run = results["runs"][results["families"]["long"][0]]
+    drift_plot(long_run, img / DRIFT_PLOT)
+    doc.parent.mkdir(parents=True, exist_ok=True)
+    doc.write_text(render_text(results, os.path.relpath(img, doc.parent)))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--results", type=Path, default=RESULTS, help="results JSON of `make bench`")
+    parser.add_argument("--doc", type=Path, default=ROOT / "docs" / "benchmarks.md", help="document to write")
+    parser.add_argument("--img", type=Path, help="folder for the plots (default: img/ beside the document)")
+    args = parser.parse_args()
+    render(args.results, args.doc, args.img or args.doc.parent / "img")
+    print(f"wrote {args.doc}", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()

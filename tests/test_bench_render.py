@@ -1,0 +1,210 @@
+"""bench/render.py: the benchmark document from a tiny hand-made results JSON (no measuring)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+BENCH = Path(__file__).resolve().parent.parent / "bench"
+sys.path.insert(0, str(BENCH))
+
+import render  # noqa: E402
+
+
+def stats(mean: float | None, high: float | None) -> dict[str, dict[str, float | None]]:
+    return {axis: {"mean": mean, "max": high} for axis in ("x_m", "y_m", "heading_deg")}
+
+
+def method(precision: float | None, recall: float, f1: float, wrong: int, hypotheses_max: int = 1) -> dict:
+    claims = 0 if precision is None else 10
+    return {
+        "summary": {
+            "keyframes": 69,
+            "states": 35,
+            "links": 40,
+            "ground_truth": True,
+            "hypotheses": {"max": hypotheses_max, "mean": 1.25, "final": 1},
+            "relocalisation": {
+                "episodes": 0 if precision is None else 1,
+                "first_delay_keyframes": None if precision is None else 3,
+                "mean_delay_keyframes": None if precision is None else 3.0,
+            },
+            "loop_closure": {
+                "claims": claims,
+                "correct": claims - wrong,
+                "ground_truth_revisits": 35,
+                "precision": precision,
+                "recall": recall,
+            },
+            "error": {"best": stats(0.05, 0.125), "weighted": stats(0.0625, 0.25)},
+            "timing": {"keyframes_per_second": 250.0},
+        },
+        "f1": f1,
+        "second_lap_accuracy": recall,
+        "wrong_claims": wrong,
+        "missed_revisits": 35 - round(recall * 35),
+        "worst_claim_m": 0.5,
+        "peak_rss_mib": 80.0,
+        "wall_s": 0.5,
+    }
+
+
+def run(name: str, route: str, seed: int) -> dict[str, Any]:
+    return {
+        "scenario": {
+            "name": name,
+            "short_name": f"{route}-seed{seed}",
+            "command": f"aslam record --route {route} --laps 2 --seed {seed} --noise 0.03 -o REC.mcap",
+            "route": route,
+            "laps": 2,
+            "seed": seed,
+            "noise": 0.03,
+            "aliasing": 0.0,
+            "second_lap_from": 34 if route == "paper" else None,
+        },
+        "keyframes": 69,
+        "true_revisits": 35,
+        "record_s": None,
+        "methods": {
+            "aslam": method(0.75, 0.5, 0.6, 4, hypotheses_max=2),
+            "paper-faithful": method(0.5, 0.25, 1 / 3, 7),
+            "nearest": method(0.875, 0.625, 0.7291, 1),
+            "odometry": method(None, 0.0, 0.0, 0),
+        },
+        "drift": {"final_m": 0.5, "max_m": 1.5, "max_heading_deg": 9.0, "error": stats(0.25, 0.75)},
+        "nearest_wrong_recent": 1,
+        "mismatch": [],
+        "series": {
+            "hypotheses": [1] * 40 + [2] * 3 + [1] * 26,
+            "odometry_error_m": [i / 100 for i in range(69)],
+            "best_error_m": [None] * 34 + [0.05] * 35,
+        },
+    }
+
+
+def speed() -> dict[str, Any]:
+    estimate = {
+        "command": "python bench/estimate_bench.py --recording REC.mcap --repeats 3",
+        "size_mb": 33.7,
+        "keyframes": 145,
+        "floor_s": 0.2,
+        "estimate_s": 0.3,
+        "ratio": 1.5,
+        "keyframes_per_second": 466.0,
+        "slam_only_s": 0.045,
+        "sha256_s": 0.021,
+        "profile": {"_search": 0.61},
+    }
+    scaling = {
+        "command": "python bench/slam_scaling_bench.py --keyframes 10000 --world blocks",
+        "world": "blocks",
+        "keyframes": 10000,
+        "states": 4081,
+        "first_ms": 0.7,
+        "last_ms": 0.8,
+        "ratio_last_over_first": 1.143,
+        "hypotheses_mean": 1.0,
+        "hypotheses_max": 1,
+        "searched_states_mean": 195.0,
+        "peak_rss_mib": 119.0,
+        "bench_wall_s": 9.0,
+    }
+    return {
+        "estimate_laps4": estimate,
+        "estimate_laps10": estimate | {"ratio": 1.2},
+        "scaling_blocks": scaling | {"ratios": [1.1, 1.143, 1.2]},
+        "scaling_random": scaling
+        | {"world": "random", "ratios": [0.9, 0.9, 0.9], "ratio_last_over_first": 0.9},
+        "scaling_big": scaling | {"keyframes": 100000, "fallback": False, "timeout_s": 330, "last_ms": 0.85},
+        "record": {
+            "command": "python bench/record_bench.py --repeats 3",
+            "laps": 4,
+            "keyframes": 137,
+            "size": "320x240",
+            "repeats": 3,
+            "end_to_end_keyframes_per_second": 60.7,
+            "loop_keyframes_per_second": 64.3,
+            "bare_keyframes_per_second": 71.1,
+            "ratio_loop_over_bare": 1.1,
+            "ratio_end_to_end_over_bare": 1.17,
+        },
+    }
+
+
+@pytest.fixture
+def results() -> dict[str, Any]:
+    runs = {"p1": run("p1", "paper", 1), "p2": run("p2", "paper", 2), "g1": run("g1", "grid", 1)}
+    runs["p2"]["methods"]["aslam"]["summary"]["loop_closure"]["precision"] = 0.25
+    return {
+        "quick": False,
+        "started": "2026-11-29T20:00:00+00:00",
+        "total_s": 421.0,
+        "load_average": {"start": "0.50, 0.60, 0.70", "end": "1.00, 1.10, 1.20"},
+        "machine": [["CPU", "Test CPU"], ["cores", "2 usable (2 online)"]],
+        "estimator_defaults": {"search_max_states": 200},
+        "tuning": {"threshold": 0.00834, "precision": 0.97, "recall": 0.86, "f1": 0.91, "seed": 1},
+        "families": {
+            "paper": ["p1", "p2"],
+            "noise": [["p1", "p2"], ["p1"]],
+            "aliasing": ["p1"],
+            "routes": ["g1"],
+            "long": ["g1"],
+        },
+        "noises": [0.03, 0.1],
+        "images": ["paper-seed1-hypotheses.png"],
+        "runs": runs,
+        "speed": speed(),
+    }
+
+
+def section(text: str, heading: str) -> str:
+    """The text under ``heading`` up to the next heading of any level."""
+    start = text.index(heading + "\n") + len(heading) + 1
+    end = text.find("\n#", start)
+    return text[start : end if end >= 0 else None]
+
+
+def row(text: str, first_cells: str) -> list[str]:
+    """The cells of the first table row starting with ``first_cells`` ("a | b")."""
+    line = next(line for line in text.splitlines() if line.startswith(f"| {first_cells} |"))
+    return [cell.strip() for cell in line.strip("|").split("|")]
+
+
+def test_values_land_in_their_tables(results: dict[str, Any], tmp_path: Path) -> None:
+    path = tmp_path / "results.json"
+    path.write_text(json.dumps(results))
+    doc = tmp_path / "out" / "benchmarks.md"
+    render.render(path, doc, tmp_path / "out" / "img")
+    text = doc.read_text()
+    paper = section(text, "## Paper route: 10 m × 5 m rectangle, 2 laps, 3 % odometry noise, seeds 1, 2")
+
+    header = row(paper, "method | first delay (kf)")
+    aslam = dict(zip(header, row(paper, "aslam (defaults)"), strict=True))
+    assert aslam["precision"] == "0.50 (0.25–0.75)"  # mean (min–max) over the two seeds
+    assert aslam["recall"] == "0.50"
+    assert aslam["wrong claims (all runs)"] == "8"  # summed over runs
+    assert aslam["2nd-lap accuracy"] == "0.50"
+    odometry = dict(zip(header, row(paper, "odometry only"), strict=True))
+    assert odometry["first delay (kf)"] == "never ×2"
+    assert odometry["precision"] == "no claims ×2"
+    assert row(paper, "odometry only | odometry − truth")[2:] == ["0.25 / 0.75", "0.25 / 0.75", "0.2 / 0.8"]
+    assert row(paper, "2")[3] == "10 / 6"  # per seed: claims / correct
+
+    routes = section(text, "## Other routes: figure 8 and grid, 3 laps")
+    assert "2nd-lap accuracy" not in routes  # no second lap off the paper route
+    assert row(routes, "grid | nearest neighbour")[4] == "0.88"
+
+    assert row(text, "estimate ÷ floor, paper route 4 laps")[2:] == ["1.500", "**no**"]
+    assert "- Estimate ÷ floor is 1.500 on 145 keyframes" in text
+    assert "more than one at keyframes 40–42 (at most 2, mean 1.2; back to one from keyframe 43 on)" in text
+    assert "| load average (1, 5, 15 min) | at start 0.50, 0.60, 0.70; at end 1.00, 1.10, 1.20 |" in text
+    assert "on 2026-11-29 20:00 UTC; the whole run took 7 min 01 s." in text
+    assert (tmp_path / "out" / "img" / "long-run-drift.png").stat().st_size > 0
+
+
+def test_rendering_is_deterministic(results: dict[str, Any]) -> None:
+    assert render.render_text(results) == render.render_text(json.loads(json.dumps(results)))
