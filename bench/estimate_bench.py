@@ -128,6 +128,7 @@ def main() -> None:
     parser.add_argument("--size", default="320x240")
     parser.add_argument("--laps", type=int)
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--json", action="store_true", help="one line of JSON (for bench/speed.py)")
     args = parser.parse_args()
     recording = args.recording or recording_for(args.route, args.size, args.laps)
     floors, estimates, ratios, helps, startups = [], [], [], [], []
@@ -167,7 +168,7 @@ def main() -> None:
         "stages": parts,
         "keyframes_per_second": parts["keyframes"] / statistics.median(estimates),
     }
-    print(json.dumps(result, indent=1))
+    print(json.dumps(result) if args.json else json.dumps(result, indent=1))
 
 
 if __name__ == "__main__":

@@ -32,6 +32,7 @@ import shutil
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -168,6 +169,38 @@ def run_scenario(scenario: Scenario, threshold: float, work: Path, plots: Path |
     return run
 
 
+def run_on_dask(
+    jobs: dict[Scenario, tuple[Path | None, bool]], threshold: float, work: Path
+) -> Iterator[tuple[Scenario, dict[str, Any]]]:
+    """Every scenario as a task on a local Dask cluster, one worker process per core, through the
+    client ``aslam sweep`` uses (``aslam.app.sweep.open_client``); results as they finish.
+
+    Each task records (cached), runs ``aslam estimate``/``aslam report`` as processes (their wall
+    time and peak memory are per process, taken while another scenario may run on the other core)
+    and the baselines. The figures do not depend on the order; ``runs`` is keyed by name.
+    """
+    import os
+
+    from distributed import as_completed
+
+    from aslam.app.sweep import open_client
+
+    bench = str(Path(__file__).resolve().parent)  # the workers import scenarios, baselines from here
+    os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [bench, os.environ.get("PYTHONPATH")]))
+    client = open_client(workers=None, scheduler=None)
+    try:
+        futures = {
+            client.submit(run_scenario, scenario, threshold, work, plots, detail, pure=False): scenario
+            for scenario, (plots, detail) in jobs.items()
+        }
+        for future in as_completed(futures):
+            yield futures[future], future.result()
+    finally:
+        cluster = client.cluster
+        client.close()
+        cluster.close()
+
+
 def tuned_threshold(scenario: Scenario) -> dict[str, Any]:
     """The nearest neighbour's χ² threshold, tuned for F1 on ``scenario`` and used unchanged elsewhere."""
     path, _ = scenarios.recording(scenario, log=log)
@@ -224,11 +257,17 @@ def measure(quick: bool, img: Path) -> dict[str, Any]:
     ordered = list(dict.fromkeys(s for group in groups for s in group))
     with tempfile.TemporaryDirectory(prefix="aslam-bench-") as folder:
         work = Path(folder)
-        for i, scenario in enumerate(ordered, 1):
-            log(f"[{i}/{len(ordered)}] {scenario.name}")
-            plots = work / f"plots-{plotted[scenario]}" if scenario in plotted else None
-            detail = scenario in (paper, long_run)
-            runs[scenario.name] = run_scenario(scenario, tuning["threshold"], work, plots, detail)
+        jobs = {
+            scenario: (
+                work / f"plots-{plotted[scenario]}" if scenario in plotted else None,
+                scenario in (paper, long_run),
+            )
+            for scenario in ordered
+        }
+        for done, (scenario, run) in enumerate(run_on_dask(jobs, tuning["threshold"], work), 1):
+            log(f"[{done}/{len(ordered)}] {scenario.name}")
+            runs[scenario.name] = run
+        for scenario, (plots, _detail) in jobs.items():
             for kind in REPORT_PLOTS[plotted[scenario]] if plots else ():
                 images.append(f"{plotted[scenario]}-{kind}.png")
                 shutil.copyfile(plots / f"{kind}.png", img / images[-1])

@@ -14,8 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import baselines
-import scenarios
-from scenarios import ROOT, Scenario
+from scenarios import ROOT
 
 BENCH = ROOT / "bench"
 SCALING_BIG = 100_000
@@ -67,20 +66,18 @@ def slam_profile(recording: Path) -> dict[str, float]:
     return shares
 
 
+ESTIMATE_SIZES = ("320x240", "640x480")
+
+
 def estimate_benches(repeats: str) -> dict[str, Any]:
-    """``estimate_bench.py`` on the paper route, 4 and 10 laps at 3 fps; the 10-lap one profiled."""
+    """``estimate_bench.py`` (the ``aslam estimate`` process against the independent floor) on the
+    grid route at two image sizes; the SLAM step profiled on the first."""
     out: dict[str, Any] = {}
-    for laps in (4, 10):
-        scenario = Scenario("speed", "paper", laps, 1, fps=3)
-        path, _ = scenarios.recording(scenario, log=log)
-        data = bench_json("estimate_bench.py", "--recording", str(path), "--repeats", repeats)
-        data["command"] = (
-            f"python bench/estimate_bench.py --recording {scenario.command().split()[-1]} --repeats {repeats}"
-            f"  # {scenario.command()}"
-        )
-        out[f"estimate_laps{laps}"] = data
-        if laps == 10:
-            data["profile"] = slam_profile(path)
+    for size in ESTIMATE_SIZES:
+        data = bench_json("estimate_bench.py", "--route", "grid", "--size", size, "--repeats", repeats)
+        out[f"estimate_{size}"] = data
+        if size == ESTIMATE_SIZES[0]:
+            data["profile"] = slam_profile(Path(data["recording"]))
     return out
 
 

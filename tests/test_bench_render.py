@@ -88,15 +88,25 @@ def run(name: str, route: str, seed: int) -> dict[str, Any]:
 
 def speed() -> dict[str, Any]:
     estimate = {
-        "command": "python bench/estimate_bench.py --recording REC.mcap --repeats 3",
+        "command": "python bench/estimate_bench.py --route grid --size 320x240 --repeats 3",
+        "recording": "REC.mcap",
         "size_mb": 33.7,
-        "keyframes": 145,
-        "floor_s": 0.2,
-        "estimate_s": 0.3,
-        "ratio": 1.5,
+        "floor_s": {"median": 0.2, "min": 0.19, "max": 0.22},
+        "estimate_s": {"median": 0.3, "min": 0.28, "max": 0.33},
+        "ratio_of_medians": 1.5,
+        "pair_ratio": {"median": 1.5, "min": 1.4, "max": 1.6},
+        "help_s": {"median": 0.21, "min": 0.2, "max": 0.25},
+        "estimate_startup_s": {"median": 0.45, "min": 0.4, "max": 0.5},
         "keyframes_per_second": 466.0,
-        "slam_only_s": 0.045,
-        "sha256_s": 0.021,
+        "stages": {
+            "read_and_sync_s": 0.01,
+            "decode_s": 0.05,
+            "histogram_s": 0.08,
+            "slam_s": 0.045,
+            "write_s": 0.002,
+            "sha256_s": 0.021,
+            "keyframes": 145,
+        },
         "profile": {"_search": 0.61},
     }
     scaling = {
@@ -114,8 +124,8 @@ def speed() -> dict[str, Any]:
         "bench_wall_s": 9.0,
     }
     return {
-        "estimate_laps4": estimate,
-        "estimate_laps10": estimate | {"ratio": 1.2},
+        "estimate_320x240": estimate,
+        "estimate_640x480": estimate | {"ratio_of_medians": 0.9},
         "scaling_blocks": scaling | {"ratios": [1.1, 1.143, 1.2]},
         "scaling_random": scaling
         | {"world": "random", "ratios": [0.9, 0.9, 0.9], "ratio_last_over_first": 0.9},
@@ -198,8 +208,11 @@ def test_values_land_in_their_tables(results: dict[str, Any], tmp_path: Path) ->
     assert "2nd-lap accuracy" not in routes  # no second lap off the paper route
     assert row(routes, "grid | nearest neighbour")[4] == "0.88"
 
-    assert row(text, "estimate ÷ floor, paper route 4 laps")[2:] == ["1.500", "**no**"]
-    assert "- Estimate ÷ floor is 1.500 on 145 keyframes" in text
+    assert row(text, "estimate ÷ floor, grid route, 320×240")[2:] == ["1.500", "**no**"]
+    assert row(text, "estimate ÷ floor, grid route, 640×480")[2:] == ["0.900", "yes"]
+    assert row(text, "grid route, 320×240")[5] == "**1.500** (1.40–1.60)"
+    assert "- Estimate ÷ floor is 1.500 on the grid route, 320×240 recording (145 keyframes)" in text
+    assert "Estimate ÷ floor is 0.900" not in text  # a met target gets no note
     assert "more than one at keyframes 40–42 (at most 2, mean 1.2; back to one from keyframe 43 on)" in text
     assert "| load average (1, 5, 15 min) | at start 0.50, 0.60, 0.70; at end 1.00, 1.10, 1.20 |" in text
     assert "on 2026-11-29 20:00 UTC; the whole run took 7 min 01 s." in text
