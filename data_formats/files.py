@@ -163,6 +163,10 @@ def note_input(path: Path | str, *, error: type[InputError] = InputError) -> Non
     files.inputs.setdefault(real, Path(path))
 
 
+def _output_conflict(other: Path) -> str:
+    return f"resolves to the same file as another output of this command ({other})"
+
+
 def _input_conflict(shown: Path) -> str:
     return f"resolves to an input of this command ({shown}); refusing to overwrite it, even with --force"
 
@@ -192,11 +196,13 @@ def check_output_path(
     force: bool | None,
     error: type[InputError] = InputError,
     inputs: Iterable[Path] = (),
+    outputs: Iterable[Path] = (),
 ) -> None:
     """Fail before any work when ``path`` cannot, or must not, be written.
 
-    ``force=None`` takes the running command's ``--force``. ``inputs`` are paths the output must
-    not resolve to (besides the inputs the running command has opened).
+    ``force=None`` takes the running command's ``--force``. ``inputs`` and ``outputs`` are the
+    command's other files, which the output must not resolve to (besides the inputs the running
+    command has opened).
     """
     path = Path(path)
     if is_stream_output(path):
@@ -205,6 +211,9 @@ def check_output_path(
     for given in inputs:
         if real_path(given) == real:
             raise error(_input_conflict(Path(given)), path=path)
+    for given in outputs:
+        if not is_stream_output(given) and real_path(given) == real:
+            raise error(_output_conflict(Path(given)), path=path)
     files = current()
     if files is not None and real in files.inputs:
         raise error(_input_conflict(files.inputs[real]), path=path)
@@ -227,7 +236,7 @@ def _claim_output(path: Path, real: Path, error: type[InputError]) -> None:
         return
     other = files.outputs.get(real)
     if other is not None:
-        raise error(f"resolves to the same file as another output of this command ({other})", path=path)
+        raise error(_output_conflict(other), path=path)
     files.outputs[real] = path
 
 
