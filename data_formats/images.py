@@ -49,6 +49,45 @@ def encode_image(rgb: np.ndarray, fmt: ImageFormat = ImageFormat.PNG, jpeg_quali
 
 RAW_CHANNELS = {"mono8": 1, "rgb8": 3, "bgr8": 3}
 
+MAX_SIDE_PX = 8192
+"""Largest width and height of an image this tool decodes (docs/formats.md): read from the PNG or
+JPEG header before decoding, so a few bytes claiming a huge image cannot claim gigabytes. An
+8192×8192 grey image is 64 MiB; the colour decode OpenCV may do on the way, 192 MiB."""
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+# JPEG start-of-frame markers (SOF0..SOF15 without DHT, JPG and DAC), which carry the size.
+_JPEG_SOF = {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}
+
+
+def header_size(data: bytes) -> tuple[int, int] | None:
+    """``(width, height)`` from a PNG's IHDR or a JPEG's start-of-frame, or None if not found."""
+    if data.startswith(_PNG_SIGNATURE):
+        if len(data) < 24 or data[12:16] != b"IHDR":
+            return None
+        return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+    if not data.startswith(b"\xff\xd8"):
+        return None
+    i = 2
+    while i + 4 <= len(data):
+        if data[i] != 0xFF:
+            return None
+        marker = data[i + 1]
+        if marker == 0xFF:  # fill byte
+            i += 1
+            continue
+        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:  # no length
+            i += 2
+            continue
+        length = int.from_bytes(data[i + 2 : i + 4], "big")
+        if marker in _JPEG_SOF:
+            if i + 9 > len(data) or length < 7:
+                return None
+            return int.from_bytes(data[i + 7 : i + 9], "big"), int.from_bytes(data[i + 5 : i + 7], "big")
+        if marker == 0xDA or length < 2:  # scan data before any frame header
+            return None
+        i += 2 + length
+    return None
+
 
 class _QuietOpenCV:
     """Silence OpenCV's log while any thread decodes, so a corrupt image's warning (``[ WARN:0@…]
@@ -116,9 +155,24 @@ class LazyImage:
     def _error(self, problem: str) -> RecordingError:
         return RecordingError(f"image at stamp {self.stamp_ns} ns: {problem}", path=self.path)
 
+    def _check_header(self) -> None:
+        """Refuse, before decoding, an image whose header is missing or claims more than the limit."""
+        size = header_size(self.data)
+        if size is None:
+            raise self._error(f"corrupt {self.encoding.upper()} data (no readable header)")
+        width, height = size
+        if width == 0 or height == 0:
+            raise self._error(f"corrupt {self.encoding.upper()} data (header claims {width}x{height} pixels)")
+        if not (width <= MAX_SIDE_PX and height <= MAX_SIDE_PX):
+            raise self._error(
+                f"{self.encoding.upper()} header claims {width}x{height} pixels "
+                f"(the limit is {MAX_SIDE_PX}x{MAX_SIDE_PX})"
+            )
+
     def _imdecode(self, flags: int) -> np.ndarray:
         import cv2
 
+        self._check_header()
         buf = np.frombuffer(self.data, dtype=np.uint8)
         try:
             with _quiet_opencv():
@@ -132,7 +186,11 @@ class LazyImage:
     def _raw(self) -> np.ndarray:
         channels = RAW_CHANNELS[self.encoding]
         row = self.width * channels
-        if self.width <= 0 or self.height <= 0 or self.step < row or len(self.data) < self.step * self.height:
+        if not (0 < self.width <= MAX_SIDE_PX and 0 < self.height <= MAX_SIDE_PX):
+            raise self._error(
+                f"{self.width}x{self.height} {self.encoding} image (the limit is {MAX_SIDE_PX}x{MAX_SIDE_PX})"
+            )
+        if self.step < row or len(self.data) < self.step * self.height:
             raise self._error(
                 f"{len(self.data)} bytes do not hold a {self.width}x{self.height} {self.encoding} "
                 f"image with step {self.step}"
