@@ -113,6 +113,8 @@ class _Signals:
     def __enter__(self) -> _Signals:
         if threading.current_thread() is threading.main_thread():
             for signum in self.HANDLED:
+                if signal.getsignal(signum) is signal.SIG_IGN:
+                    continue  # ignored by whoever started us (nohup, a shell's background job): keep it so
                 self._saved[signum] = signal.signal(signum, self._handle)
         return self
 
@@ -190,16 +192,21 @@ def _is_closed_pipe(err: BaseException | None) -> bool:
     return False
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, *, startup_signals: list[int] | None = None) -> int:
     """Console entry point: run the app and map every outcome to a documented exit code.
 
-    The console script passes the return value to ``sys.exit``; tests call it directly. One
+    The console script (``aslam.cli.entry``) passes the return value to ``sys.exit`` with the
+    signals that arrived while it imported this module; tests call it directly. One
     command's outputs are renamed into place only when it succeeds (or only a gate failed); every
     other ending removes them (``aslam.data_formats.files.command_files``).
     """
     from aslam.data_formats.files import command_files
 
     with _Signals() as signals, _QuietNativeStderr(), warnings.catch_warnings():
+        if startup_signals:  # arrived while the console script was importing us
+            signals.received = startup_signals[0]
+            error_line("terminated" if signals.exit_code == EXIT_TERMINATED else "interrupted")
+            return signals.exit_code
         warnings.simplefilter("ignore")  # numpy, matplotlib, mcap: never extra lines on the terminal
         try:
             with command_files(on_warning=_warning_line) as files:
