@@ -71,8 +71,10 @@ def report(
     from aslam.app.gates import failed_conditions, parse_condition
     from aslam.app.score import score, summary_keys
     from aslam.cli.tables import print_report
+    from aslam.core.config import check_report_tolerances
 
     terminal = Terminal(quiet=quiet, verbose=verbose)
+    check_report_tolerances(radius_m, heading_deg)  # (reliability branch) bounded before any work
     keys = summary_keys()
     conditions = [parse_condition(text, keys) for text in fail_on or []]
     if graph == "-" and json_out == "-":

@@ -238,3 +238,22 @@ def _with_range(name: str, help_text: str) -> str:
         return help_text
     accepted = bounds.describe().removeprefix("a number in ").removeprefix("a whole number in ")
     return f"{help_text} Range: {accepted}."
+
+
+#: Accepted values of `aslam report`'s revisit tolerances (a revisit is within these of the earlier visit).
+REPORT_RANGES: dict[str, Bounds] = {
+    "radius_m": Bounds(0.001, 1000),
+    "heading_deg": Bounds(0, 180, low_open=True),
+}
+
+
+def check_report_tolerances(radius_m: float, heading_deg: float) -> None:
+    """ConfigError naming every tolerance (``--radius-m``, ``--heading-deg``) outside its range."""
+    values = {"radius_m": radius_m, "heading_deg": heading_deg}
+    problems = [
+        f"--{name.replace('_', '-')} must be {bounds.describe()}, got {values[name]!r}"
+        for name, bounds in REPORT_RANGES.items()
+        if not bounds.holds(values[name])
+    ]
+    if problems:
+        raise ConfigError("; ".join(problems))
