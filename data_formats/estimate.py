@@ -35,6 +35,8 @@ GRAPH_TOPIC = "/aslam/graph"
 KEYFRAME_SCHEMA_NAME = "aslam.Keyframe"
 GRAPH_SCHEMA_NAME = "aslam.Graph"
 FORMAT_VERSION = "1"
+#: The keys of the ``topics`` metadata (``aslam.data_formats.recording.RecordingTopics``' fields).
+TOPIC_KEYS = ("image", "odometry", "ground_truth", "camera_info")
 CHUNK_SIZE_BYTES = 256 * 1024
 
 # --- schemas ---------------------------------------------------------------------------------------
@@ -217,18 +219,34 @@ class EstimateMetadata:
     @classmethod
     def from_record(cls, record: Mapping[str, str], path: Path) -> EstimateMetadata:
         try:
-            return cls(
+            metadata = cls(
                 tool_version=record["tool_version"],
-                config=json.loads(record["config"]),
+                config=json.loads(record["config"], parse_constant=_no_constant),
                 recording=RecordingIdentity(
                     record["recording_path"],
                     int(record["recording_size_bytes"]),
                     record["recording_sha256"],
                 ),
-                topics=json.loads(record["topics"]),
+                topics=json.loads(record["topics"], parse_constant=_no_constant),
             )
-        except (KeyError, ValueError, TypeError) as err:
+        except (KeyError, ValueError, TypeError, RecursionError) as err:
             raise EstimateError(f"unreadable '{ESTIMATE_METADATA}' metadata ({err!r})", path=path) from err
+        problem = metadata._problem()
+        if problem is not None:
+            raise EstimateError(f"invalid '{ESTIMATE_METADATA}' metadata: {problem}", path=path)
+        return metadata
+
+    def _problem(self) -> str | None:
+        """What the writer never writes: a config that is not an object, topics that are not names."""
+        if not isinstance(self.config, dict):
+            return "config is not a JSON object"
+        if not isinstance(self.topics, dict) or not all(
+            key in TOPIC_KEYS and isinstance(value, str) for key, value in self.topics.items()
+        ):
+            return f"topics must map {', '.join(TOPIC_KEYS)} to topic names"
+        if self.recording.size_bytes < 0:
+            return "recording_size_bytes is negative"
+        return None
 
 
 @dataclass(frozen=True)

@@ -43,6 +43,15 @@ def partial_name(path: Path) -> Path:
     return path.with_name(f".{path.name}{PARTIAL_MARK}{os.getpid()}")
 
 
+def _temporary(target: Path) -> Path:
+    """:func:`partial_name` of ``target``, registered with the running command before it exists."""
+    partial = partial_name(target)
+    files = current()
+    if files is not None:
+        files.temporaries.append(partial)
+    return partial
+
+
 def real_path(path: Path | str) -> Path:
     """``path`` with every symlink and ``..`` resolved (the file that would really be touched)."""
     return Path(os.path.realpath(path))
@@ -81,6 +90,9 @@ class CommandFiles:
     inputs: dict[Path, Path] = field(default_factory=dict)
     outputs: dict[Path, Path] = field(default_factory=dict)
     staged: list[_Staged] = field(default_factory=list)
+    temporaries: list[Path] = field(default_factory=list)
+    """Every temporary name handed out, registered before the file is created: whatever an
+    interrupt skips, the end of the command removes."""
     owner_pid: int = field(default_factory=os.getpid)
 
     def warn(self, line: str) -> None:
@@ -104,6 +116,7 @@ class CommandFiles:
                 self.staged = staged[i:]
                 self.rollback()
                 raise item.error(f"cannot write: {err.strerror or err}", path=item.shown) from err
+        self._remove_temporaries()
 
     def rollback(self) -> None:
         """Remove every staged output; nothing appears under their final names."""
@@ -112,6 +125,13 @@ class CommandFiles:
         staged, self.staged = self.staged, []
         for item in staged:
             item.partial.unlink(missing_ok=True)
+        self._remove_temporaries()
+
+    def _remove_temporaries(self) -> None:
+        temporaries, self.temporaries = self.temporaries, []
+        for path in temporaries:
+            with contextlib.suppress(OSError):
+                path.unlink(missing_ok=True)
 
 
 _current: CommandFiles | None = None
@@ -187,6 +207,7 @@ def check_input_file(path: Path, *, error: type[InputError], what: str) -> int:
     if not stat.S_ISREG(st.st_mode):
         raise error(f"is not a regular file (a FIFO, socket or device), not {what}", path=path)
     note_input(path, error=error)
+    _warn_stale(real_path(path))  # e.g. a recording whose writer was killed while replacing it
     return st.st_size
 
 
@@ -217,10 +238,14 @@ def check_output_path(
     files = current()
     if files is not None and real in files.inputs:
         raise error(_input_conflict(files.inputs[real]), path=path)
-    if os.path.isdir(real):
+    try:
+        mode = os.stat(real).st_mode if os.path.lexists(real) else None
+    except OSError as err:  # a symlink loop, a folder we may not enter
+        raise error(f"cannot be written: {err.strerror or err}", path=path) from err
+    if mode is not None and stat.S_ISDIR(mode):
         raise error("is a directory", path=path)
-    if os.path.lexists(real):
-        if not stat.S_ISREG(os.stat(real).st_mode):
+    if mode is not None:
+        if not stat.S_ISREG(mode):
             raise error("exists and is not a regular file; refusing to replace it", path=path)
         if force is None:
             force = bool(files is not None and files.force)
@@ -293,11 +318,15 @@ class AtomicFile:
             self.target = real_path(self.path)
             _claim_output(self.path, self.target, error)
             _warn_stale(self.target)
-            self.partial_path = partial_name(self.target)
+            self.partial_path = _temporary(self.target)
         try:
             self.file: IO[bytes] = open(self.partial_path, "wb")  # noqa: SIM115 (closed by commit/abort)
         except OSError as err:
             raise error(f"cannot write: {err.strerror or err}", path=self.path) from err
+        except BaseException:  # an interrupt between creating the file and holding it
+            if not self.direct:
+                self.partial_path.unlink(missing_ok=True)
+            raise
         self.closed = False
 
     def commit(self, finish: Callable[[], None] | None = None) -> None:
@@ -368,7 +397,7 @@ def write_atomically(
     target = real_path(path)
     _claim_output(path, target, error)
     _warn_stale(target)
-    temporary = partial_name(target)
+    temporary = _temporary(target)
     try:
         write(temporary)
         _finish_output(temporary, target, path, error)
