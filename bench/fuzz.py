@@ -455,6 +455,8 @@ def fuzz(n: int, *, seed: int = 0, subprocess_every: int = 50, log: Any = None) 
             case = MAKERS[kind](seeds, folder, rng)
             as_subprocess = subprocess_every > 0 and rng.randrange(subprocess_every) == 0
             outcome = run_case(case, subprocess_run=as_subprocess)
+            if not as_subprocess and outcome.code in (130, 143):
+                raise KeyboardInterrupt  # the signal was meant for this run, not for the case
             codes[str(outcome.code)] += 1
             per_kind[kind][str(outcome.code)] += 1
             per_kind[kind]["subprocess" if as_subprocess else "in_process"] += 1

@@ -5,9 +5,19 @@ one bit flip turns ``string encoding`` into ``string encodinf`` and the decoded 
 has the field the reader uses. Every type the reader decodes is checked here against the fields it
 reads (name and type), in its own section and in the sections of the types it nests, so such a
 file is one error line naming the schema and the field instead of an AttributeError.
+
+The definition is parsed by mcap_ros2's own splitter and ROS parser, exactly as its decoder will
+parse it: a check that reads the text differently (a section header damaged so that a later
+section *replaces* the schema's own definition) would pass files the decoder then misreads.
+tests/test_reliability.py flips every bit of the definitions the reader decodes and checks that
+each flip is either refused here, refused by the decoder, or decodes to a message with the fields.
 """
 
 from __future__ import annotations
+
+import contextlib
+import io
+from typing import Any
 
 #: For each type (package/Type, the ``/msg/`` left out): the fields the reader uses, name → type.
 USED_FIELDS: dict[str, dict[str, str]] = {
@@ -31,7 +41,6 @@ USED_FIELDS: dict[str, dict[str, str]] = {
     "std_msgs/Header": {"stamp": "Time"},
     "builtin_interfaces/Time": {"sec": "int32", "nanosec": "uint32"},
 }
-_SEPARATOR = "=" * 80
 _ALIASES = {"byte[]": "uint8[]"}
 
 
@@ -46,41 +55,42 @@ def _base(type_string: str) -> str:
     return type_string.rsplit("/", 1)[-1]
 
 
-def _sections(name: str, text: str) -> dict[str, dict[str, str]]:
-    """Each section of a concatenated definition: type → {field name: field type}."""
-    sections: dict[str, dict[str, str]] = {}
-    current = type_key(name)
-    fields: dict[str, str] = {}
-    for raw in text.splitlines():
-        line = raw.split("#", 1)[0].strip()
-        if not line:
-            continue
-        if line.startswith("=" * 10):
-            sections.setdefault(current, fields)
-            current, fields = "", {}
-            continue
-        if line.startswith("MSG:"):
-            current = type_key(line[4:].strip())
-            continue
-        type_string, _, rest = line.partition(" ")
-        rest = rest.strip()
-        if not rest or "=" in rest:
-            continue  # a constant (TYPE NAME=VALUE) or a line the ROS parser refuses itself
-        fields.setdefault(rest.split()[0], type_string)
-    sections.setdefault(current, fields)
-    return sections
+def _definitions(name: str, text: str) -> dict[str, dict[str, str]] | None:
+    """type → {field name: field type} exactly as mcap_ros2's decoder will see them, or None if
+    the text does not parse (the decoder then reports it).
+
+    Parsed by mcap_ros2's own section splitter and ROS parser, and kept the way its decoder keeps
+    them (full and short names, a later section of one name replacing an earlier one), so the
+    check sees what the decoder will use.
+    """
+    from mcap_ros2._dynamic import _for_each_msgdef
+
+    definitions: dict[str, dict[str, str]] = {}
+
+    def keep(full_name: str, short_name: str, spec: Any) -> None:
+        fields = {field.name: str(field.type) for field in spec.fields}
+        definitions[full_name] = definitions[short_name] = fields
+
+    try:
+        with contextlib.redirect_stderr(io.StringIO()):  # the ROS parser prints before raising
+            _for_each_msgdef(name, text, keep)
+    except Exception:
+        return None
+    return definitions
 
 
 def definition_problem(name: str, text: str) -> str | None:
     """Why the definition ``text`` of schema ``name`` lacks a field the reader uses (None: it does not).
 
-    Types the reader does not decode, and sections absent from ``text`` (the ROS parser reports
-    those), are not checked here.
+    The schema's own type is checked as the decoder will take it (by its full name), the nested
+    types by their short names; a type the text does not define is left to the decoder.
     """
-    sections = _sections(name, text)
-    for section, fields in sections.items():
-        used = USED_FIELDS.get(section)
-        if used is None:
+    definitions = _definitions(name, text)
+    if definitions is None:
+        return None
+    for section, used in USED_FIELDS.items():
+        fields = definitions.get(name if section == type_key(name) else section)
+        if fields is None:
             continue
         for field, wanted in used.items():
             declared = fields.get(field)

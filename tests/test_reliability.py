@@ -512,3 +512,67 @@ def test_full_disk_is_one_line_and_leaves_nothing(
     assert main(["report", str(estimate_file), "-q", *out]) == 2
     one_error_line(capsys, "No space left on device")
     assert sorted(p.name for p in full_disk.iterdir()) == ["fill"]
+
+
+# --- schemas: every single-bit flip is caught ----------------------------------------------------
+
+
+def _flip_survivors(datatype: str, message: dict[str, Any], use: Callable[[Any], None]) -> list[str]:
+    """Single-bit flips of ``datatype``'s definition that pass every check yet break the reader."""
+    import contextlib
+    import io
+
+    from mcap.records import Schema
+    from mcap_ros2._dynamic import serialize_dynamic
+    from mcap_ros2.decoder import DecoderFactory
+
+    from aslam.data_formats.schema_check import definition_problem
+
+    text = ros_msgs.message_definition(datatype)
+    data = serialize_dynamic(datatype, text)[datatype](message)
+    survivors = []
+    for i in range(len(text)):
+        for bit in range(8):
+            flipped = bytearray(text.encode())
+            flipped[i] ^= 1 << bit
+            definition = bytes(flipped).decode("utf-8", "replace")
+            if definition_problem(datatype, definition) is not None:
+                continue
+            schema = Schema(id=1, name=datatype, encoding="ros2msg", data=definition.encode())
+            try:
+                with contextlib.redirect_stderr(io.StringIO()):
+                    decoded = DecoderFactory().decoder_for("cdr", schema)(data)  # type: ignore[misc]
+            except Exception:
+                continue  # the reader reports an unreadable definition or undecodable CDR
+            try:
+                use(decoded)
+            except (AttributeError, TypeError) as err:
+                survivors.append(f"byte {i} bit {bit}: {err}")
+    return survivors
+
+
+def _use_compressed(msg: Any) -> None:
+    str(msg.format), bytes(msg.data), ros_msgs.stamp_ns_of(msg.header.stamp)
+
+
+def _use_odometry(msg: Any) -> None:
+    ros_msgs.pose_of_message(ros_msgs.ODOMETRY, msg), ros_msgs.stamp_ns_of(msg.header.stamp)
+
+
+@pytest.mark.parametrize(
+    "datatype, message, use",
+    [
+        (ros_msgs.COMPRESSED_IMAGE, {"header": HEADER, "format": "png", "data": b"\x89PNG"}, _use_compressed),
+        (
+            ros_msgs.ODOMETRY,
+            {
+                "header": HEADER,
+                "child_frame_id": "b",
+                "pose": {"pose": ros_msgs.planar_pose_msg([1, 2, 0.3])},
+            },
+            _use_odometry,
+        ),
+    ],
+)
+def test_every_single_bit_flip_of_a_definition_is_caught(datatype, message, use):
+    assert _flip_survivors(datatype, message, use) == []
