@@ -277,7 +277,7 @@ def _dispatch(argv: list[str] | None, files: CommandFiles) -> int:
             raise _Failed(EXIT_CLOSED_PIPE) from err
         if err.errno in _ENVIRONMENT_ERRNOS:  # a full disk, a read-only folder: not a bug
             where = f"{err.filename}: " if err.filename else ""
-            error_line(f"{where}cannot write: {err.strerror or err}")
+            error_line(f"{where}{err.strerror or err}")
             raise _Failed(EXIT_BAD_INPUT) from err
         _internal_error(err)
     except Exception as err:
@@ -292,7 +292,11 @@ def _dispatch(argv: list[str] | None, files: CommandFiles) -> int:
     return code if isinstance(code, int) else EXIT_OK
 
 
-_ENVIRONMENT_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG}
+#: File-system refusals that reach the edge unwrapped (e.g. creating a --plots folder): exit 2, not 70.
+_ENVIRONMENT_ERRNOS = {
+    errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG, errno.ENOTDIR,
+    errno.EISDIR, errno.ENAMETOOLONG, errno.ELOOP, errno.EEXIST, errno.ENOENT,
+}  # fmt: skip
 
 
 def _internal_error(err: Exception) -> NoReturn:

@@ -50,13 +50,23 @@ def encode_image(rgb: np.ndarray, fmt: ImageFormat = ImageFormat.PNG, jpeg_quali
 RAW_CHANNELS = {"mono8": 1, "rgb8": 3, "bgr8": 3}
 
 MAX_SIDE_PX = 8192
-"""Largest width and height of an image this tool decodes (docs/formats.md): read from the PNG or
-JPEG header before decoding, so a few bytes claiming a huge image cannot claim gigabytes. An
-8192×8192 grey image is 64 MiB; the colour decode OpenCV may do on the way, 192 MiB."""
+MAX_PIXELS = 2048 * 2048
+"""The largest image this tool decodes: at most 8192 pixels a side and 4.2 megapixels in all
+(docs/formats.md). Read from the PNG or JPEG header (or the raw ``Image`` fields) before decoding,
+so a few bytes claiming a huge image cannot claim gigabytes. The pixel bound is the estimator's:
+its gradient histogram needs about 150 bytes per pixel, so ``aslam estimate`` peaks at 0.66 GB on
+2048×2048 images (0.35 GB at 1920×1080, 1.3 GB at 3840×2160, 9.6 GB at 8192×8192)."""
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 # JPEG start-of-frame markers (SOF0..SOF15 without DHT, JPG and DAC), which carry the size.
 _JPEG_SOF = {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}
+
+
+_LIMIT_TEXT = f"the limit is {MAX_SIDE_PX} pixels a side and {MAX_PIXELS:,} pixels in all"
+
+
+def _within_limits(width: int, height: int) -> bool:
+    return width <= MAX_SIDE_PX and height <= MAX_SIDE_PX and width * height <= MAX_PIXELS
 
 
 def header_size(data: bytes) -> tuple[int, int] | None:
@@ -163,10 +173,9 @@ class LazyImage:
         width, height = size
         if width == 0 or height == 0:
             raise self._error(f"corrupt {self.encoding.upper()} data (header claims {width}x{height} pixels)")
-        if not (width <= MAX_SIDE_PX and height <= MAX_SIDE_PX):
+        if not _within_limits(width, height):
             raise self._error(
-                f"{self.encoding.upper()} header claims {width}x{height} pixels "
-                f"(the limit is {MAX_SIDE_PX}x{MAX_SIDE_PX})"
+                f"{self.encoding.upper()} header claims {width}x{height} pixels ({_LIMIT_TEXT})"
             )
 
     def _imdecode(self, flags: int) -> np.ndarray:
@@ -186,10 +195,8 @@ class LazyImage:
     def _raw(self) -> np.ndarray:
         channels = RAW_CHANNELS[self.encoding]
         row = self.width * channels
-        if not (0 < self.width <= MAX_SIDE_PX and 0 < self.height <= MAX_SIDE_PX):
-            raise self._error(
-                f"{self.width}x{self.height} {self.encoding} image (the limit is {MAX_SIDE_PX}x{MAX_SIDE_PX})"
-            )
+        if not (self.width > 0 and self.height > 0 and _within_limits(self.width, self.height)):
+            raise self._error(f"{self.width}x{self.height} {self.encoding} image ({_LIMIT_TEXT})")
         if self.step < row or len(self.data) < self.step * self.height:
             raise self._error(
                 f"{len(self.data)} bytes do not hold a {self.width}x{self.height} {self.encoding} "

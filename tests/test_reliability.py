@@ -11,7 +11,6 @@ import hashlib
 import json
 import math
 import os
-import resource
 import signal
 import struct
 import subprocess
@@ -449,22 +448,53 @@ def png_claiming(width: int, height: int) -> bytes:
     )  # fmt: skip
 
 
-def test_image_header_beyond_the_limit_is_refused_before_decoding(tmp_path: Path):
-    path = tmp_path / "huge.mcap"
+def peak_rss_mib(argv: list[str]) -> tuple[int, str, float]:
+    """Exit code, stderr and peak resident memory (MiB) of ``aslam ARGV`` run alone in a fresh parent."""
+    probe = (
+        "import json, resource, subprocess, sys\n"
+        "done = subprocess.run(sys.argv[1:], capture_output=True, text=True)\n"
+        "peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024\n"
+        "print(json.dumps([done.returncode, done.stderr, peak]))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", probe, str(ASLAM), *argv], capture_output=True, text=True, timeout=600
+    )
+    code, stderr, peak = json.loads(done.stdout)
+    return code, stderr, peak
+
+
+def images_recording(path: Path, images: list[bytes]) -> None:
     with ForeignRecording(path) as rec:
-        for k in range(2):
+        for k, image in enumerate(images):
             stamp = T0_NS + k * FRAME_NS
             rec.odometry("/odom", stamp, float(k), 0.0, 0.0)
-            rec.compressed_image("/camera/image/compressed", stamp, png_claiming(100_000, 100_000), "png")
+            rec.compressed_image("/camera/image/compressed", stamp, image, "png")
+
+
+LIMIT_TEXT = "the limit is 8192 pixels a side and 4,194,304 pixels in all"
+
+
+@pytest.mark.parametrize("width, height", [(100_000, 100_000), (10_000, 10_000), (8192, 8192), (4096, 2048)])
+def test_image_header_beyond_the_limit_is_refused_before_decoding(tmp_path: Path, width: int, height: int):
+    path = tmp_path / "huge.mcap"
+    images_recording(path, [png_claiming(width, height)] * 2)
     assert path.stat().st_size < 20_000
-    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
     for argv in (["info", str(path)], ["estimate", str(path), "-o", str(tmp_path / "e.mcap")]):
-        done = subprocess.run([str(ASLAM), *argv], capture_output=True, text=True, timeout=120)
-        assert done.returncode == 2
-        assert len(done.stderr.splitlines()) == 1
-        assert "header claims 100000x100000 pixels (the limit is 8192x8192)" in done.stderr
-    peak_kib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    assert peak_kib < 1024 * 1024 or peak_kib == before  # < 1 GiB (ru_maxrss is in KiB on Linux)
+        code, stderr, peak_mib = peak_rss_mib(argv)
+        assert code == 2
+        assert stderr.splitlines() == [stderr.strip()]
+        assert f"header claims {width}x{height} pixels ({LIMIT_TEXT})" in stderr
+        assert peak_mib < 1024
+
+
+def test_images_at_the_limit_stay_below_1_gib(tmp_path: Path):
+    """The largest images admitted (2048×2048, noise so the gradients are everywhere) through estimate."""
+    path = tmp_path / "big.mcap"
+    rng = np.random.default_rng(0)
+    images_recording(path, [encode_image(rng.integers(0, 255, (2048, 2048), dtype=np.uint8)).data] * 3)
+    code, stderr, peak_mib = peak_rss_mib(["estimate", str(path), "-o", str(tmp_path / "e.mcap"), "-q"])
+    assert code == 0, stderr
+    assert peak_mib < 1024
 
 
 @pytest.mark.parametrize("fmt", [ImageFormat.PNG, ImageFormat.JPEG])
@@ -576,3 +606,37 @@ def _use_odometry(msg: Any) -> None:
 )
 def test_every_single_bit_flip_of_a_definition_is_caught(datatype, message, use):
     assert _flip_survivors(datatype, message, use) == []
+
+
+@pytest.fixture
+def read_only_folder(tmp_path: Path):
+    """A read-only tmpfs (root cannot be kept out of a folder by its mode bits); skipped where mounting is
+    not permitted."""
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    done = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", str(folder)], capture_output=True
+    )
+    if done.returncode != 0:
+        pytest.skip("cannot mount a tmpfs here (needs root)")
+    try:
+        yield folder
+    finally:
+        subprocess.run(["umount", str(folder)], check=False)
+
+
+def test_plots_into_an_unwritable_folder_are_one_line(estimate_file: Path, read_only_folder: Path, capsys):
+    assert main(["report", str(estimate_file), "-q", "--plots", str(read_only_folder / "plots")]) == 2
+    one_error_line(capsys, "Read-only file system")
+
+
+def test_plots_under_a_file_are_one_line(estimate_file: Path, tmp_path: Path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    json_out = tmp_path / "s.json"
+    assert (
+        main(["report", str(estimate_file), "-q", "--json", str(json_out), "--plots", str(blocker / "p")])
+        == 2
+    )
+    one_error_line(capsys, "Not a directory")
+    assert not json_out.exists()
