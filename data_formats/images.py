@@ -54,8 +54,8 @@ MAX_PIXELS = 2048 * 2048
 """The largest image this tool decodes: at most 8192 pixels a side and 4.2 megapixels in all
 (docs/formats.md). Read from the PNG or JPEG header (or the raw ``Image`` fields) before decoding,
 so a few bytes claiming a huge image cannot claim gigabytes. The pixel bound is the estimator's:
-its gradient histogram needs about 150 bytes per pixel, so ``aslam estimate`` peaks at 0.66 GB on
-2048×2048 images (0.35 GB at 1920×1080, 1.3 GB at 3840×2160, 9.6 GB at 8192×8192)."""
+its gradient histogram needs about 150 bytes per pixel, so ``aslam estimate`` peaks at 636 MiB on
+2048×2048 images (342 MiB at 1920×1080, 1.23 GiB at 3840×2160, 9.2 GiB at 8192×8192)."""
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 # JPEG start-of-frame markers (SOF0..SOF15 without DHT, JPG and DAC), which carry the size.
