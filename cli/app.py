@@ -196,9 +196,10 @@ def main(argv: list[str] | None = None, *, startup_signals: list[int] | None = N
     """Console entry point: run the app and map every outcome to a documented exit code.
 
     The console script (``aslam.cli.entry``) passes the return value to ``sys.exit`` with the
-    signals that arrived while it imported this module; tests call it directly. One
-    command's outputs are renamed into place only when it succeeds (or only a gate failed); every
-    other ending removes them (``aslam.data_formats.files.command_files``).
+    signals that arrived while it imported this module; tests call it directly. The outputs of
+    the commands in :data:`ALL_OR_NOTHING_COMMANDS` are renamed into place only when the command
+    succeeds (or only a gate failed); every other ending removes them
+    (``aslam.data_formats.files.command_files``).
     """
     from aslam.data_formats.files import command_files
 
@@ -209,7 +210,8 @@ def main(argv: list[str] | None = None, *, startup_signals: list[int] | None = N
             return signals.exit_code
         warnings.simplefilter("ignore")  # numpy, matplotlib, mcap: never extra lines on the terminal
         try:
-            with command_files(on_warning=_warning_line) as files:
+            staged = _command_name(argv) in ALL_OR_NOTHING_COMMANDS
+            with command_files(on_warning=_warning_line) if staged else contextlib.nullcontext() as files:
                 code = _dispatch(argv, files)
                 if signals.received is not None:  # an interrupt something swallowed
                     raise Interrupted(signal.Signals(signals.received).name)
@@ -246,13 +248,25 @@ class _Failed(Exception):
         self.code = code
 
 
-def _dispatch(argv: list[str] | None, files: CommandFiles) -> int:
+#: Commands whose outputs are staged and renamed together at the end (docs/usage.md, "Inputs and
+#: outputs"). A command that writes files it reads back or keeps while it runs (``sweep``'s saved
+#: task results, ``import``) is not listed: its writes land at once, each still atomic.
+ALL_OR_NOTHING_COMMANDS = frozenset({"record", "estimate", "report", "info"})
+
+
+def _command_name(argv: list[str] | None) -> str | None:
+    args = sys.argv[1:] if argv is None else argv
+    return next((arg for arg in args if not arg.startswith("-")), None)
+
+
+def _dispatch(argv: list[str] | None, files: CommandFiles | None) -> int:
     """Run the typer app; the exit code of a success or a failed gate, else raise ``_Failed``."""
     try:
         _register_commands()
         code = app(args=argv, standalone_mode=False, prog_name="aslam")
     except QualityGateFailed as err:  # the report is valid: its outputs stay
-        files.commit()
+        if files is not None:
+            files.commit()
         error_line(str(err))
         return err.exit_code
     except AslamError as err:

@@ -640,3 +640,19 @@ def test_plots_under_a_file_are_one_line(estimate_file: Path, tmp_path: Path, ca
     )
     one_error_line(capsys, "Not a directory")
     assert not json_out.exists()
+
+
+def test_outside_a_command_writes_land_at_once_and_may_be_rewritten(tmp_path: Path):
+    """Library callers (and commands that keep files while they run, like a sweep's saved results)
+    get the historic behaviour: each write atomic and immediate, the same path rewritable."""
+    from aslam.data_formats.files import command_files, write_atomically
+
+    path = tmp_path / "state.json"
+    for text in ("1", "2"):
+        write_atomically(path, lambda temporary, text=text: temporary.write_text(text))
+        assert path.read_text() == text
+    with command_files() as files:
+        files.force = True
+        write_atomically(path, lambda temporary: temporary.write_text("3"))
+        assert path.read_text() == "2"  # staged until the command ends
+    assert path.read_text() == "3"
