@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 DEMO   := demo
 
-.PHONY: demo test lint bench bench-doc sysdeps clean
+.PHONY: demo test lint bench bench-doc fuzz sysdeps clean
 
 # Headless OpenGL: Mesa's EGL renders on the CPU; OSMesa is the fallback. Installed only when
 # missing and only where apt-get can run (as root); otherwise the renderer says what is missing.
@@ -64,6 +64,12 @@ bench: sysdeps $(VENV)/.bench-installed
 # Only docs/benchmarks.md and its plot again from bench/results/benchmarks.json (seconds): for wording.
 bench-doc: $(VENV)/.bench-installed
 	$(BIN)/python bench/render.py
+
+# The long fuzz (docs/reliability.md): hostile recordings, estimate files, routes and options
+# through the CLI, every case checked against the error contract. Niced: the machine may be shared.
+FUZZ_CASES ?= 10000
+fuzz: $(VENV)/.dev-installed
+	nice -n 10 $(BIN)/python bench/fuzz.py $(FUZZ_CASES) --json fuzz-summary.json
 
 clean:
 	rm -rf $(VENV) $(DEMO) build *.egg-info .pytest_cache .ruff_cache

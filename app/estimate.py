@@ -20,14 +20,14 @@ from aslam.app.pipeline import DEFAULT_WORKERS, PipelineCounts, run_estimate
 from aslam.core.config import EstimatorConfig
 from aslam.core.errors import InputError
 from aslam.core.estimator import Estimator
+from aslam.data_formats.errors import EstimateError
 from aslam.data_formats.estimate import (
     EstimateMetadata,
     EstimateWriter,
     RecordingIdentity,
     Timing,
-    check_output_path,
 )
-from aslam.data_formats.files import source_files, source_sha256
+from aslam.data_formats.files import check_output_path, source_files, source_sha256
 from aslam.data_formats.provenance import tool_version
 from aslam.data_formats.sources import TopicChoice, open_input
 
@@ -126,9 +126,7 @@ def estimate(
         raise InputError(f"--workers must be at least 1, got {workers}")
     recording = Path(recording).absolute()
     output = Path(output).absolute()
-    if output == recording:
-        raise InputError("the output would overwrite the recording", path=output)
-    check_output_path(output, force=force)
+    check_output_path(output, force=force, error=EstimateError, inputs=[recording, *source_files(recording)])
     warn = on_warning or (lambda _line: None)
     source = open_input(recording, topics, on_warning=warn)
     total = source.image_count()

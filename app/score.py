@@ -24,6 +24,7 @@ from aslam.app.metric_view import (
 )
 from aslam.app.metric_view import score as score_trajectories
 from aslam.core import se2
+from aslam.core.config import check_report_tolerances
 from aslam.core.errors import InputError
 from aslam.core.metrics import Evaluation, evaluate
 from aslam.data_formats.errors import EstimateError, RecordingError
@@ -207,10 +208,7 @@ def score(
     Without ground truth (no recording found, none in it) it scores what needs none, with one
     warning line saying why.
     """
-    if not radius_m > 0:
-        raise InputError(f"--radius-m must be positive, got {radius_m}")
-    if not 0 < heading_deg <= 180:
-        raise InputError(f"--heading-deg must be in (0, 180], got {heading_deg}")
+    check_report_tolerances(radius_m, heading_deg)
     warn = on_warning or (lambda _line: None)
     estimate = Path(estimate)
     info = read_estimate(estimate)

@@ -6,21 +6,32 @@ that `aslam --help` stays instant.
 
 from __future__ import annotations
 
+import contextlib
+import errno
+import io
 import os
+import signal
 import sys
-from typing import Annotated
+import threading
+import warnings
+from typing import TYPE_CHECKING, Annotated, NoReturn
 
 import typer
 import typer.core
 
-from aslam.core.errors import AslamError
+from aslam.core.errors import AslamError, QualityGateFailed
 from aslam.data_formats.provenance import tool_version
+
+if TYPE_CHECKING:
+    from aslam.data_formats.files import CommandFiles
 
 EXIT_OK = 0
 EXIT_BAD_INPUT = 2
 EXIT_TASKS_FAILED = 3  # `aslam sweep`: some tasks failed (aslam.app.sweep.TasksFailed)
 EXIT_INTERNAL = 70
 EXIT_INTERRUPTED = 130
+EXIT_CLOSED_PIPE = 141  # 128 + SIGPIPE, what a shell reports for a tool killed by a closed pipe
+EXIT_TERMINATED = 143  # 128 + SIGTERM
 
 app = typer.Typer(
     name="aslam",
@@ -56,7 +67,8 @@ def _root(
     """Appearance-based SLAM with a tree of path hypotheses, over MCAP recordings.
 
     record → estimate → report.  Exit codes: 0 success, 1 a `report --fail-on` gate failed,
-    2 bad input or usage, 3 some `sweep` tasks failed, 70 internal error (a bug), 130 interrupted.
+    2 bad input or usage, 3 some `sweep` tasks failed, 70 internal error (a bug), 130 interrupted
+    (Ctrl-C), 141 stdout closed (e.g. piped into `head`), 143 terminated (SIGTERM).
     """
 
 
@@ -66,41 +78,247 @@ def _register_commands() -> None:
 
 def error_line(message: str) -> None:
     """One line on stderr, the only thing a user sees of an error."""
-    sys.stderr.write(f"aslam: error: {' '.join(message.split())}\n")
-    sys.stderr.flush()
+    try:
+        sys.stderr.write(f"aslam: error: {' '.join(message.split())}\n")
+        sys.stderr.flush()
+    except (OSError, ValueError):  # stderr itself closed: nothing left to tell
+        pass
 
 
-def main(argv: list[str] | None = None) -> int:
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM arrived; unwinds like Ctrl-C so every ``finally`` cleans up."""
+
+
+class _Signals:
+    """SIGINT and SIGTERM raise :class:`Interrupted` in the main thread and are remembered.
+
+    Remembered because a library may swallow the exception (a bare ``except`` in an import, a
+    ``__del__``): the command still ends as interrupted, with its outputs removed. A forked child
+    (the estimate's reader) just exits.
+    """
+
+    HANDLED = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self.received: int | None = None
+        self._pid = os.getpid()
+        self._saved: dict[int, object] = {}
+
+    def _handle(self, signum: int, _frame: object) -> None:
+        if os.getpid() != self._pid:
+            os._exit(128 + signum)
+        if self.received is None:
+            self.received = signum
+        raise Interrupted(signal.Signals(signum).name)
+
+    def __enter__(self) -> _Signals:
+        if threading.current_thread() is threading.main_thread():
+            for signum in self.HANDLED:
+                if signal.getsignal(signum) is signal.SIG_IGN:
+                    continue  # ignored by whoever started us (nohup, a shell's background job): keep it so
+                self._saved[signum] = signal.signal(signum, self._handle)
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        for signum, handler in self._saved.items():
+            signal.signal(signum, handler)  # type: ignore[arg-type]
+
+    @property
+    def exit_code(self) -> int:
+        return EXIT_TERMINATED if self.received == signal.SIGTERM else EXIT_INTERRUPTED
+
+
+class _QuietNativeStderr:
+    """Point file descriptor 2 at /dev/null for the command while ``sys.stderr`` keeps the terminal.
+
+    C libraries (libpng, libjpeg, OpenCV, Mesa) print their own warnings straight to descriptor 2;
+    this way they never reach the terminal as extra lines, and Python's own writes (our one error
+    line, warnings, progress) still do. Only when ``sys.stderr`` is the process's real stderr (not
+    under a test's capture).
+    """
+
+    def __init__(self) -> None:
+        self._saved_fd: int | None = None
+        self._saved_stderr: object = None
+
+    def __enter__(self) -> _QuietNativeStderr:
+        if sys.stderr is not sys.__stderr__ or os.environ.get("ASLAM_DEBUG"):
+            return self
+        try:
+            fd = sys.stderr.fileno()
+            saved = os.dup(fd)
+            devnull = os.open(os.devnull, os.O_WRONLY)
+        except (OSError, ValueError, AttributeError):
+            return self
+        sys.stderr.flush()
+        os.dup2(devnull, fd)
+        os.close(devnull)
+        self._saved_fd, self._saved_stderr = saved, sys.stderr
+        sys.stderr = io.TextIOWrapper(
+            os.fdopen(saved, "wb", buffering=0, closefd=False),
+            encoding=sys.stderr.encoding,
+            errors="backslashreplace",
+            line_buffering=True,
+        )
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        if self._saved_fd is None:
+            return
+        with contextlib.suppress(OSError, ValueError):
+            sys.stderr.flush()
+        sys.stderr = self._saved_stderr  # type: ignore[assignment]
+        os.dup2(self._saved_fd, sys.stderr.fileno())
+        os.close(self._saved_fd)
+        self._saved_fd = None
+
+
+def _quiet_closed_stdout() -> None:
+    """After a closed pipe: send the rest of stdout to /dev/null so the exit flush cannot fail."""
+    if sys.stdout is not sys.__stdout__:
+        return
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):
+        pass
+
+
+def _is_closed_pipe(err: BaseException | None) -> bool:
+    while err is not None:
+        if isinstance(err, BrokenPipeError) or (isinstance(err, OSError) and err.errno == errno.EPIPE):
+            return True
+        err = err.__cause__ or err.__context__
+    return False
+
+
+def main(argv: list[str] | None = None, *, startup_signals: list[int] | None = None) -> int:
     """Console entry point: run the app and map every outcome to a documented exit code.
 
-    The console script passes the return value to ``sys.exit``; tests call it directly.
+    The console script (``aslam.cli.entry``) passes the return value to ``sys.exit`` with the
+    signals that arrived while it imported this module; tests call it directly. The outputs of
+    the commands in :data:`ALL_OR_NOTHING_COMMANDS` are renamed into place only when the command
+    succeeds (or only a gate failed); every other ending removes them
+    (``aslam.data_formats.files.command_files``).
     """
-    _register_commands()
+    from aslam.data_formats.files import command_files
+
+    with _Signals() as signals, _QuietNativeStderr(), warnings.catch_warnings():
+        if startup_signals:  # arrived while the console script was importing us
+            signals.received = startup_signals[0]
+            error_line("terminated" if signals.exit_code == EXIT_TERMINATED else "interrupted")
+            return signals.exit_code
+        warnings.simplefilter("ignore")  # numpy, matplotlib, mcap: never extra lines on the terminal
+        try:
+            staged = _command_name(argv) in ALL_OR_NOTHING_COMMANDS
+            with command_files(on_warning=_warning_line) if staged else contextlib.nullcontext() as files:
+                code = _dispatch(argv, files)
+                if signals.received is not None:  # an interrupt something swallowed
+                    raise Interrupted(signal.Signals(signals.received).name)
+        except _Failed as failed:
+            code = failed.code
+        except KeyboardInterrupt:
+            code = signals.exit_code
+            error_line("terminated" if code == EXIT_TERMINATED else "interrupted")
+        except AslamError as err:  # raised while renaming the outputs into place
+            error_line(str(err))
+            code = err.exit_code
+        except BaseException as err:
+            if not _is_closed_pipe(err):
+                raise
+            code = EXIT_CLOSED_PIPE
+        if code == EXIT_CLOSED_PIPE:
+            _quiet_closed_stdout()
+        return code
+
+
+def _warning_line(message: str) -> None:
     try:
+        sys.stderr.write(f"aslam: warning: {' '.join(message.split())}\n")
+        sys.stderr.flush()
+    except (OSError, ValueError):
+        pass
+
+
+class _Failed(Exception):
+    """A command's failure, carrying its exit code out of ``command_files`` so the outputs go."""
+
+    def __init__(self, code: int) -> None:
+        super().__init__(code)
+        self.code = code
+
+
+#: Commands whose outputs are staged and renamed together at the end (docs/usage.md, "Inputs and
+#: outputs"). A command that writes files it reads back or keeps while it runs (``sweep``'s saved
+#: task results, ``import``) is not listed: its writes land at once, each still atomic.
+ALL_OR_NOTHING_COMMANDS = frozenset({"record", "estimate", "report", "info"})
+
+
+def _command_name(argv: list[str] | None) -> str | None:
+    args = sys.argv[1:] if argv is None else argv
+    return next((arg for arg in args if not arg.startswith("-")), None)
+
+
+def _dispatch(argv: list[str] | None, files: CommandFiles | None) -> int:
+    """Run the typer app; the exit code of a success or a failed gate, else raise ``_Failed``."""
+    try:
+        _register_commands()
         code = app(args=argv, standalone_mode=False, prog_name="aslam")
-        if code == EXIT_INTERRUPTED:  # typer turns Ctrl-C into a silent exit 130
-            error_line("interrupted")
-    except AslamError as err:
+    except QualityGateFailed as err:  # the report is valid: its outputs stay
+        if files is not None:
+            files.commit()
         error_line(str(err))
         return err.exit_code
-    except (KeyboardInterrupt, typer.Abort):
-        error_line("interrupted")
-        return EXIT_INTERRUPTED
+    except AslamError as err:
+        error_line(str(err))
+        raise _Failed(err.exit_code) from err
+    except typer.Abort as err:
+        raise Interrupted("SIGINT") from err
     except typer.Exit as done:
         if done.exit_code == EXIT_INTERRUPTED:  # typer's own translation of Ctrl-C
-            error_line("interrupted")
-        return done.exit_code
+            raise Interrupted("SIGINT") from done
+        if done.exit_code != EXIT_OK:
+            raise _Failed(done.exit_code) from done
+        return EXIT_OK
+    except SystemExit as done:  # typer exits 1 itself on a closed stdout
+        if _is_closed_pipe(done.__context__):
+            raise _Failed(EXIT_CLOSED_PIPE) from done
+        raise
+    except KeyboardInterrupt:
+        raise
+    except OSError as err:
+        if _is_closed_pipe(err):
+            raise _Failed(EXIT_CLOSED_PIPE) from err
+        if err.errno in _ENVIRONMENT_ERRNOS:  # a full disk, a read-only folder: not a bug
+            where = f"{err.filename}: " if err.filename else ""
+            error_line(f"{where}{err.strerror or err}")
+            raise _Failed(EXIT_BAD_INPUT) from err
+        _internal_error(err)
     except Exception as err:
         usage = _usage_error_line(err)
         if usage is not None:  # click's usage and parameter errors, made one line
             if usage:  # empty when the help was shown instead (no arguments)
                 error_line(usage)
-            return EXIT_BAD_INPUT
-        if os.environ.get("ASLAM_DEBUG"):
-            raise
-        error_line(f"internal error: {type(err).__name__}: {err} (set ASLAM_DEBUG=1 for a traceback)")
-        return EXIT_INTERNAL
+            raise _Failed(EXIT_BAD_INPUT) from err
+        _internal_error(err)
+    if code == EXIT_INTERRUPTED:
+        raise Interrupted("SIGINT")
     return code if isinstance(code, int) else EXIT_OK
+
+
+#: File-system refusals that reach the edge unwrapped (e.g. creating a --plots folder): exit 2, not 70.
+_ENVIRONMENT_ERRNOS = {
+    errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG, errno.ENOTDIR,
+    errno.EISDIR, errno.ENAMETOOLONG, errno.ELOOP, errno.EEXIST, errno.ENOENT,
+}  # fmt: skip
+
+
+def _internal_error(err: Exception) -> NoReturn:
+    if os.environ.get("ASLAM_DEBUG"):
+        raise err
+    error_line(f"internal error: {type(err).__name__}: {err} (set ASLAM_DEBUG=1 for a traceback)")
+    raise _Failed(EXIT_INTERNAL) from err
 
 
 def _usage_error_line(err: Exception) -> str | None:

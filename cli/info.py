@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -25,7 +24,9 @@ def info(
             show_default=False,
         ),
     ],
-    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object to stdout.")] = False,
+    json_out: Annotated[
+        str | None, typer.Option("--json", help="Write the description as one JSON object here; '-': stdout.")
+    ] = None,
     image_topic: output.ImageTopicOption = None,
     odometry_topic: output.OdometryTopicOption = None,
     ground_truth_topic: output.GroundTruthTopicOption = None,
@@ -42,8 +43,12 @@ def info(
     terminal = output.Terminal(quiet=quiet, verbose=verbose)
     topics = TopicChoice(image=image_topic, odometry=odometry_topic, ground_truth=ground_truth_topic)
     result = open_input(recording, topics, on_warning=terminal.warning).describe()
-    if as_json:
-        sys.stdout.write(json.dumps(result.as_dict(), indent=2, sort_keys=False) + "\n")
+    if json_out is not None:
+        from aslam.data_formats.files import write_text_output
+
+        written = write_text_output(json_out, json.dumps(result.as_dict(), indent=2, sort_keys=False) + "\n")
+        if written is not None:
+            terminal.info(f"wrote {written}")
         return
     _print_tables(result)
 

@@ -17,7 +17,19 @@ if TYPE_CHECKING:
 QuietOption = Annotated[
     bool, typer.Option("--quiet", "-q", help="Print errors only: no progress, no warnings, no summary line.")
 ]
-ForceOption = Annotated[bool, typer.Option("--force", help="Overwrite existing output files.")]
+
+
+def _note_force(value: bool) -> bool:
+    """Every output of the command follows this one --force (aslam.data_formats.files)."""
+    from aslam.data_formats.files import note_force
+
+    note_force(value)
+    return value
+
+
+ForceOption = Annotated[
+    bool, typer.Option("--force", help="Overwrite existing output files.", callback=_note_force)
+]
 VerboseOption = Annotated[bool, typer.Option("--verbose", "-v", help="Also print the details of the run.")]
 ImageTopicOption = Annotated[
     str | None,

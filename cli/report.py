@@ -136,13 +136,7 @@ def _check_output(path: Path, *, force: bool) -> None:
 
 def _write_json(target: str, document: dict[str, Any], *, indent: int) -> list[Path]:
     """Write ``document`` to ``target`` ('-': stdout); the paths written."""
-    from aslam.data_formats.files import write_atomically
+    from aslam.data_formats.files import write_text_output
 
-    text = json.dumps(document, indent=indent) + "\n"
-    if target == "-":
-        sys.stdout.write(text)
-        sys.stdout.flush()
-        return []
-    path = Path(target)
-    write_atomically(path, lambda p: p.write_text(text))
-    return [path]
+    written = write_text_output(target, json.dumps(document, indent=indent) + "\n")
+    return [] if written is None else [written]

@@ -25,6 +25,43 @@ class HistogramConfig:
         return self.bins * self.cells_x * self.cells_y
 
 
+@dataclass(frozen=True)
+class Bounds:
+    """The accepted values of a parameter: a closed or half-open interval, finite, whole if ``integer``.
+
+    Wide enough for every sensible setting; their job is to keep the arithmetic finite (no
+    ``--beta 1e200`` overflow, no ``--cells-y 100000`` allocation) and to say so in one line.
+    """
+
+    low: float
+    high: float
+    low_open: bool = False
+    high_open: bool = False
+    integer: bool = False
+
+    def holds(self, value: object) -> bool:
+        if isinstance(value, bool):
+            return False
+        if self.integer:
+            if not isinstance(value, int):
+                return False
+        elif not isinstance(value, int | float) or not math.isfinite(value):
+            return False
+        above = value > self.low if self.low_open else value >= self.low
+        below = value < self.high if self.high_open else value <= self.high
+        return above and below
+
+    def describe(self) -> str:
+        def number(x: float) -> str:
+            return f"{x:g}" if not self.integer else f"{int(x)}"
+
+        if self.integer:
+            return f"a whole number in [{number(self.low)}, {number(self.high)}]"
+        left = "(" if self.low_open else "["
+        right = ")" if self.high_open else "]"
+        return f"a number in {left}{number(self.low)}, {number(self.high)}{right}"
+
+
 def _param(default: float | int | str, help: str) -> float | int | str:
     """A configuration field whose help text the CLI and docs read from ``metadata["help"]``."""
     return field(default=default, metadata={"help": help})  # type: ignore[return-value]
@@ -128,46 +165,20 @@ class EstimatorConfig:
 
     def problems(self) -> list[str]:
         """Every invalid value at once (empty when the configuration is usable)."""
-        positive = [
-            "step_m", "turn_deg", "beta", "chi2_floor", "new_state_chi2", "place_radius_m",
-            "place_heading_deg", "gate_sigma", "search_sigma_m",
-        ]  # fmt: skip
         problems = []
-        for name in positive:
+        for name, bounds in RANGES.items():
             value = getattr(self, name)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-                problems.append(f"{name} must be a positive number, got {value!r}")
-        for name in [
-            "odometry_noise",
-            "drift_deg_per_m",
-            "visit_sigma_m",
-            "visit_sigma_deg",
-            "keyframe_slack",
-        ]:
-            value = getattr(self, name)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
-                problems.append(f"{name} must be a non-negative number, got {value!r}")
-        if not 0 <= self.keyframe_slack < 1:
-            problems.append(f"keyframe_slack must be in [0, 1), got {self.keyframe_slack!r}")
+            if not bounds.holds(value):
+                problems.append(f"{name} must be {bounds.describe()}, got {value!r}")
         if self.candidate_search not in ("graph", "path"):
             problems.append(f"candidate_search must be 'graph' or 'path', got {self.candidate_search!r}")
-        if not 0 < self.revisit_prior < 1:
-            problems.append(f"revisit_prior must be in (0, 1), got {self.revisit_prior!r}")
-        if not 0 < self.prune_ratio < 1:
-            problems.append(f"prune_ratio must be in (0, 1), got {self.prune_ratio!r}")
-        for name in [
-            "histogram_bins",
-            "cells_x",
-            "cells_y",
-            "max_hypotheses",
-            "search_max_states",
-            "merge_window",
-        ]:
-            value = getattr(self, name)
-            if not (isinstance(value, int) and not isinstance(value, bool) and value >= 1):
-                problems.append(f"{name} must be a whole number ≥ 1, got {value!r}")
         if isinstance(self.histogram_bins, int) and self.histogram_bins % 2:
             problems.append(f"histogram_bins must be even, got {self.histogram_bins}")
+        length = self.histogram_bins * self.cells_x * self.cells_y
+        if not problems and length > MAX_OBSERVATION_LENGTH:
+            problems.append(
+                f"histogram_bins × cells_x × cells_y must be at most {MAX_OBSERVATION_LENGTH}, got {length}"
+            )
         return problems
 
     @classmethod
@@ -178,7 +189,9 @@ class EstimatorConfig:
     @classmethod
     def parameters(cls) -> list[tuple[str, type, object, str]]:
         """(name, type, default, help) of every parameter, for the CLI, config files and docs."""
-        return [(f.name, type(f.default), f.default, f.metadata["help"]) for f in fields(cls)]
+        return [
+            (f.name, type(f.default), f.default, _with_range(f.name, f.metadata["help"])) for f in fields(cls)
+        ]
 
     @property
     def histogram(self) -> HistogramConfig:
@@ -187,3 +200,60 @@ class EstimatorConfig:
     @property
     def motion_noise(self) -> MotionNoise:
         return MotionNoise(fraction=self.odometry_noise, drift_rad_per_m=math.radians(self.drift_deg_per_m))
+
+
+#: Accepted values of every numeric parameter (shown in the option help and docs/usage.md).
+RANGES: dict[str, Bounds] = {
+    "step_m": Bounds(0, 100, low_open=True),
+    "turn_deg": Bounds(0, 360, low_open=True),
+    "keyframe_slack": Bounds(0, 1, high_open=True),
+    "histogram_bins": Bounds(2, 360, integer=True),
+    "cells_x": Bounds(1, 32, integer=True),
+    "cells_y": Bounds(1, 32, integer=True),
+    "beta": Bounds(0, 50, low_open=True),
+    "chi2_floor": Bounds(0, 1, low_open=True),
+    "new_state_chi2": Bounds(0, 10, low_open=True),
+    "odometry_noise": Bounds(0, 1),
+    "drift_deg_per_m": Bounds(0, 90),
+    "place_radius_m": Bounds(0, 100, low_open=True),
+    "place_heading_deg": Bounds(0, 180, low_open=True),
+    "visit_sigma_m": Bounds(0, 100),
+    "visit_sigma_deg": Bounds(0, 180),
+    "gate_sigma": Bounds(0, 100, low_open=True),
+    "revisit_prior": Bounds(0, 1, low_open=True, high_open=True),
+    "search_sigma_m": Bounds(0, 10_000, low_open=True),
+    "search_nearness": Bounds(0, 1000),
+    "search_max_states": Bounds(1, 100_000, integer=True),
+    "prune_ratio": Bounds(0, 1, low_open=True, high_open=True),
+    "max_hypotheses": Bounds(1, 10_000, integer=True),
+    "merge_window": Bounds(1, 1000, integer=True),
+}
+#: Length of one observation vector (bins × cells); bounds the memory per keyframe.
+MAX_OBSERVATION_LENGTH = 16_384
+
+
+def _with_range(name: str, help_text: str) -> str:
+    bounds = RANGES.get(name)
+    if bounds is None:
+        return help_text
+    accepted = bounds.describe().removeprefix("a number in ").removeprefix("a whole number in ")
+    return f"{help_text} Range: {accepted}."
+
+
+#: Accepted values of `aslam report`'s revisit tolerances (a revisit is within these of the earlier visit).
+REPORT_RANGES: dict[str, Bounds] = {
+    "radius_m": Bounds(0.001, 1000),
+    "heading_deg": Bounds(0, 180, low_open=True),
+}
+
+
+def check_report_tolerances(radius_m: float, heading_deg: float) -> None:
+    """ConfigError naming every tolerance (``--radius-m``, ``--heading-deg``) outside its range."""
+    values = {"radius_m": radius_m, "heading_deg": heading_deg}
+    problems = [
+        f"--{name.replace('_', '-')} must be {bounds.describe()}, got {values[name]!r}"
+        for name, bounds in REPORT_RANGES.items()
+        if not bounds.holds(values[name])
+    ]
+    if problems:
+        raise ConfigError("; ".join(problems))

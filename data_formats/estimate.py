@@ -38,6 +38,8 @@ GRAPH_TOPIC = "/aslam/graph"
 KEYFRAME_SCHEMA_NAME = "aslam.Keyframe"
 GRAPH_SCHEMA_NAME = "aslam.Graph"
 FORMAT_VERSION = "1"
+#: The keys of the ``topics`` metadata (``aslam.data_formats.recording.RecordingTopics``' fields).
+TOPIC_KEYS = ("image", "odometry", "ground_truth", "camera_info")
 CHUNK_SIZE_BYTES = 256 * 1024
 
 # --- schemas ---------------------------------------------------------------------------------------
@@ -115,6 +117,75 @@ GRAPH_SCHEMA: dict[str, Any] = {
 }
 
 
+# --- reading: the writer's schemas with bounds ------------------------------------------------------
+
+#: Any number in an estimate file (actions, covariances, tree statistics) lies within this; the
+#: recording reader refuses poses beyond 1e7 m, so larger values are damage, not data.
+MAX_ABS_NUMBER = 1e15
+MAX_INTEGER = 2**63 - 1
+_COVARIANCE_ROW = {"type": "array", "minItems": 3, "maxItems": 3}
+
+
+def _bounded(schema: Any) -> Any:
+    """A copy of ``schema`` whose numbers are finite and bounded, integers non-negative int64, and
+    covariances 3×3; the reading schema of every message (``docs/formats.md``)."""
+    if isinstance(schema, list):
+        return [_bounded(item) for item in schema]
+    if not isinstance(schema, dict):
+        return schema
+    out = {key: _bounded(value) for key, value in schema.items()}
+    kind = out.get("type")
+    if kind == "number":
+        out.update(minimum=-MAX_ABS_NUMBER, maximum=MAX_ABS_NUMBER)
+    elif kind == "integer" or kind == ["integer", "null"]:
+        out.update(minimum=0, maximum=MAX_INTEGER)
+    if out.get("description", "").startswith("3×3"):
+        out.update(minItems=3, maxItems=3, items={**out["items"], **_COVARIANCE_ROW})
+    return out
+
+
+def _reading_schemas() -> tuple[dict[str, Any], dict[str, Any]]:
+    keyframe = _bounded(KEYFRAME_SCHEMA)
+    graph = _bounded(GRAPH_SCHEMA)
+    belief = {"type": "number", "minimum": 0.0, "maximum": 1.0}
+    for hypotheses in (keyframe["properties"]["hypotheses"], graph["properties"]["hypotheses"]):
+        hypotheses["items"]["properties"]["belief"] = belief
+    number = {"type": "number", "minimum": -MAX_ABS_NUMBER, "maximum": MAX_ABS_NUMBER}
+    graph["properties"]["tree"].update(
+        required=list(TreeStats.__dataclass_fields__),
+        properties={name: number for name in TreeStats.__dataclass_fields__},
+        additionalProperties=False,
+    )
+    return keyframe, graph
+
+
+KEYFRAME_READING_SCHEMA, GRAPH_READING_SCHEMA = _reading_schemas()
+_validators: dict[str, Any] = {}
+
+
+def _validate(document: Any, schema: dict[str, Any], what: str, path: Path) -> None:
+    """EstimateError naming where ``document`` breaks ``schema``.
+
+    fastjsonschema compiles the schema to Python once: 0.2 ms per keyframe message with 50
+    hypotheses, where ``jsonschema``'s validator takes 6.4 ms (30 times the JSON parsing itself).
+    """
+    validate = _validators.get(what)
+    if validate is None:
+        import fastjsonschema
+
+        validate = _validators[what] = fastjsonschema.compile(schema)
+    try:
+        validate(document)
+    except Exception as err:  # fastjsonschema.JsonSchemaValueException, one line
+        message = str(getattr(err, "message", err)).removeprefix("data.").removeprefix("data ")
+        message = message if len(message) <= 160 else message[:157] + "..."
+        raise EstimateError(f"invalid {what} message: {message}", path=path) from err
+
+
+def _no_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not a number this format allows")
+
+
 # --- records -------------------------------------------------------------------------------------
 
 
@@ -151,18 +222,35 @@ class EstimateMetadata:
     @classmethod
     def from_record(cls, record: Mapping[str, str], path: Path) -> EstimateMetadata:
         try:
-            return cls(
+            metadata = cls(
                 tool_version=record["tool_version"],
-                config=json.loads(record["config"]),
+                config=json.loads(record["config"], parse_constant=_no_constant),
                 recording=RecordingIdentity(
                     record["recording_path"],
                     int(record["recording_size_bytes"]),
                     record["recording_sha256"],
                 ),
-                topics=json.loads(record["topics"]),
+                topics=json.loads(record["topics"], parse_constant=_no_constant),
             )
-        except (KeyError, ValueError, TypeError) as err:
+        except (KeyError, ValueError, TypeError, RecursionError) as err:
             raise EstimateError(f"unreadable '{ESTIMATE_METADATA}' metadata ({err!r})", path=path) from err
+        problem = metadata._problem()
+        if problem is not None:
+            raise EstimateError(f"invalid '{ESTIMATE_METADATA}' metadata: {problem}", path=path)
+        return metadata
+
+    def _problem(self) -> str | None:
+        """What the writer never writes: a config that is not an object, topics that are not names."""
+        if not isinstance(self.config, dict):
+            return "config is not a JSON object"
+        if not isinstance(self.topics, dict) or not all(
+            key in TOPIC_KEYS and (value is None or isinstance(value, str))
+            for key, value in self.topics.items()
+        ):
+            return f"topics must map {', '.join(TOPIC_KEYS)} to topic names (null: found in a bag)"
+        if self.recording.size_bytes < 0:
+            return "recording_size_bytes is negative"
+        return None
 
 
 @dataclass(frozen=True)
@@ -274,11 +362,6 @@ def graph_message(result: EstimateResult) -> dict[str, Any]:
 # --- writing -------------------------------------------------------------------------------------
 
 
-def check_output_path(path: Path, *, force: bool) -> None:
-    """Fail early (before any work) when ``path`` cannot or must not be written."""
-    files.check_output_path(path, force=force, error=EstimateError)
-
-
 class EstimateWriter:
     """Writes an estimate file; use as a context manager.
 
@@ -382,8 +465,8 @@ def _open(path: Path) -> McapFile:
 def _messages(source: McapFile, topic: str) -> Iterator[dict[str, Any]]:
     for _schema, _channel, message in source.messages([topic]):
         try:
-            decoded = json.loads(message.data)
-        except ValueError as err:
+            decoded = json.loads(message.data, parse_constant=_no_constant)
+        except (ValueError, RecursionError) as err:
             raise EstimateError(f"corrupt JSON on '{topic}' ({err})", path=source.path) from err
         yield decoded
 
@@ -409,6 +492,7 @@ def iter_keyframes(path: Path) -> Iterator[EstimateKeyframe]:
 
 def _iter_keyframes(source: McapFile) -> Iterator[EstimateKeyframe]:
     for raw in _messages(source, KEYFRAME_TOPIC):
+        _validate(raw, KEYFRAME_READING_SCHEMA, "keyframe", source.path)
         try:
             yield EstimateKeyframe(
                 int(raw["index"]),
@@ -421,8 +505,9 @@ def _iter_keyframes(source: McapFile) -> Iterator[EstimateKeyframe]:
 
 
 def _graph(raw: Mapping[str, Any], path: Path) -> EstimateGraph:
+    _validate(raw, GRAPH_READING_SCHEMA, "graph", path)
     try:
-        return EstimateGraph(
+        graph = EstimateGraph(
             keyframes=int(raw["keyframes"]),
             states=tuple(
                 MapState(int(s["id"]), tuple(int(k) for k in s["keyframes"])) for s in raw["states"]
@@ -442,6 +527,24 @@ def _graph(raw: Mapping[str, Any], path: Path) -> EstimateGraph:
         )
     except (KeyError, TypeError, ValueError) as err:
         raise EstimateError(f"malformed '{GRAPH_TOPIC}' message ({err!r})", path=path) from err
+    problem = _graph_reference_problem(graph)
+    if problem is not None:
+        raise EstimateError(f"inconsistent '{GRAPH_TOPIC}' message: {problem}", path=path)
+    return graph
+
+
+def _graph_reference_problem(graph: EstimateGraph) -> str | None:
+    """What a schema cannot say: links name states that exist, states name keyframes that exist."""
+    ids = {state.id for state in graph.states}
+    if len(ids) != len(graph.states):
+        return "two states share an id"
+    for state in graph.states:
+        if any(k >= graph.keyframes for k in state.keyframes):
+            return f"state {state.id} names a keyframe beyond the {graph.keyframes} keyframes"
+    for link in graph.links:
+        if link.from_state not in ids or link.to_state not in ids:
+            return f"link {link.from_state} → {link.to_state} names a state that does not exist"
+    return None
 
 
 def read_estimate(path: Path) -> EstimateFile:

@@ -1,82 +1,348 @@
 """Files that appear whole or not at all, and the checks every input and output path gets.
 
-Every output the tool writes (recordings, estimates, graph and summary JSON, plots) goes under a
-hidden temporary name in the same folder and is renamed when complete, so an interrupted run
-never leaves a half file under the final name.
+Every output the tool writes (recordings, estimates, graph and summary JSON, plots, contact sheets)
+goes under a hidden temporary name in the folder of its real target and is renamed when complete,
+so an interrupted run never leaves a half file under the final name. The rules (docs/usage.md,
+"Inputs and outputs"):
+
+* an output that resolves (``realpath``: symlinks and ``..`` followed) to an input of the same
+  command, or to another of its outputs, is refused (exit 2), with or without ``--force``;
+* an existing regular file is replaced only with ``--force``; a symlink is followed and its target
+  replaced atomically;
+* a character device or FIFO (``/dev/null``, ``/dev/stdout``, a pipe) is written directly, never
+  renamed over, and needs no ``--force``;
+* inputs must be regular files (a FIFO or a device is refused at once instead of hanging).
+
+Inside :func:`command_files` (the CLI opens one per command) the outputs are *staged*: complete
+files wait under their temporary names and are renamed together when the command succeeds, so a
+command that fails leaves none of its outputs, and outputs are checked against every input the
+command opened, whenever it opened it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
+import stat
+import sys
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
 from aslam.core.errors import InputError
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
+PARTIAL_MARK = ".partial-"
+# Paths that name the process's own streams: written directly even when they resolve to a file.
+_STREAM_PATHS = ("/dev/stdout", "/dev/stderr", "/dev/fd/", "/proc/self/fd/")
 
 
 def partial_name(path: Path) -> Path:
     """Where ``path`` lives until it is complete: a hidden name in the same folder."""
-    return path.with_name(f".{path.name}.partial-{os.getpid()}")
+    return path.with_name(f".{path.name}{PARTIAL_MARK}{os.getpid()}")
 
 
-def check_output_path(path: Path, *, force: bool, error: type[InputError] = InputError) -> None:
-    """Fail before any work when ``path`` cannot, or must not, be written."""
-    if path.is_dir():
+def _temporary(target: Path) -> Path:
+    """:func:`partial_name` of ``target``, registered with the running command before it exists."""
+    partial = partial_name(target)
+    files = current()
+    if files is not None:
+        files.temporaries.append(partial)
+    return partial
+
+
+def real_path(path: Path | str) -> Path:
+    """``path`` with every symlink and ``..`` resolved (the file that would really be touched)."""
+    return Path(os.path.realpath(path))
+
+
+def is_stream_output(path: Path | str) -> bool:
+    """True for outputs written directly: character devices, FIFOs, sockets and /dev/stdout-like names."""
+    text = str(path)
+    if text.startswith(_STREAM_PATHS):
+        return True
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return False
+    return stat.S_ISCHR(mode) or stat.S_ISFIFO(mode) or stat.S_ISSOCK(mode)
+
+
+# --- one command's files ----------------------------------------------------------------------
+
+
+@dataclass
+class _Staged:
+    partial: Path
+    target: Path
+    shown: Path
+    error: type[InputError]
+
+
+@dataclass
+class CommandFiles:
+    """The inputs one command read and the outputs it is writing (real paths), for the checks above."""
+
+    force: bool | None = None
+    """The command's ``--force``; None until the option is parsed (then outputs are not overwritten)."""
+    on_warning: Callable[[str], None] | None = None
+    inputs: dict[Path, Path] = field(default_factory=dict)
+    outputs: dict[Path, Path] = field(default_factory=dict)
+    staged: list[_Staged] = field(default_factory=list)
+    temporaries: list[Path] = field(default_factory=list)
+    """Every temporary name handed out, registered before the file is created: whatever an
+    interrupt skips, the end of the command removes."""
+    owner_pid: int = field(default_factory=os.getpid)
+
+    def warn(self, line: str) -> None:
+        if self.on_warning is not None:
+            self.on_warning(line)
+
+    def commit(self) -> None:
+        """Rename every staged output to its final name, after checking them against every input."""
+        if os.getpid() != self.owner_pid:
+            return
+        for item in self.staged:
+            shown = self.inputs.get(item.target)
+            if shown is not None:
+                self.rollback()
+                raise item.error(_input_conflict(shown), path=item.shown)
+        staged, self.staged = self.staged, []
+        for i, item in enumerate(staged):
+            try:
+                os.replace(item.partial, item.target)
+            except OSError as err:
+                self.staged = staged[i:]
+                self.rollback()
+                raise item.error(f"cannot write: {err.strerror or err}", path=item.shown) from err
+        self._remove_temporaries()
+
+    def rollback(self) -> None:
+        """Remove every staged output; nothing appears under their final names."""
+        if os.getpid() != self.owner_pid:
+            return
+        staged, self.staged = self.staged, []
+        for item in staged:
+            item.partial.unlink(missing_ok=True)
+        self._remove_temporaries()
+
+    def _remove_temporaries(self) -> None:
+        temporaries, self.temporaries = self.temporaries, []
+        for path in temporaries:
+            with contextlib.suppress(OSError):
+                path.unlink(missing_ok=True)
+
+
+_current: CommandFiles | None = None
+
+
+def current() -> CommandFiles | None:
+    """The files of the command running in this process, or None outside :func:`command_files`."""
+    if _current is not None and _current.owner_pid != os.getpid():
+        return None  # a forked child reads; it never stages or removes the parent's files
+    return _current
+
+
+@contextlib.contextmanager
+def command_files(*, on_warning: Callable[[str], None] | None = None) -> Iterator[CommandFiles]:
+    """Track one command's inputs and outputs; rename its outputs together on success.
+
+    Leaving the block with an exception removes every staged output (the caller commits on the
+    outcomes that keep them, e.g. a failed quality gate, by calling ``commit()`` before raising).
+    """
+    global _current
+    previous = _current
+    files = CommandFiles(on_warning=on_warning)
+    _current = files
+    try:
+        yield files
+        files.commit()
+    except BaseException:
+        files.rollback()
+        raise
+    finally:
+        _current = previous
+
+
+def note_force(force: bool) -> None:
+    """Record the running command's ``--force`` (called by the CLI option's callback)."""
+    files = current()
+    if files is not None:
+        files.force = bool(force)
+
+
+def note_input(path: Path | str, *, error: type[InputError] = InputError) -> None:
+    """Record ``path`` as an input of the running command; refused if it is one of its outputs."""
+    files = current()
+    if files is None:
+        return
+    real = real_path(path)
+    if real in files.outputs:
+        raise error(f"is also an output of this command ({files.outputs[real]})", path=path)
+    files.inputs.setdefault(real, Path(path))
+
+
+def _output_conflict(other: Path) -> str:
+    return f"resolves to the same file as another output of this command ({other})"
+
+
+def _input_conflict(shown: Path) -> str:
+    return f"resolves to an input of this command ({shown}); refusing to overwrite it, even with --force"
+
+
+def check_input_file(path: Path, *, error: type[InputError], what: str) -> int:
+    """The size of ``path`` after checking it exists and is a regular file (no FIFO, device, folder).
+
+    Never opens the file, so a FIFO is refused instead of blocking.
+    """
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise error("no such file", path=path) from None
+    except OSError as err:
+        raise error(f"cannot read: {err.strerror or err}", path=path) from err
+    if stat.S_ISDIR(st.st_mode):
+        raise error(f"is a directory, not {what}", path=path)
+    if not stat.S_ISREG(st.st_mode):
+        raise error(f"is not a regular file (a FIFO, socket or device), not {what}", path=path)
+    note_input(path, error=error)
+    _warn_stale(real_path(path))  # e.g. a recording whose writer was killed while replacing it
+    return st.st_size
+
+
+def check_output_path(
+    path: Path,
+    *,
+    force: bool | None,
+    error: type[InputError] = InputError,
+    inputs: Iterable[Path] = (),
+    outputs: Iterable[Path] = (),
+) -> None:
+    """Fail before any work when ``path`` cannot, or must not, be written.
+
+    ``force=None`` takes the running command's ``--force``. ``inputs`` and ``outputs`` are the
+    command's other files, which the output must not resolve to (besides the inputs the running
+    command has opened).
+    """
+    path = Path(path)
+    if is_stream_output(path):
+        return
+    real = real_path(path)
+    for given in inputs:
+        if real_path(given) == real:
+            raise error(_input_conflict(Path(given)), path=path)
+    for given in outputs:
+        if not is_stream_output(given) and real_path(given) == real:
+            raise error(_output_conflict(Path(given)), path=path)
+    files = current()
+    if files is not None and real in files.inputs:
+        raise error(_input_conflict(files.inputs[real]), path=path)
+    try:
+        mode = os.stat(real).st_mode if os.path.lexists(real) else None
+    except OSError as err:  # a symlink loop, a folder we may not enter
+        raise error(f"cannot be written: {err.strerror or err}", path=path) from err
+    if mode is not None and stat.S_ISDIR(mode):
         raise error("is a directory", path=path)
-    if path.exists() and not force:
-        raise error("already exists; refusing to overwrite it (use --force)", path=path)
-    if not path.parent.is_dir():
+    if mode is not None:
+        if not stat.S_ISREG(mode):
+            raise error("exists and is not a regular file; refusing to replace it", path=path)
+        if force is None:
+            force = bool(files is not None and files.force)
+        if not force:
+            raise error("already exists; refusing to overwrite it (use --force)", path=path)
+    if not real.parent.is_dir():
         raise error(f"folder {path.parent} does not exist", path=path)
 
 
-def check_mcap_input(path: Path, *, error: type[InputError], what: str) -> int:
-    """The size of ``path`` after checking it is a readable, non-empty file that starts like MCAP."""
-    if not path.exists():
-        raise error("no such file", path=path)
-    if path.is_dir():
-        raise error(f"is a directory, not {what}", path=path)
+def _claim_output(path: Path, real: Path, error: type[InputError]) -> None:
+    files = current()
+    if files is None:
+        return
+    other = files.outputs.get(real)
+    if other is not None:
+        raise error(_output_conflict(other), path=path)
+    files.outputs[real] = path
+
+
+def stale_partials(target: Path) -> list[Path]:
+    """Temporary files of ``target`` left by runs that were killed (their process is gone)."""
+    found = []
     try:
-        size = path.stat().st_size
-        with path.open("rb") as f:
-            head = f.read(len(MCAP_MAGIC))
-    except OSError as err:
-        raise error(f"cannot read: {err.strerror or err}", path=path) from err
-    if size == 0:
-        raise error(f"empty file (0 bytes), not {what}", path=path)
-    if head != MCAP_MAGIC:
-        raise error("not an MCAP file (bad magic bytes at the start)", path=path)
-    return size
+        candidates = list(target.parent.glob(f".{target.name}{PARTIAL_MARK}*"))
+    except OSError:
+        return []
+    for candidate in candidates:
+        pid_text = candidate.name.rpartition(PARTIAL_MARK)[2]
+        if pid_text.isdigit() and not _process_alive(int(pid_text)):
+            found.append(candidate)
+    return sorted(found)
+
+
+def _process_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # e.g. another user's process
+        return True
+    return True
+
+
+def _warn_stale(target: Path) -> None:
+    files = current()
+    if files is None:
+        return
+    for stale in stale_partials(target):
+        files.warn(f"{stale}: temporary file left by an interrupted run; delete it")
 
 
 class AtomicFile:
-    """A binary output written under :func:`partial_name` and moved to ``path`` by :meth:`commit`."""
+    """A binary output written under :func:`partial_name` and moved to ``path`` by :meth:`commit`.
 
-    def __init__(self, path: Path, *, force: bool, error: type[InputError] = InputError) -> None:
+    A stream output (``/dev/null``, a FIFO, ``/dev/stdout``) is written directly instead.
+    ``force=None`` takes the running command's ``--force``.
+    """
+
+    def __init__(self, path: Path, *, force: bool | None, error: type[InputError] = InputError) -> None:
         self.path = Path(path)
         self._error = error
         check_output_path(self.path, force=force, error=error)
-        self.partial_path = partial_name(self.path)
+        self.direct = is_stream_output(self.path)
+        if self.direct:
+            self.target = self.path
+            self.partial_path = self.path
+        else:
+            self.target = real_path(self.path)
+            _claim_output(self.path, self.target, error)
+            _warn_stale(self.target)
+            self.partial_path = _temporary(self.target)
         try:
-            self.file: IO[bytes] = self.partial_path.open("wb")
+            self.file: IO[bytes] = open(self.partial_path, "wb")  # noqa: SIM115 (closed by commit/abort)
         except OSError as err:
             raise error(f"cannot write: {err.strerror or err}", path=self.path) from err
+        except BaseException:  # an interrupt between creating the file and holding it
+            if not self.direct:
+                self.partial_path.unlink(missing_ok=True)
+            raise
         self.closed = False
 
     def commit(self, finish: Callable[[], None] | None = None) -> None:
         """Run ``finish`` (the last writes), close, and rename to the final name.
 
-        On any failure, or an interrupt, the partial file is removed and nothing is left behind.
+        Inside :func:`command_files` the rename waits for the end of the command. On any failure,
+        or an interrupt, the partial file is removed and nothing is left behind.
         """
         try:
             if finish is not None:
                 finish()
             self.file.close()
-            os.replace(self.partial_path, self.path)
+            if not self.direct:
+                _finish_output(self.partial_path, self.target, self.path, self._error)
         except OSError as err:
             self.abort()
             raise self._error(f"cannot write: {err.strerror or err}", path=self.path) from err
@@ -90,24 +356,91 @@ class AtomicFile:
         self.closed = True
         try:
             self.file.close()
+        except OSError:
+            pass  # e.g. a full disk refusing the last buffered bytes: the file goes anyway
         finally:
-            self.partial_path.unlink(missing_ok=True)
+            if not self.direct:
+                self.partial_path.unlink(missing_ok=True)
+
+
+def _finish_output(partial: Path, target: Path, shown: Path, error: type[InputError]) -> None:
+    """Rename now, or stage the rename until the running command succeeds."""
+    files = current()
+    if files is None:
+        os.replace(partial, target)
+        return
+    if target in files.inputs:
+        raise error(_input_conflict(files.inputs[target]), path=shown)
+    files.staged.append(_Staged(partial, target, shown, error))
 
 
 def write_atomically(
-    path: Path, write: Callable[[Path], None], *, error: type[InputError] = InputError
+    path: Path,
+    write: Callable[[Path], None],
+    *,
+    error: type[InputError] = InputError,
+    force: bool | None = None,
 ) -> None:
-    """Call ``write(temporary_path)``, then rename to ``path``; on failure nothing appears at ``path``."""
+    """Call ``write(temporary_path)``, then rename to ``path``; on failure nothing appears at ``path``.
+
+    ``force=None``: the running command's ``--force`` inside :func:`command_files`, else overwrite
+    (the library's historical behaviour). A stream output is written directly.
+    """
     path = Path(path)
-    check_output_path(path, force=True, error=error)
-    temporary = partial_name(path)
+    if force is None and current() is None:
+        force = True
+    check_output_path(path, force=force, error=error)
+    if is_stream_output(path):
+        try:
+            write(path)
+        except OSError as err:
+            raise error(f"cannot write: {err.strerror or err}", path=path) from err
+        return
+    target = real_path(path)
+    _claim_output(path, target, error)
+    _warn_stale(target)
+    temporary = _temporary(target)
     try:
         write(temporary)
-        os.replace(temporary, path)
+        _finish_output(temporary, target, path, error)
     except OSError as err:
-        raise error(f"cannot write: {err.strerror or err}", path=path) from err
-    finally:
         temporary.unlink(missing_ok=True)
+        raise error(f"cannot write: {err.strerror or err}", path=path) from err
+    except BaseException:
+        temporary.unlink(missing_ok=True)
+        raise
+
+
+def write_text_output(
+    target: str | Path,
+    text: str,
+    *,
+    force: bool | None = None,
+    error: type[InputError] = InputError,
+) -> Path | None:
+    """Write ``text`` to ``target``, ``-`` meaning stdout; the path written (None for stdout)."""
+    if str(target) == "-":
+        sys.stdout.write(text)
+        sys.stdout.flush()
+        return None
+    path = Path(target)
+    write_atomically(path, lambda p: p.write_text(text, encoding="utf-8"), error=error, force=force)
+    return path
+
+
+def check_mcap_input(path: Path, *, error: type[InputError], what: str) -> int:
+    """The size of ``path`` after checking it is a readable, non-empty file that starts like MCAP."""
+    size = check_input_file(path, error=error, what=what)
+    try:
+        with Path(path).open("rb") as f:
+            head = f.read(len(MCAP_MAGIC))
+    except OSError as err:
+        raise error(f"cannot read: {err.strerror or err}", path=path) from err
+    if size == 0:
+        raise error(f"empty file (0 bytes), not {what}", path=path)
+    if head != MCAP_MAGIC:
+        raise error("not an MCAP file (bad magic bytes at the start)", path=path)
+    return size
 
 
 def source_files(path: Path) -> list[Path]:

@@ -48,6 +48,56 @@ def encode_image(rgb: np.ndarray, fmt: ImageFormat = ImageFormat.PNG, jpeg_quali
     return EncodedImage(fmt, buf.tobytes())
 
 
+MAX_SIDE_PX = 8192
+MAX_PIXELS = 2048 * 2048
+"""The largest image this tool decodes: at most 8192 pixels a side and 4.2 megapixels in all
+(docs/formats.md). Read from the PNG or JPEG header (or the raw ``Image`` fields) before decoding,
+so a few bytes claiming a huge image cannot claim gigabytes. The pixel bound is the estimator's:
+its gradient histogram needs about 150 bytes per pixel, so ``aslam estimate`` peaks at 636 MiB on
+2048×2048 images (342 MiB at 1920×1080, 1.23 GiB at 3840×2160, 9.2 GiB at 8192×8192)."""
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+# JPEG start-of-frame markers (SOF0..SOF15 without DHT, JPG and DAC), which carry the size.
+_JPEG_SOF = {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}
+
+
+_LIMIT_TEXT = f"the limit is {MAX_SIDE_PX} pixels a side and {MAX_PIXELS:,} pixels in all"
+
+
+def _within_limits(width: int, height: int) -> bool:
+    return width <= MAX_SIDE_PX and height <= MAX_SIDE_PX and width * height <= MAX_PIXELS
+
+
+def header_size(data: bytes) -> tuple[int, int] | None:
+    """``(width, height)`` from a PNG's IHDR or a JPEG's start-of-frame, or None if not found."""
+    if data.startswith(_PNG_SIGNATURE):
+        if len(data) < 24 or data[12:16] != b"IHDR":
+            return None
+        return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+    if not data.startswith(b"\xff\xd8"):
+        return None
+    i = 2
+    while i + 4 <= len(data):
+        if data[i] != 0xFF:
+            return None
+        marker = data[i + 1]
+        if marker == 0xFF:  # fill byte
+            i += 1
+            continue
+        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:  # no length
+            i += 2
+            continue
+        length = int.from_bytes(data[i + 2 : i + 4], "big")
+        if marker in _JPEG_SOF:
+            if i + 9 > len(data) or length < 7:
+                return None
+            return int.from_bytes(data[i + 7 : i + 9], "big"), int.from_bytes(data[i + 5 : i + 7], "big")
+        if marker == 0xDA or length < 2:  # scan data before any frame header
+            return None
+        i += 2 + length
+    return None
+
+
 class _QuietOpenCV:
     """Silence OpenCV's log while any thread decodes, so a corrupt image's warning (``[ WARN:0@…]
     PNG input buffer is incomplete``) does not reach stderr; the error says it instead. Reference
@@ -117,9 +167,23 @@ class LazyImage:
     def _error(self, problem: str) -> RecordingError:
         return RecordingError(f"image at stamp {self.stamp_ns} ns: {problem}", path=self.path)
 
+    def _check_header(self) -> None:
+        """Refuse, before decoding, an image whose header is missing or claims more than the limit."""
+        size = header_size(self.data)
+        if size is None:
+            raise self._error(f"corrupt {self.encoding.upper()} data (no readable header)")
+        width, height = size
+        if width == 0 or height == 0:
+            raise self._error(f"corrupt {self.encoding.upper()} data (header claims {width}x{height} pixels)")
+        if not _within_limits(width, height):
+            raise self._error(
+                f"{self.encoding.upper()} header claims {width}x{height} pixels ({_LIMIT_TEXT})"
+            )
+
     def _imdecode(self, flags: int) -> np.ndarray:
         import cv2
 
+        self._check_header()
         buf = np.frombuffer(self.data, dtype=np.uint8)
         try:
             with _quiet_opencv():
@@ -136,6 +200,8 @@ class LazyImage:
             import cv2
 
             return self._imdecode(cv2.IMREAD_GRAYSCALE)
+        if not (self.width > 0 and self.height > 0 and _within_limits(self.width, self.height)):
+            raise self._error(f"{self.width}x{self.height} {self.encoding} image ({_LIMIT_TEXT})")
         return raw_to_gray(
             self.data,
             self.encoding,

@@ -11,6 +11,8 @@ command can name these types in its signature without slowing ``aslam --help``.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import math
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
@@ -25,7 +27,9 @@ from aslam.data_formats.errors import RecordingError
 from aslam.data_formats.image_encodings import RAW_ENCODINGS, is_raw_encoding
 from aslam.data_formats.images import LazyImage
 from aslam.data_formats.mcap_file import McapFile
+from aslam.data_formats.pose_limits import implausible
 from aslam.data_formats.pose_sync import Sample, SampleAssembler
+from aslam.data_formats.schema_check import definition_problem
 
 METADATA_NAME = "aslam.recording"
 ODOMETRY_FRAME = "odom"
@@ -62,8 +66,14 @@ class _MessageDecoder:
                     f"schema encoding '{getattr(schema, 'encoding', None)}')",
                     path=self._path,
                 )
+            problem = definition_problem(schema.name, schema.data.decode("utf-8", "replace"))
+            if problem is not None:
+                raise RecordingError(
+                    f"topic '{channel.topic}': schema '{schema.name}': {problem}", path=self._path
+                )
             try:
-                decode = self._factory.decoder_for(channel.message_encoding, schema)
+                with contextlib.redirect_stderr(io.StringIO()):  # the ROS parser prints before raising
+                    decode = self._factory.decoder_for(channel.message_encoding, schema)
             except Exception as err:
                 raise RecordingError(
                     f"topic '{channel.topic}': unreadable message definition for '{schema.name}' ({err})",
@@ -164,6 +174,7 @@ class _Stream:
         self.accepted = accepted
         self.decode = decode
         self.last_ns: int | None = None
+        self.last_pose: np.ndarray | None = None
 
     def read(self, schema: Any, channel: Any, message: Any) -> tuple[int, Any, str]:
         """``(stamp_ns, decoded message, datatype)``, checked."""
@@ -193,6 +204,12 @@ class _Stream:
                 f"{self.what} pose on '{topic}' at stamp {stamp_ns} ns is not finite (NaN or infinite)",
                 path=self.path,
             )
+        problem = implausible(pose, self.last_pose)
+        if problem is not None:
+            raise RecordingError(
+                f"{self.what} pose on '{topic}' at stamp {stamp_ns} ns {problem}", path=self.path
+            )
+        self.last_pose = pose
         return pose
 
 

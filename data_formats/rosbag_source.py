@@ -28,7 +28,7 @@ from aslam.core.errors import InputError
 from aslam.data_formats import ros_msgs
 from aslam.data_formats.camera import CameraIntrinsics
 from aslam.data_formats.errors import BagError
-from aslam.data_formats.files import source_files
+from aslam.data_formats.files import check_input_file, source_files
 from aslam.data_formats.mcap_file import McapFile
 from aslam.data_formats.pose_sync import Sample, SampleAssembler
 from aslam.data_formats.recording import _header_stamp_ns, _lazy_image
@@ -72,6 +72,7 @@ def classify(
         if any(p.suffix.lower() in IMAGE_FILE_SUFFIXES for p in path.iterdir() if p.is_file()):
             return SourceKind.IMAGE_FOLDER, None
         raise BagError("is a folder with neither a rosbag2 metadata.yaml nor png/jpg images", path=path)
+    check_input_file(path, error=BagError, what="an MCAP recording")  # a FIFO is refused, never opened
     try:
         with path.open("rb") as f:
             head = f.read(len(_SQLITE_MAGIC))
@@ -82,10 +83,13 @@ def classify(
     from aslam.data_formats.files import MCAP_MAGIC
 
     if head.startswith(MCAP_MAGIC):
-        from aslam.data_formats.recording import METADATA_NAME
+        from aslam.data_formats.recording import METADATA_NAME, RecordingTopics
 
         mcap = McapFile(path, on_warning=on_warning)
-        if mcap.metadata(METADATA_NAME) is not None:  # present, even if empty
+        ours = RecordingTopics()
+        # Our own recordings, and MCAP files laid out as ours (the same image and odometry topics),
+        # are read by aslam's own reader; any other MCAP file as a rosbag2 storage file.
+        if mcap.metadata(METADATA_NAME) is not None or {ours.image, ours.odometry} <= set(mcap.channels):
             return SourceKind.RECORDING, mcap
         _need_suffix(path, ".mcap", "an MCAP file")
         return SourceKind.ROSBAG2_FILE, mcap

@@ -229,7 +229,11 @@ def record(
 
     started = time.perf_counter()
     output = Path(output)
-    check_output_path(output, force=force)  # the writer checks too; failing here skips the slow set-up
+    # The writers check too; failing here skips the slow set-up. No output may be an input, or both.
+    inputs = [Path(p) for p in (config.route, config.world) if p is not None and Path(p).is_file()]
+    check_output_path(output, force=force, inputs=inputs)
+    if config.contact_sheet is not None:
+        check_output_path(config.contact_sheet, force=force, inputs=inputs, outputs=[output])
     p = plan(config)
     cam = config.camera
     intrinsics = CameraIntrinsics(width_px=cam.width_px, height_px=cam.height_px, fov_deg=cam.fov_deg)
@@ -273,11 +277,12 @@ def record(
                 for future in pending:
                     future.cancel()
                 raise
+            # Before the recording is renamed into place: a sheet that fails takes the recording with it.
+            sheet_path = None
+            if config.contact_sheet is not None:
+                sheet_path = write_contact_sheet(config.contact_sheet, sheet, force=force)
         loop_seconds = time.perf_counter() - loop_start
 
-    sheet_path = None
-    if config.contact_sheet is not None:
-        sheet_path = write_contact_sheet(config.contact_sheet, sheet)
     return RecordResult(
         output=output,
         frames=total,
@@ -293,9 +298,13 @@ def _sheet_keyframes(n: int) -> list[int]:
     return sorted({round(i * (n - 1) / max(1, count - 1)) for i in range(count)})
 
 
-def write_contact_sheet(path: Path, frames: list[tuple[int, np.ndarray]], columns: int = 6) -> Path:
-    """A grid of sample frames, each labelled with its keyframe index, as a PNG."""
+def write_contact_sheet(
+    path: Path, frames: list[tuple[int, np.ndarray]], columns: int = 6, *, force: bool = False
+) -> Path:
+    """A grid of sample frames, each labelled with its keyframe index, as a PNG (``--force`` to replace)."""
     import cv2
+
+    from aslam.data_formats.files import write_atomically
 
     if not frames:
         raise InputError("no frames for the contact sheet", path=path)
@@ -317,8 +326,6 @@ def write_contact_sheet(path: Path, frames: list[tuple[int, np.ndarray]], column
     if not ok:
         raise InputError("OpenCV could not encode the contact sheet", path=path)
     path = Path(path)
-    try:
-        path.write_bytes(buf.tobytes())
-    except OSError as err:
-        raise InputError(f"cannot write contact sheet: {err.strerror or err}", path=path) from err
+    data = buf.tobytes()
+    write_atomically(path, lambda temporary: temporary.write_bytes(data), force=force)
     return path

@@ -28,6 +28,7 @@ import numpy as np
 
 from aslam.core import se2
 from aslam.recorder.errors import RouteError
+from aslam.recorder.route_limits import read_route_text
 
 #: A route is closed when its last commanded pose is its start pose within these tolerances.
 CLOSE_TOL_M = 1e-6
@@ -287,7 +288,7 @@ def parse_route(doc: Any, *, name: str = "route", path: Path | str | None = None
 
 def load_route_file(path: Path) -> Route:
     try:
-        text = Path(path).read_text(encoding="utf-8")
+        text = read_route_text(path)  # bounds: recorder/route_limits.py
     except OSError as err:
         raise RouteError(f"cannot read route file: {err.strerror or err}", path=path) from err
     except UnicodeDecodeError as err:

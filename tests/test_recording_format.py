@@ -329,7 +329,7 @@ def test_writer_refuses_stamps_that_do_not_increase(tmp_path):
 def test_info_json_describes_the_recording(tmp_path, capsys):
     frames = random_frames(3)
     path = write_recording(tmp_path / "r.mcap", frames, metadata={"world": "w"})
-    assert main(["info", str(path), "--json"]) == 0
+    assert main(["info", str(path), "--json", "-"]) == 0
     captured = capsys.readouterr()
     assert captured.err == ""
     report = json.loads(captured.out)

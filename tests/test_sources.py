@@ -90,7 +90,7 @@ def test_estimate_gives_the_same_result_from_a_recording_and_its_bags(tmp_path, 
         args = ["estimate", str(path), "-o", str(out), "--step-m", "0.15", "--turn-deg", "10", "-q"]
         assert main(args) == 0, capsys.readouterr().err
         results[name] = [(k.stamp_ns, k.action, k.hypotheses) for k in iter_keyframes(out)]
-        assert main(["info", str(path), "--json"]) == 0
+        assert main(["info", str(path), "--json", "-"]) == 0
         assert main(["report", str(out), "--json", "-", "-q"]) == 0
         capsys.readouterr()
     assert len(results["recording"]) > 3

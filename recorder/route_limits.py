@@ -1,0 +1,119 @@
+"""Bounds on route files, checked on the text before the route is built (docs/formats.md, "Route files").
+
+A route file is untrusted input: 1e308 coordinates overflow the pose arithmetic, 100,000 nested
+brackets overflow the JSON parser's recursion, and millions of actions or kilometres of travel make
+a world and a plan no machine renders. These bounds are far beyond any indoor walkthrough and
+make every such file one ``RouteError`` line instead.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from pathlib import Path
+from typing import Any
+
+from aslam.data_formats.files import check_input_file
+from aslam.recorder.errors import RouteError
+
+MAX_FILE_BYTES = 10_000_000
+MAX_DEPTH = 32
+"""JSON nesting; a route needs 3 (object → actions list → action object)."""
+MAX_ACTIONS = 100_000
+MAX_COORDINATE_M = 1_000.0
+"""|start.x_m|, |start.y_m| and every commanded position stay within 1 km of the origin."""
+MAX_TURN_DEG = 3600.0
+MAX_ROUTE_LENGTH_M = 2_000.0
+"""Total distance driven in one lap (a generated world costs about 13 ms and 0.1 MB per metre)."""
+
+_STRING = re.compile(r'"(?:[^"\\]|\\.)*"', re.DOTALL)
+_BRACKET = re.compile(r"[\[\]{}]")
+
+
+def read_route_text(path: Path | str) -> str:
+    """The text of a route file, refused (RouteError naming the file and the bound) beyond the bounds above.
+
+    The file must be a regular file (a FIFO is refused, not waited on) of UTF-8 text. Values the
+    route parser itself checks (types, a forward leg's sign and length) are left to it.
+    """
+    size = check_input_file(Path(path), error=RouteError, what="a route file")
+    if size > MAX_FILE_BYTES:
+        raise RouteError(f"route file is larger than {MAX_FILE_BYTES:,} bytes", path=path)
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except OSError as err:
+        raise RouteError(f"cannot read route file: {err.strerror or err}", path=path) from err
+    except UnicodeDecodeError as err:
+        raise RouteError("route file is not UTF-8 text", path=path) from err
+    depth = deepest = 0
+    for match in _BRACKET.finditer(_STRING.sub('""', text)):
+        depth += 1 if match.group() in "[{" else -1
+        deepest = max(deepest, depth)
+        if deepest > MAX_DEPTH:
+            raise RouteError(f"JSON nested deeper than {MAX_DEPTH} levels", path=path)
+    try:
+        doc = json.loads(text)
+    except (ValueError, RecursionError):
+        return text  # the route parser reports the syntax error with its line and column
+    if isinstance(doc, dict):
+        _check_values(doc, path)
+    return text
+
+
+def _finite(value: Any) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    try:
+        value = float(value)
+    except OverflowError:  # an integer literal beyond any float
+        return math.inf
+    return value
+
+
+def _check_values(doc: dict[str, Any], path: Path | str) -> None:
+    start = doc.get("start")
+    x_m = y_m = heading_rad = 0.0
+    if isinstance(start, dict):
+        for key in ("x_m", "y_m"):
+            value = _finite(start.get(key))
+            if value is not None and not abs(value) <= MAX_COORDINATE_M:
+                raise RouteError(
+                    f"start.{key} = {start.get(key)!r} is beyond ±{MAX_COORDINATE_M:g} m", path=path
+                )
+        x_m = _finite(start.get("x_m")) or 0.0
+        y_m = _finite(start.get("y_m")) or 0.0
+        yaw = _finite(start.get("yaw_deg"))
+        if yaw is not None and not abs(yaw) <= MAX_TURN_DEG:
+            raise RouteError(f"start.yaw_deg = {yaw!r} is beyond ±{MAX_TURN_DEG:g}°", path=path)
+        heading_rad = math.radians(yaw or 0.0)
+    actions = doc.get("actions")
+    if not isinstance(actions, list):
+        return
+    if len(actions) > MAX_ACTIONS:
+        raise RouteError(
+            f"{len(actions):,} actions; a route file may have at most {MAX_ACTIONS:,}", path=path
+        )
+    driven_m = 0.0
+    for i, entry in enumerate(actions):
+        if not isinstance(entry, dict) or len(entry) != 1:
+            continue
+        (key, raw), value = next(iter(entry.items())), _finite(next(iter(entry.values())))
+        if value is None:
+            continue
+        if key == "turn_deg":
+            if not abs(value) <= MAX_TURN_DEG:
+                raise RouteError(f"actions[{i}]: turn_deg = {raw!r} is beyond ±{MAX_TURN_DEG:g}°", path=path)
+            heading_rad += math.radians(value)
+        elif key == "forward_m" and 0.0 < value <= MAX_ROUTE_LENGTH_M:
+            driven_m += value
+            if driven_m > MAX_ROUTE_LENGTH_M:
+                raise RouteError(
+                    f"the route drives more than {MAX_ROUTE_LENGTH_M:g} m (at actions[{i}])", path=path
+                )
+            x_m += value * math.cos(heading_rad)
+            y_m += value * math.sin(heading_rad)
+            if not (abs(x_m) <= MAX_COORDINATE_M and abs(y_m) <= MAX_COORDINATE_M):
+                raise RouteError(
+                    f"actions[{i}] takes the route beyond ±{MAX_COORDINATE_M:g} m of the origin", path=path
+                )

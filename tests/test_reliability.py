@@ -1,0 +1,661 @@
+"""Reliability (issue 15): inputs never destroyed, hostile files and options end in one clean line,
+memory bounded, signals and closed pipes handled, special outputs written through.
+
+In-process through ``aslam.cli.app.main`` where the behaviour is Python's; as real ``aslam``
+subprocesses where it is the process's (signals, closed pipes, what C libraries print, peak memory).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import signal
+import struct
+import subprocess
+import sys
+import time
+import zlib
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from conftest import FRAME_NS, T0_NS, ForeignRecording, write_with_corrupt_image
+from test_estimate_report import write_recording
+
+from aslam.cli.app import main
+from aslam.data_formats import ros_msgs
+from aslam.data_formats.images import ImageFormat, encode_image
+
+ASLAM = Path(sys.executable).with_name("aslam")
+PNG = encode_image(np.zeros((24, 32, 3), dtype=np.uint8)).data
+
+
+def sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def one_error_line(capsys, *needles: str) -> str:
+    err = capsys.readouterr().err
+    lines = err.splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("aslam: error: "), err
+    assert "Traceback" not in err
+    for needle in needles:
+        assert needle in lines[0], lines[0]
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("rec") / "square.mcap"
+    write_recording(path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def estimate_file(recording: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("est") / "estimate.mcap"
+    assert main(["estimate", str(recording), "-o", str(out), "-q"]) == 0
+    return out
+
+
+# --- outputs never overwrite inputs ------------------------------------------------------------
+
+
+@pytest.mark.parametrize("how", ["dotdot", "symlink", "symlinked-folder"])
+def test_estimate_output_resolving_to_the_recording_is_refused_even_with_force(
+    recording: Path, tmp_path: Path, capsys, how: str
+):
+    copy = tmp_path / "rec.mcap"
+    copy.write_bytes(recording.read_bytes())
+    before = sha(copy)
+    if how == "dotdot":
+        (tmp_path / "sub").mkdir()
+        output = tmp_path / "sub" / ".." / "rec.mcap"
+    elif how == "symlink":
+        output = tmp_path / "link.mcap"
+        output.symlink_to(copy)
+    else:
+        (tmp_path / "alias").symlink_to(tmp_path)
+        output = tmp_path / "alias" / "rec.mcap"
+    assert main(["estimate", str(copy), "-o", str(output), "--force"]) == 2
+    one_error_line(capsys, "input of this command", "even with --force")
+    assert sha(copy) == before
+    assert not list(tmp_path.glob(".*partial*"))
+
+
+def test_report_output_that_is_its_estimate_is_refused_and_writes_nothing(
+    estimate_file: Path, tmp_path: Path, capsys
+):
+    before = sha(estimate_file)
+    graph = tmp_path / "g.json"
+    code = main(
+        ["report", str(estimate_file), "--graph", str(graph), "--json", str(estimate_file), "--force"]
+    )
+    assert code == 2
+    one_error_line(capsys, "input of this command")
+    assert sha(estimate_file) == before
+    assert not graph.exists()  # the command failed: none of its outputs
+
+
+def test_two_outputs_resolving_to_one_file_are_refused(estimate_file: Path, tmp_path: Path, capsys):
+    (tmp_path / "sub").mkdir()
+    a, b = tmp_path / "out.json", tmp_path / "sub" / ".." / "out.json"
+    assert main(["report", str(estimate_file), "-q", "--graph", str(a), "--json", str(b)]) == 2
+    one_error_line(capsys, "another output of this command")
+    assert not a.exists()
+
+
+def test_every_report_output_obeys_force(estimate_file: Path, tmp_path: Path, capsys):
+    plots = tmp_path / "plots"
+    assert main(["report", str(estimate_file), "-q", "--plots", str(plots)]) == 0
+    first = {p.name: sha(p) for p in plots.iterdir()}
+    capsys.readouterr()
+    graph = tmp_path / "g.json"
+    assert main(["report", str(estimate_file), "-q", "--plots", str(plots), "--graph", str(graph)]) == 2
+    one_error_line(capsys, "already exists", "--force")
+    assert {p.name: sha(p) for p in plots.iterdir()} == first
+    assert not graph.exists()
+    assert (
+        main(["report", str(estimate_file), "-q", "--force", "--plots", str(plots), "--graph", str(graph)])
+        == 0
+    )
+    assert graph.exists()
+
+
+def test_failed_gate_keeps_the_outputs(estimate_file: Path, tmp_path: Path, capsys):
+    out = tmp_path / "s.json"
+    code = main(["report", str(estimate_file), "-q", "--json", str(out), "--fail-on", "keyframes>0"])
+    assert code == 1
+    assert json.loads(out.read_text())["keyframes"] > 0
+
+
+# --- special outputs -----------------------------------------------------------------------------
+
+
+def test_dev_null_is_written_through_never_replaced(estimate_file: Path, recording: Path, tmp_path: Path):
+    assert main(["report", str(estimate_file), "-q", "--json", "/dev/null", "--graph", "/dev/null"]) == 0
+    assert main(["estimate", str(recording), "-o", "/dev/null", "-q", "--force"]) == 0
+    assert Path("/dev/null").is_char_device()
+
+
+def test_a_fifo_output_is_written_directly(estimate_file: Path, tmp_path: Path):
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    reader = subprocess.Popen(["cat", str(fifo)], stdout=subprocess.PIPE)
+    assert main(["report", str(estimate_file), "-q", "--graph", str(fifo)]) == 0
+    data, _ = reader.communicate(timeout=30)
+    assert json.loads(data)["version"] == 1
+    assert fifo.is_fifo()
+
+
+def test_a_symlink_output_is_followed_and_its_target_replaced(estimate_file: Path, tmp_path: Path):
+    target = tmp_path / "target.json"
+    target.write_text("old")
+    link = tmp_path / "link.json"
+    link.symlink_to(target)
+    assert main(["report", str(estimate_file), "-q", "--json", str(link), "--force"]) == 0
+    assert link.is_symlink() and link.resolve() == target.resolve()
+    assert json.loads(target.read_text())["keyframes"] > 0
+
+
+def test_fifo_input_is_refused_at_once(tmp_path: Path):
+    fifo = tmp_path / "in.mcap"
+    os.mkfifo(fifo)
+    done = subprocess.run([str(ASLAM), "info", str(fifo)], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2
+    problem = "is not a regular file (a FIFO, socket or device), not an MCAP recording"
+    assert done.stderr.splitlines() == [f"aslam: error: {fifo}: {problem}"]
+
+
+def test_closed_stdout_ends_quietly_with_141(estimate_file: Path, tmp_path: Path):
+    out = tmp_path / "s.json"
+    process = subprocess.Popen(
+        [str(ASLAM), "report", str(estimate_file), "--json", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    process.stdout.close()  # the reader is gone before the tables are written (`| head -0`)
+    err = process.stderr.read()
+    assert process.wait(timeout=120) == 141
+    assert err == ""
+    assert not out.exists()  # stopped early: none of its outputs
+
+
+# --- leftovers and signals -----------------------------------------------------------------------
+
+
+def long_recording(path: Path, frames: int = 600) -> None:
+    """Enough images that an estimate runs for a while (a straight corridor, back and forth)."""
+    from aslam.data_formats.camera import CameraIntrinsics
+    from aslam.data_formats.recording_writer import RecordingWriter
+
+    rng = np.random.default_rng(0)
+    with RecordingWriter(path, camera=CameraIntrinsics(64, 48, 60.0), metadata={}) as writer:
+        for i in range(frames):
+            x = float(i % 40)
+            image = encode_image(rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
+            writer.write(1_000_000_000 * (i + 1), image, np.array([x, 0.0, 0.0]), None)
+
+
+@pytest.mark.parametrize("signum, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_signal_during_estimate_cleans_up(tmp_path: Path, signum: int, code: int):
+    recording = tmp_path / "long.mcap"
+    long_recording(recording)
+    output = tmp_path / "e.mcap"
+    process = subprocess.Popen(
+        [str(ASLAM), "estimate", str(recording), "-o", str(output)], stderr=subprocess.PIPE, text=True
+    )
+    deadline = time.monotonic() + 120
+    while not list(tmp_path.glob(".e.mcap.partial-*")) and process.poll() is None:
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    process.send_signal(signum)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == code, err
+    assert err.splitlines()[-1] == (
+        "aslam: error: terminated" if code == 143 else "aslam: error: interrupted"
+    )
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["long.mcap"]
+
+
+def test_stale_partial_file_is_named_by_the_next_run(recording: Path, tmp_path: Path, capsys):
+    stale = tmp_path / ".e.mcap.partial-999999999"
+    stale.write_bytes(b"left by a killed run")
+    assert main(["estimate", str(recording), "-o", str(tmp_path / "e.mcap")]) == 0
+    err = capsys.readouterr().err
+    assert f"aslam: warning: {stale}: temporary file left by an interrupted run" in err
+
+
+# --- bad data: exit 2, one line ------------------------------------------------------------------
+
+
+def odometry_recording(path: Path, xs: list[float]) -> None:
+    with ForeignRecording(path) as rec:
+        for k, x in enumerate(xs):
+            stamp = T0_NS + k * FRAME_NS
+            rec.odometry("/odom", stamp, x, 0.0, 0.0)
+            rec.compressed_image("/camera/image/compressed", stamp, PNG, "png")
+
+
+@pytest.mark.parametrize(
+    "xs, needle",
+    [
+        ([0.0, 1.0, 1e100, 3.0], "beyond the plausible"),
+        ([0.0, sys.float_info.max, 1.0], "beyond the plausible"),
+        ([0.0, 1.0, 2.0e4, 2.0e4], "jumps"),
+        ([0.0, 1e20, 1e20], "beyond the plausible"),
+    ],
+)
+@pytest.mark.parametrize("command", ["info", "estimate"])
+def test_implausible_odometry_is_refused_naming_the_stamp(tmp_path: Path, capsys, xs, needle, command):
+    path = tmp_path / "r.mcap"
+    odometry_recording(path, xs)
+    argv = (
+        ["info", str(path)] if command == "info" else ["estimate", str(path), "-o", str(tmp_path / "e.mcap")]
+    )
+    assert main(argv) == 2
+    line = one_error_line(capsys, needle, "at stamp")
+    assert str(path) in line
+    assert not (tmp_path / "e.mcap").exists()
+
+
+def schema_recording(path: Path, datatype: str, definition: str, message: dict[str, Any]) -> None:
+    with ForeignRecording(path) as rec:
+        schema = rec.schema(datatype, definition)
+        topic = "/camera/camera_info" if datatype == ros_msgs.CAMERA_INFO else "/camera/image/compressed"
+        for k in range(3):
+            stamp = T0_NS + k * FRAME_NS
+            rec.odometry("/odom", stamp, float(k), 0.0, 0.0)
+            rec.writer.write_message(topic, schema, message, log_time=stamp)
+            if datatype == ros_msgs.CAMERA_INFO:
+                rec.compressed_image("/camera/image/compressed", stamp, PNG, "png")
+
+
+HEADER = {"stamp": {"sec": 1, "nanosec": 0}, "frame_id": "camera"}
+
+
+@pytest.mark.parametrize(
+    "datatype, drop, message, needle",
+    [
+        (ros_msgs.RAW_IMAGE, "string encoding\n", {"header": HEADER, "height": 1, "width": 1, "step": 1,
+                                                   "is_bigendian": 0, "data": b"\0"}, "no field 'encoding'"),
+        (ros_msgs.COMPRESSED_IMAGE, "string format\n", {"header": HEADER, "data": PNG}, "no field 'format'"),
+        (ros_msgs.COMPRESSED_IMAGE, "uint8[] data\n", {"header": HEADER, "format": "png"}, "no field 'data'"),
+        (ros_msgs.CAMERA_INFO, "float64[9] k\n", {"header": HEADER, "height": 24, "width": 32},
+         "no field 'k'"),
+    ],
+)  # fmt: skip
+def test_schema_without_a_field_the_reader_uses_is_one_line(tmp_path: Path, capsys, datatype, drop, message,
+                                                            needle):  # fmt: skip
+    definition = ros_msgs.message_definition(datatype)
+    assert drop in definition
+    path = tmp_path / "r.mcap"
+    schema_recording(path, datatype, definition.replace(drop, "", 1), message)
+    assert main(["info", str(path)]) == 2
+    one_error_line(capsys, needle, datatype.replace("/msg/", "/"))
+
+
+def rewrite_estimate(source: Path, target: Path, change: Callable[[str, dict], dict]) -> None:
+    """``source`` with every JSON message passed through ``change(topic, message)``."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with source.open("rb") as f:
+        metadata = [(m.name, dict(m.metadata)) for m in make_reader(f).iter_metadata()]
+    with source.open("rb") as f, target.open("wb") as out:
+        writer = Writer(out)
+        writer.start()
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        for name, record in metadata:
+            writer.add_metadata(name, record)
+        for schema, channel, message in make_reader(f).iter_messages(log_time_order=True):
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                encoding = channel.message_encoding
+                channels[channel.id] = writer.register_channel(channel.topic, encoding, schemas[schema.id])
+            data = message.data
+            if channel.message_encoding == "json":  # ours; the Foxglove scene (protobuf) is copied
+                text = json.dumps(change(channel.topic, json.loads(message.data)))
+                data = text.replace('"__1e999__"', "1e999").encode()  # a literal that parses as infinity
+            writer.add_message(channels[channel.id], message.log_time, data, message.publish_time)
+        writer.finish()
+
+
+def _graph(change: Callable[[dict], None]) -> Callable[[str, dict], dict]:
+    def apply(topic: str, message: dict) -> dict:
+        if topic == "/aslam/graph":
+            change(message)
+        return message
+
+    return apply
+
+
+def _keyframe(change: Callable[[dict], None]) -> Callable[[str, dict], dict]:
+    def apply(topic: str, message: dict) -> dict:
+        if topic == "/aslam/keyframe" and message["index"] == 3:
+            change(message)
+        return message
+
+    return apply
+
+
+@pytest.mark.parametrize(
+    "change, needle",
+    [
+        (_graph(lambda g: g["links"][0].pop("action")), "action"),
+        (_graph(lambda g: g.update(states={"0": [0]})), "states"),
+        (_graph(lambda g: g["links"][0].update(to=10_000)), "does not exist"),
+        (_graph(lambda g: g["links"][0].update(covariance=[[1.0]])), "covariance"),
+        (_graph(lambda g: g["tree"].update(nodes_created=1e300)), "tree"),
+        (_keyframe(lambda k: k.update(stamp_ns=math.inf)), "Infinity is not a number this format allows"),
+        (_keyframe(lambda k: k.update(stamp_ns="__1e999__")), "stamp_ns must be integer"),
+        (_keyframe(lambda k: k["action"].update(yaw_rad="__1e999__")), "yaw_rad must be smaller than"),
+        (_keyframe(lambda k: k["action"].update(x_m=math.nan)), "not a number this format allows"),
+        (_keyframe(lambda k: k["hypotheses"][0].update(belief=7.0)), "belief"),
+    ],
+)
+def test_well_formed_but_wrong_estimate_json_is_one_line(estimate_file: Path, tmp_path: Path, capsys, change,
+                                                        needle):  # fmt: skip
+    bad = tmp_path / "bad.mcap"
+    rewrite_estimate(estimate_file, bad, change)
+    assert main(["report", str(bad), "-q", "--json", str(tmp_path / "s.json")]) == 2
+    one_error_line(capsys, str(bad), needle)
+    assert not (tmp_path / "s.json").exists()
+
+
+@pytest.mark.parametrize(
+    "option, value",
+    [
+        ("--beta", "1e200"),
+        ("--odometry-noise", "1e200"),
+        ("--place-radius-m", "1e308"),
+        ("--visit-sigma-deg", "1e308"),
+        ("--search-sigma-m", "1e308"),
+        ("--search-nearness", "nan"),
+        ("--search-nearness", "inf"),
+        ("--search-nearness", "-1"),
+        ("--histogram-bins", "1000000000000"),
+        ("--cells-y", "100000"),
+    ],
+)
+def test_extreme_estimator_options_are_one_line(recording: Path, tmp_path: Path, capsys, option, value):
+    assert main(["estimate", str(recording), "-o", str(tmp_path / "e.mcap"), option, value]) == 2
+    one_error_line(capsys, option.removeprefix("--").replace("-", "_"), "must be")
+
+
+@pytest.mark.parametrize("option, value", [("--radius-m", "1e-308"), ("--heading-deg", "nan")])
+def test_extreme_report_options_are_one_line(estimate_file: Path, capsys, option, value):
+    assert main(["report", str(estimate_file), option, value]) == 2
+    one_error_line(capsys, option, "must be")
+
+
+@pytest.mark.parametrize(
+    "text, needle",
+    [
+        ('{"start": {"x_m": 1e308}, "actions": [{"forward_m": 1}]}', "beyond ±1000 m"),
+        ("[" * 100_000 + "]" * 100_000, "nested deeper"),
+        ('{"actions": [' + '{"forward_m": 1},' * 100_001 + '{"turn_deg": 1}]}', "at most 100,000"),
+        ('{"actions": [{"forward_m": 10000}]}', "forward_m must be a number in (0, 1000]"),
+        ('{"actions": [' + '{"forward_m": 900}, {"turn_deg": 180},' * 3 + '{"turn_deg": 1}]}',
+         "more than 2000 m"),
+        ('{"actions": [{"turn_deg": 1e308}]}', "turn_deg"),
+    ],
+)  # fmt: skip
+def test_hostile_route_files_are_one_line_before_any_rendering(tmp_path: Path, capsys, text, needle):
+    route = tmp_path / "route.json"
+    route.write_text(text)
+    assert main(["record", "--route", str(route), "-o", str(tmp_path / "r.mcap")]) == 2
+    one_error_line(capsys, str(route), needle)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["route.json"]
+
+
+@pytest.mark.parametrize("sheet", ["same", "route", "existing"])
+def test_contact_sheet_is_never_an_input_or_the_recording_and_obeys_force(tmp_path: Path, capsys, sheet):
+    route = tmp_path / "route.json"
+    route.write_text('{"actions": [{"forward_m": 1}]}')
+    output = tmp_path / "r.mcap"
+    target = {"same": output, "route": route, "existing": tmp_path / "sheet.png"}[sheet]
+    if sheet == "existing":
+        target.write_bytes(b"keep")
+    force = [] if sheet == "existing" else ["--force"]
+    argv = ["record", "--route", str(route), "-o", str(output), "--contact-sheet", str(target), *force]
+    assert main(argv) == 2
+    one_error_line(capsys)
+    assert not output.exists()
+    assert route.read_text() == '{"actions": [{"forward_m": 1}]}'
+    if sheet == "existing":
+        assert target.read_bytes() == b"keep"
+
+
+# --- memory and one line -------------------------------------------------------------------------
+
+
+def png_claiming(width: int, height: int) -> bytes:
+    """A small PNG whose IHDR claims ``width``×``height`` (the CRC fixed, so decoders believe it)."""
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
+    chunk = b"IHDR" + ihdr
+    idat = zlib.compress(b"\0" * 4096)
+    return (
+        b"\x89PNG\r\n\x1a\n"
+        + struct.pack(">I", len(ihdr)) + chunk + struct.pack(">I", zlib.crc32(chunk))
+        + struct.pack(">I", len(idat)) + b"IDAT" + idat + struct.pack(">I", zlib.crc32(b"IDAT" + idat))
+        + struct.pack(">I", 0) + b"IEND" + struct.pack(">I", zlib.crc32(b"IEND"))
+    )  # fmt: skip
+
+
+def peak_rss_mib(argv: list[str]) -> tuple[int, str, float]:
+    """Exit code, stderr and peak resident memory (MiB) of ``aslam ARGV`` run alone in a fresh parent."""
+    probe = (
+        "import json, resource, subprocess, sys\n"
+        "done = subprocess.run(sys.argv[1:], capture_output=True, text=True)\n"
+        "peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024\n"
+        "print(json.dumps([done.returncode, done.stderr, peak]))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", probe, str(ASLAM), *argv], capture_output=True, text=True, timeout=600
+    )
+    code, stderr, peak = json.loads(done.stdout)
+    return code, stderr, peak
+
+
+def images_recording(path: Path, images: list[bytes]) -> None:
+    with ForeignRecording(path) as rec:
+        for k, image in enumerate(images):
+            stamp = T0_NS + k * FRAME_NS
+            rec.odometry("/odom", stamp, float(k), 0.0, 0.0)
+            rec.compressed_image("/camera/image/compressed", stamp, image, "png")
+
+
+LIMIT_TEXT = "the limit is 8192 pixels a side and 4,194,304 pixels in all"
+
+
+@pytest.mark.parametrize("width, height", [(100_000, 100_000), (10_000, 10_000), (8192, 8192), (4096, 2048)])
+def test_image_header_beyond_the_limit_is_refused_before_decoding(tmp_path: Path, width: int, height: int):
+    path = tmp_path / "huge.mcap"
+    images_recording(path, [png_claiming(width, height)] * 2)
+    assert path.stat().st_size < 20_000
+    for argv in (["info", str(path)], ["estimate", str(path), "-o", str(tmp_path / "e.mcap")]):
+        code, stderr, peak_mib = peak_rss_mib(argv)
+        assert code == 2
+        assert stderr.splitlines() == [stderr.strip()]
+        assert f"header claims {width}x{height} pixels ({LIMIT_TEXT})" in stderr
+        assert peak_mib < 1024
+
+
+def test_images_at_the_limit_stay_below_1_gib(tmp_path: Path):
+    """The largest images admitted (2048×2048, noise so the gradients are everywhere) through estimate."""
+    path = tmp_path / "big.mcap"
+    rng = np.random.default_rng(0)
+    images_recording(path, [encode_image(rng.integers(0, 255, (2048, 2048), dtype=np.uint8)).data] * 3)
+    code, stderr, peak_mib = peak_rss_mib(["estimate", str(path), "-o", str(tmp_path / "e.mcap"), "-q"])
+    assert code == 0, stderr
+    assert peak_mib < 1024
+
+
+@pytest.mark.parametrize("fmt", [ImageFormat.PNG, ImageFormat.JPEG])
+def test_decoder_messages_never_reach_the_terminal(tmp_path: Path, fmt: ImageFormat):
+    path = write_with_corrupt_image(tmp_path / "bad.mcap", fmt)
+    done = subprocess.run([str(ASLAM), "info", str(path)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2
+    assert len(done.stderr.splitlines()) == 1, done.stderr
+    assert done.stderr.startswith("aslam: error: ")
+
+
+# --- a full disk ---------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def full_disk(tmp_path: Path):
+    """A 64 KiB tmpfs, nearly full; skipped where mounting is not permitted."""
+    folder = tmp_path / "disk"
+    folder.mkdir()
+    done = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(folder)], capture_output=True
+    )
+    if done.returncode != 0:
+        pytest.skip("cannot mount a tmpfs here (needs root)")
+    try:
+        (folder / "fill").write_bytes(b"\0" * 56 * 1024)
+        yield folder
+    finally:
+        subprocess.run(["umount", str(folder)], check=False)
+
+
+def test_full_disk_is_one_line_and_leaves_nothing(
+    recording: Path, estimate_file: Path, full_disk: Path, capsys
+):
+    assert main(["estimate", str(recording), "-o", str(full_disk / "e.mcap")]) == 2
+    one_error_line(capsys, "No space left on device")
+    out = [
+        "--json",
+        str(full_disk / "s.json"),
+        "--graph",
+        str(full_disk / "g.json"),
+        "--plots",
+        str(full_disk),
+    ]
+    assert main(["report", str(estimate_file), "-q", *out]) == 2
+    one_error_line(capsys, "No space left on device")
+    assert sorted(p.name for p in full_disk.iterdir()) == ["fill"]
+
+
+# --- schemas: every single-bit flip is caught ----------------------------------------------------
+
+
+def _flip_survivors(datatype: str, message: dict[str, Any], use: Callable[[Any], None]) -> list[str]:
+    """Single-bit flips of ``datatype``'s definition that pass every check yet break the reader."""
+    import contextlib
+    import io
+
+    from mcap.records import Schema
+    from mcap_ros2._dynamic import serialize_dynamic
+    from mcap_ros2.decoder import DecoderFactory
+
+    from aslam.data_formats.schema_check import definition_problem
+
+    text = ros_msgs.message_definition(datatype)
+    data = serialize_dynamic(datatype, text)[datatype](message)
+    survivors = []
+    for i in range(len(text)):
+        for bit in range(8):
+            flipped = bytearray(text.encode())
+            flipped[i] ^= 1 << bit
+            definition = bytes(flipped).decode("utf-8", "replace")
+            if definition_problem(datatype, definition) is not None:
+                continue
+            schema = Schema(id=1, name=datatype, encoding="ros2msg", data=definition.encode())
+            try:
+                with contextlib.redirect_stderr(io.StringIO()):
+                    decoded = DecoderFactory().decoder_for("cdr", schema)(data)  # type: ignore[misc]
+            except Exception:
+                continue  # the reader reports an unreadable definition or undecodable CDR
+            try:
+                use(decoded)
+            except (AttributeError, TypeError) as err:
+                survivors.append(f"byte {i} bit {bit}: {err}")
+    return survivors
+
+
+def _use_compressed(msg: Any) -> None:
+    str(msg.format), bytes(msg.data), ros_msgs.stamp_ns_of(msg.header.stamp)
+
+
+def _use_odometry(msg: Any) -> None:
+    ros_msgs.pose_of_message(ros_msgs.ODOMETRY, msg), ros_msgs.stamp_ns_of(msg.header.stamp)
+
+
+@pytest.mark.parametrize(
+    "datatype, message, use",
+    [
+        (ros_msgs.COMPRESSED_IMAGE, {"header": HEADER, "format": "png", "data": b"\x89PNG"}, _use_compressed),
+        (
+            ros_msgs.ODOMETRY,
+            {
+                "header": HEADER,
+                "child_frame_id": "b",
+                "pose": {"pose": ros_msgs.planar_pose_msg([1, 2, 0.3])},
+            },
+            _use_odometry,
+        ),
+    ],
+)
+def test_every_single_bit_flip_of_a_definition_is_caught(datatype, message, use):
+    assert _flip_survivors(datatype, message, use) == []
+
+
+@pytest.fixture
+def read_only_folder(tmp_path: Path):
+    """A read-only tmpfs (root cannot be kept out of a folder by its mode bits); skipped where mounting is
+    not permitted."""
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    done = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", str(folder)], capture_output=True
+    )
+    if done.returncode != 0:
+        pytest.skip("cannot mount a tmpfs here (needs root)")
+    try:
+        yield folder
+    finally:
+        subprocess.run(["umount", str(folder)], check=False)
+
+
+def test_plots_into_an_unwritable_folder_are_one_line(estimate_file: Path, read_only_folder: Path, capsys):
+    assert main(["report", str(estimate_file), "-q", "--plots", str(read_only_folder / "plots")]) == 2
+    one_error_line(capsys, "Read-only file system")
+
+
+def test_plots_under_a_file_are_one_line(estimate_file: Path, tmp_path: Path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    json_out = tmp_path / "s.json"
+    assert (
+        main(["report", str(estimate_file), "-q", "--json", str(json_out), "--plots", str(blocker / "p")])
+        == 2
+    )
+    one_error_line(capsys, "Not a directory")
+    assert not json_out.exists()
+
+
+def test_outside_a_command_writes_land_at_once_and_may_be_rewritten(tmp_path: Path):
+    """Library callers (and commands that keep files while they run, like a sweep's saved results)
+    get the historic behaviour: each write atomic and immediate, the same path rewritable."""
+    from aslam.data_formats.files import command_files, write_atomically
+
+    path = tmp_path / "state.json"
+    for text in ("1", "2"):
+        write_atomically(path, lambda temporary, text=text: temporary.write_text(text))
+        assert path.read_text() == text
+    with command_files() as files:
+        files.force = True
+        write_atomically(path, lambda temporary: temporary.write_text("3"))
+        assert path.read_text() == "2"  # staged until the command ends
+    assert path.read_text() == "3"
