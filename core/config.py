@@ -51,6 +51,11 @@ class EstimatorConfig:
     )
 
     # --- observations -------------------------------------------------------------------------
+    observation_model: str = _param(
+        "histogram",
+        "How an image is compared with a place: 'histogram' (the paper's gradient-orientation histogram"
+        " and χ²) or 'thumbnail' (a patch-normalised 32×24 thumbnail, mean absolute difference).",
+    )
     histogram_bins: int = _param(16, "Gradient-orientation bins over [-π, π).")
     cells_x: int = _param(2, "Columns of spatial cells per image (1 = the paper's single global histogram).")
     cells_y: int = _param(1, "Rows of spatial cells.")
@@ -149,6 +154,10 @@ class EstimatorConfig:
                 problems.append(f"{name} must be a non-negative number, got {value!r}")
         if not 0 <= self.keyframe_slack < 1:
             problems.append(f"keyframe_slack must be in [0, 1), got {self.keyframe_slack!r}")
+        if self.observation_model not in ("histogram", "thumbnail"):
+            problems.append(
+                f"observation_model must be 'histogram' or 'thumbnail', got {self.observation_model!r}"
+            )
         if self.candidate_search not in ("graph", "path"):
             problems.append(f"candidate_search must be 'graph' or 'path', got {self.candidate_search!r}")
         if not 0 < self.revisit_prior < 1:

@@ -10,6 +10,7 @@ import numpy as np
 from aslam.core import se2
 from aslam.core.config import EstimatorConfig
 from aslam.core.mapgraph import SharedMap
+from aslam.core.observation import ObservationModel, observation_model
 from aslam.core.tree import Hypothesis, HypothesisTree, TreeStats
 
 
@@ -82,9 +83,9 @@ class Estimator:
 
     def __init__(self, config: EstimatorConfig | None = None) -> None:
         self.config = config or EstimatorConfig()
-        self._histogram = self.config.histogram
+        self.observation_model: ObservationModel = observation_model(self.config)
         self._keyframer = Keyframer(self.config.step_m, self.config.turn_deg, self.config.keyframe_slack)
-        self._tree = HypothesisTree(self.config, self._histogram.length)
+        self._tree = HypothesisTree(self.config, self.observation_model)
         self._stamps: list[int] = []
 
     def keyframe_action(self, odometry_pose: np.ndarray) -> np.ndarray | None:
@@ -92,7 +93,7 @@ class Estimator:
         return self._keyframer.action_if_keyframe(odometry_pose)
 
     def add_keyframe(self, stamp_ns: int, action: np.ndarray, observation: np.ndarray) -> StepResult:
-        """The SLAM step proper, on an observation histogram: split, weigh, prune, commit."""
+        """The SLAM step proper, on an observation vector (``observation_model.describe`` of the image)."""
         hypotheses = self._tree.add_keyframe(action, observation)
         self._stamps.append(int(stamp_ns))
         a = tuple(float(v) for v in action)

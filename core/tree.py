@@ -19,8 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from aslam.core.config import EstimatorConfig
-from aslam.core.features import chi2_distances, log_observation_likelihood
 from aslam.core.mapgraph import GrowableArray, SharedMap
+from aslam.core.observation import ObservationModel, observation_model
 from aslam.core.motion import (
     IDENTITY_REL,
     Rel,
@@ -84,8 +84,10 @@ class TreeStats:
 class HypothesisTree:
     """The hypotheses and the shared map, advanced one keyframe at a time."""
 
-    def __init__(self, config: EstimatorConfig, observation_length: int) -> None:
+    def __init__(self, config: EstimatorConfig, model: ObservationModel | None = None) -> None:
         self.config = config
+        self.model = model if model is not None else observation_model(config)
+        observation_length = self.model.length
         self.shared = SharedMap()
         self.observations = GrowableArray((observation_length,), np.float32)
         self.committed_state_of_keyframe = GrowableArray((), np.int64)
@@ -106,7 +108,7 @@ class HypothesisTree:
         self._search_bound = config.search_sigma_m**2
         self._gate = config.gate_sigma**2
         self._log_new = math.log1p(-config.revisit_prior) + float(
-            log_observation_likelihood(config.new_state_chi2, config.beta, config.chi2_floor)
+            self.model.log_likelihood(config.new_state_chi2)
         )
         self._log_revisit = math.log(config.revisit_prior)
         # statistics
@@ -136,8 +138,8 @@ class HypothesisTree:
         candidate_ids = np.unique(np.concatenate([p[0] for p in proposals] + [np.zeros(0, np.int64)]))
         log_obs_of: dict[int, float] = {}
         if len(candidate_ids):
-            chi2 = chi2_distances(observation, self.observations.view[candidate_ids])
-            log_obs = log_observation_likelihood(chi2, self.config.beta, self.config.chi2_floor)
+            distances = self.model.distances(observation, self.observations.view[candidate_ids])
+            log_obs = self.model.log_likelihood(distances)
             log_obs_of = dict(zip(candidate_ids.tolist(), log_obs.tolist(), strict=True))
 
         # (log θ, parent, state, is_new) for every child; the new-state child first for each leaf.

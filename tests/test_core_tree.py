@@ -131,7 +131,7 @@ def test_identical_views_down_a_straight_corridor_never_revisit():
 def test_candidates_are_exactly_the_states_the_motion_model_can_reach(seed, turns, last):
     """On a chain map, the proposals equal a brute-force gate over every state."""
     config = synthetic_config()
-    tree = HypothesisTree(config, BINS)
+    tree = HypothesisTree(config)
     rng = np.random.default_rng(seed)
     view = lambda: rng.dirichlet(np.ones(BINS)).astype(np.float32)  # noqa: E731
     tree.add_keyframe(np.zeros(3), view())
