@@ -29,7 +29,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from aslam.core.estimator import Estimator, Keyframer, StepResult
+from aslam.core.estimator import Estimator, StepResult
+from aslam.core.estimator import keyframer as make_keyframer
 from aslam.core.observation import ObservationModel, observation_model
 from aslam.data_formats.images import LazyImage
 from aslam.data_formats.pose_sync import Sample
@@ -218,7 +219,7 @@ def run_floor(
     ``estimator`` only lends its configuration: its state is not touched.
     """
     config = estimator.config
-    keyframer = Keyframer(config.step_m, config.turn_deg, config.keyframe_slack)
+    keyframer = make_keyframer(config)
     count = 0
     for _ in keyframe_histograms(
         samples, keyframer.action_if_keyframe, observation_model(config), workers=workers, depth=depth

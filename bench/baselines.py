@@ -27,7 +27,7 @@ import numpy as np
 from aslam.cli.pipeline import keyframe_histograms
 from aslam.core import se2
 from aslam.core.config import EstimatorConfig
-from aslam.core.estimator import Keyframer
+from aslam.core.estimator import keyframer as make_keyframer
 from aslam.core.features import chi2_distances
 from aslam.core.metrics import Evaluation, evaluate
 from aslam.core.tree import Hypothesis
@@ -51,7 +51,7 @@ class Keyframes:
 def read_keyframes(recording: Path, config: EstimatorConfig | None = None) -> Keyframes:
     """The keyframes of ``recording`` under ``config``'s keyframe test and histogram settings."""
     config = config or EstimatorConfig()
-    keyframer = Keyframer(config.step_m, config.turn_deg, config.keyframe_slack)
+    keyframer = make_keyframer(config)
     stamps, actions, histograms = [], [], []
     with closing(
         keyframe_histograms(iter_samples(recording), keyframer.action_if_keyframe, config.histogram)

@@ -62,12 +62,14 @@ def time_parts(recording: Path, config: EstimatorConfig, repeats: int) -> dict[s
     from contextlib import closing
 
     from aslam.app.pipeline import keyframe_histograms
-    from aslam.core.estimator import Keyframer
+    from aslam.core.estimator import keyframer as make_keyframer
     from aslam.core.observation import observation_model
 
-    keyframer = Keyframer(config.step_m, config.turn_deg, config.keyframe_slack)
+    keyframer = make_keyframer(config)
     with closing(
-        keyframe_histograms(Recording(recording).samples(), keyframer.action_if_keyframe, observation_model(config))
+        keyframe_histograms(
+            Recording(recording).samples(), keyframer.action_if_keyframe, observation_model(config)
+        )
     ) as stream:
         keyframes = list(stream)
     slam, sha = float("inf"), float("inf")

@@ -49,6 +49,11 @@ class EstimatorConfig:
         0.3,
         "Fraction of step_m/turn_deg forgiven: noisy odometry may measure a commanded 1 m as 0.9 m.",
     )
+    keyframe_adaptive: str = _param(
+        "on",
+        "'on': on a dense stream (several poses per step) take the pose nearest the full step or turn"
+        " instead of the first within the slack; 'off': the paper's rule.",
+    )
 
     # --- observations -------------------------------------------------------------------------
     observation_model: str = _param(
@@ -69,6 +74,23 @@ class EstimatorConfig:
             "Reference χ² of an unseen place: P(z|new) = new_state_chi2^-β. A revisit must look more alike"
             " than this (calibrated on rendered recordings, see docs/estimator.md)."
         ),
+    )
+
+    thumbnail_beta: float = _param(
+        8.0,
+        "Sensitivity β of the thumbnail model, P(z|x) = d^-β (its distances span a narrower range than χ²).",
+    )
+    new_state_reference: str = _param(
+        "online",
+        "'online': the reference distance of an unseen place is calibrated on the run itself (a fixed"
+        " fraction of the running median distance between consecutive keyframes, views about 1 m"
+        " apart); 'fixed': new_state_chi2 (histogram) or 0.56 (thumbnail).",
+    )
+
+    new_state_coverage: float = _param(
+        0.0,
+        "How much a mapped place at the predicted pose lowers the prior of 'a new place': the prior is"
+        " multiplied by 1 − this × the best revisit transition likelihood (1 for a perfect prediction).",
     )
 
     # --- transitions ----------------------------------------------------------------------------
@@ -117,6 +139,20 @@ class EstimatorConfig:
         "The graph search also stops after this many states: the cost per keyframe is bounded.",
     )
 
+    relocalisation_prior: float = _param(
+        1e-3,
+        "Prior probability that the robot is somewhere the motion model cannot predict (carried,"
+        " odometry reset). When the best hypothesis called the last keyframe a new place, places"
+        " found by appearance over the whole map are proposed with this prior (0 = never).",
+    )
+    relocalisation_candidates: int = _param(
+        3, "At most this many places found by appearance are proposed per keyframe."
+    )
+    relocalisation_skip: int = _param(
+        10,
+        "The most recent committed keyframes are left out of the appearance search (the motion covers them).",
+    )
+
     # --- hypothesis tree ------------------------------------------------------------------------
     prune_ratio: float = _param(
         0.005, "Hypotheses whose belief is below this fraction of the best are removed."
@@ -134,7 +170,7 @@ class EstimatorConfig:
     def problems(self) -> list[str]:
         """Every invalid value at once (empty when the configuration is usable)."""
         positive = [
-            "step_m", "turn_deg", "beta", "chi2_floor", "new_state_chi2", "place_radius_m",
+            "step_m", "turn_deg", "beta", "thumbnail_beta", "chi2_floor", "new_state_chi2", "place_radius_m",
             "place_heading_deg", "gate_sigma", "search_sigma_m",
         ]  # fmt: skip
         problems = []
@@ -158,6 +194,20 @@ class EstimatorConfig:
             problems.append(
                 f"observation_model must be 'histogram' or 'thumbnail', got {self.observation_model!r}"
             )
+        if not 0 <= self.relocalisation_prior < 1:
+            problems.append(f"relocalisation_prior must be in [0, 1), got {self.relocalisation_prior!r}")
+        if not (isinstance(self.relocalisation_skip, int) and self.relocalisation_skip >= 0):
+            problems.append(
+                f"relocalisation_skip must be a whole number ≥ 0, got {self.relocalisation_skip!r}"
+            )
+        if not 0 <= self.new_state_coverage < 1:
+            problems.append(f"new_state_coverage must be in [0, 1), got {self.new_state_coverage!r}")
+        if self.keyframe_adaptive not in ("on", "off"):
+            problems.append(f"keyframe_adaptive must be 'on' or 'off', got {self.keyframe_adaptive!r}")
+        if self.new_state_reference not in ("online", "fixed"):
+            problems.append(
+                f"new_state_reference must be 'online' or 'fixed', got {self.new_state_reference!r}"
+            )
         if self.candidate_search not in ("graph", "path"):
             problems.append(f"candidate_search must be 'graph' or 'path', got {self.candidate_search!r}")
         if not 0 < self.revisit_prior < 1:
@@ -169,6 +219,7 @@ class EstimatorConfig:
             "cells_x",
             "cells_y",
             "max_hypotheses",
+            "relocalisation_candidates",
             "search_max_states",
             "merge_window",
         ]:
@@ -182,7 +233,17 @@ class EstimatorConfig:
     @classmethod
     def paper_faithful(cls, **overrides: object) -> EstimatorConfig:
         """The paper's estimator: one global histogram per image, candidates along the path only."""
-        return cls(**{"cells_x": 1, "cells_y": 1, "candidate_search": "path", **overrides})
+        paper = {
+            "observation_model": "histogram",
+            "new_state_reference": "fixed",
+            "cells_x": 1,
+            "cells_y": 1,
+            "candidate_search": "path",
+            "relocalisation_prior": 0.0,
+            "keyframe_adaptive": "off",
+            "new_state_coverage": 0.0,
+        }
+        return cls(**{**paper, **overrides})
 
     @classmethod
     def parameters(cls) -> list[tuple[str, type, object, str]]:

@@ -17,7 +17,7 @@ distance of the same kind (see :class:`aslam.core.tree.NewPlaceReference`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -32,6 +32,16 @@ class ObservationModel(Protocol):
     @property
     def length(self) -> int:
         """Length of every vector ``describe`` returns."""
+        ...
+
+    @property
+    def fixed_reference(self) -> float:
+        """Distance of an unseen place when the reference is not calibrated online."""
+        ...
+
+    @property
+    def online_scale(self) -> float:
+        """Online reference = this × the running median distance between consecutive keyframes."""
         ...
 
     def describe(self, gray: np.ndarray) -> np.ndarray:
@@ -51,9 +61,13 @@ class ObservationModel(Protocol):
 class HistogramModel:
     """The paper's observation: gradient-orientation histograms (soft cells) and χ², ``P = χ²^-β``."""
 
-    histogram: HistogramConfig = HistogramConfig()
+    histogram: HistogramConfig = field(default_factory=HistogramConfig)
     beta: float = 3.0
     floor: float = 1e-3
+    fixed_reference: float = 0.08
+    """χ² of an unseen place (calibrated on our renders, docs/estimator.md)."""
+    online_scale: float = 2.2
+    """Online reference: this × the median χ² between consecutive keyframes (0.03–0.04 on our renders)."""
 
     @property
     def length(self) -> int:
@@ -85,12 +99,16 @@ class ThumbnailModel:
     heading sees the same scene displaced sideways; only the overlapping columns count.
     """
 
-    width_px: int = 32
-    height_px: int = 24
+    width_px: int = 16
+    height_px: int = 12
     patch_px: int = 5
-    max_shift_px: int = 3
-    beta: float = 3.0
+    max_shift_px: int = 4
+    """±4 of 16 columns: ±15° of a 60° field of view."""
+    beta: float = 8.0
     floor: float = 0.02
+    fixed_reference: float = 0.56
+    online_scale: float = 0.75
+    """Online reference: this × the median distance between consecutive keyframes (≈0.74 on our renders)."""
 
     @property
     def length(self) -> int:
@@ -103,7 +121,9 @@ class ThumbnailModel:
         if image.ndim == 3:
             image = cv2.cvtColor(image.astype(np.float32, copy=False), cv2.COLOR_BGR2GRAY)
         small = cv2.resize(
-            image.astype(np.float32, copy=False), (self.width_px, self.height_px), interpolation=cv2.INTER_AREA
+            image.astype(np.float32, copy=False),
+            (self.width_px, self.height_px),
+            interpolation=cv2.INTER_AREA,
         ).astype(np.float64)
         size = (self.patch_px, self.patch_px)
         mean = cv2.blur(small, size, borderType=cv2.BORDER_REFLECT)
@@ -139,6 +159,5 @@ OBSERVATION_MODELS = ("histogram", "thumbnail")
 def observation_model(config: EstimatorConfig) -> ObservationModel:
     """The model ``config.observation_model`` names, with the configuration's parameters."""
     if config.observation_model == "thumbnail":
-        return ThumbnailModel(beta=config.beta)
-    return HistogramModel(config.histogram, config.beta, config.chi2_floor)
-
+        return ThumbnailModel(beta=config.thumbnail_beta)
+    return HistogramModel(config.histogram, config.beta, config.chi2_floor, config.new_state_chi2)

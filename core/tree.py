@@ -14,13 +14,13 @@ from __future__ import annotations
 
 import heapq
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
 from aslam.core.config import EstimatorConfig
 from aslam.core.mapgraph import GrowableArray, SharedMap
-from aslam.core.observation import ObservationModel, observation_model
 from aslam.core.motion import (
     IDENTITY_REL,
     Rel,
@@ -31,6 +31,7 @@ from aslam.core.motion import (
     revisit_residuals,
     to_rel,
 )
+from aslam.core.observation import ObservationModel, observation_model
 
 
 class Node:
@@ -81,6 +82,35 @@ class TreeStats:
     searched_states_mean: float
 
 
+class NewPlaceReference:
+    """The distance an unseen place is taken to have: fixed, or calibrated on the run's own views.
+
+    "A new place" has no stored view to compare with, so it is weighed as a view at a reference
+    distance. A constant fitted to one kind of scene is wrong in another (other textures,
+    lighting, image noise); the distance between *consecutive* keyframes — two views about a
+    step apart, so of different but neighbouring places — is measured on every run for free. The
+    online reference is ``scale`` × the median of those distances over the last ``window``
+    keyframes (the fixed value until ``warmup`` of them are in): a revisit must look more alike
+    than the place one step away typically does.
+    """
+
+    def __init__(self, fixed: float, scale: float, window: int = 200, warmup: int = 5) -> None:
+        self.fixed = fixed
+        self.scale = scale
+        self._recent: deque[float] = deque(maxlen=window)
+        self._warmup = warmup
+
+    def observe(self, consecutive_distance: float) -> None:
+        if self.scale > 0 and math.isfinite(consecutive_distance):
+            self._recent.append(consecutive_distance)
+
+    @property
+    def value(self) -> float:
+        if self.scale <= 0 or len(self._recent) < self._warmup:
+            return self.fixed
+        return self.scale * float(np.median(np.fromiter(self._recent, float, len(self._recent))))
+
+
 class HypothesisTree:
     """The hypotheses and the shared map, advanced one keyframe at a time."""
 
@@ -107,10 +137,20 @@ class HypothesisTree:
         )
         self._search_bound = config.search_sigma_m**2
         self._gate = config.gate_sigma**2
-        self._log_new = math.log1p(-config.revisit_prior) + float(
-            self.model.log_likelihood(config.new_state_chi2)
+        self._log_new_prior = math.log1p(-config.revisit_prior)
+        self.reference = NewPlaceReference(
+            self.model.fixed_reference,
+            self.model.online_scale if config.new_state_reference == "online" else 0.0,
         )
         self._log_revisit = math.log(config.revisit_prior)
+        self._log_relocalise = (
+            math.log(config.revisit_prior * config.relocalisation_prior)
+            if config.relocalisation_prior > 0
+            else -math.inf
+        )
+        self._index = GrowableArray((observation_length,), np.float32)
+        """L2-normalised observations, one per keyframe: the appearance index for relocalisation."""
+        self._relocalised: set[int] = set()
         # statistics
         self._count_sum = 0
         self._count_max = 0
@@ -121,6 +161,9 @@ class HypothesisTree:
     def add_keyframe(self, action: np.ndarray, observation: np.ndarray) -> list[Hypothesis]:
         """Advance every hypothesis by one keyframe; returns the surviving leaves, best first."""
         keyframe = self.observations.append(observation)
+        vector = np.asarray(observation, dtype=np.float32)
+        norm = float(np.linalg.norm(vector))
+        self._index.append(vector / norm if norm > 0 else vector)
         if keyframe == 0:
             root = self._new_node(0, 0, None, 0.0, True, IDENTITY_REL)
             self.leaves = [root]
@@ -131,11 +174,16 @@ class HypothesisTree:
             self._record_count(1)
             return [Hypothesis(root.id, None, 0, 1.0, True)]
 
+        self.reference.observe(float(self.model.distances(observation, self.observations.view[-2:-1])[0]))
+        log_new = self._log_new_prior + float(self.model.log_likelihood(self.reference.value))
         action = np.asarray(action, dtype=float)
         action_cov = action_covariance(action, self._noise)
         proposals = self._propose(self.leaves, action, action_cov)
 
-        candidate_ids = np.unique(np.concatenate([p[0] for p in proposals] + [np.zeros(0, np.int64)]))
+        relocalisation = self._relocalisation_candidates(observation, keyframe, proposals[0][0])
+        candidate_ids = np.unique(
+            np.concatenate([p[0] for p in proposals] + [relocalisation, np.zeros(0, np.int64)])
+        )
         log_obs_of: dict[int, float] = {}
         if len(candidate_ids):
             distances = self.model.distances(observation, self.observations.view[candidate_ids])
@@ -144,12 +192,23 @@ class HypothesisTree:
 
         # (log θ, parent, state, is_new) for every child; the new-state child first for each leaf.
         children: list[tuple[float, Node, int, bool]] = []
+        coverage = self.config.new_state_coverage
         for leaf, (states, log_transition) in zip(self.leaves, proposals, strict=True):
-            children.append((leaf.log_belief + self._log_new, leaf, keyframe, True))
+            leaf_log_new = log_new
+            if coverage > 0 and len(log_transition):
+                # A mapped place where the robot is predicted to stand makes "a new place" unlikely.
+                leaf_log_new += math.log1p(-coverage * math.exp(min(0.0, float(log_transition.max()))))
+            children.append((leaf.log_belief + leaf_log_new, leaf, keyframe, True))
             for state, log_t in zip(states.tolist(), log_transition.tolist(), strict=True):
                 children.append(
                     (leaf.log_belief + self._log_revisit + log_t + log_obs_of[state], leaf, state, False)
                 )
+        # Relocalisation: the best leaf may also jump to a place found by appearance alone, with a
+        # small prior and no motion term (a kidnap, an odometry reset, a stretch the motion missed).
+        best = self.leaves[0]
+        for state in relocalisation.tolist():
+            children.append((best.log_belief + self._log_relocalise + log_obs_of[state], best, state, False))
+        self._relocalised = set(relocalisation.tolist())
 
         survivors = self._prune(children)
         action_rel = to_rel(action, action_cov)
@@ -158,11 +217,53 @@ class HypothesisTree:
             rel = action_rel
             if not (is_new and parent.is_new):  # measured from or to a visit, not the place itself
                 rel = rel[:3] + tuple(np.add(rel[3:], _flat(self._visit_cov)).tolist())
+            if parent is best and state in self._relocalised and not self._proposed(parent, state, proposals):
+                rel = (
+                    rel[:3] + _UNKNOWN_LINK
+                )  # odometry does not link the places: the search never crosses it
             leaves.append(self._new_node(keyframe, state, parent, log_belief, is_new, rel))
         self.leaves = leaves
         self._commit_shared_history()
         self._record_count(len(leaves))
         return self.hypotheses()
+
+    def _proposed(self, leaf: Node, state: int, proposals: list[tuple[np.ndarray, np.ndarray]]) -> bool:
+        """Whether ``state`` was a motion candidate of ``leaf`` this step."""
+        index = next(i for i, other in enumerate(self.leaves) if other is leaf)
+        return bool(np.any(proposals[index][0] == state))
+
+    def _relocalisation_candidates(
+        self, observation: np.ndarray, keyframe: int, proposed: np.ndarray
+    ) -> np.ndarray:
+        """Committed places that look like ``observation``, found over the whole map at bounded cost.
+
+        Only when the best hypothesis could not explain the previous keyframe (it called it a new
+        place). An index of L2-normalised float32 vectors, one per keyframe, is searched by one
+        matrix–vector product (O(keyframes × length) multiply-adds: ~2·10⁷ for 10⁵ places of a
+        192-long thumbnail, a few milliseconds); the ``shortlist`` most similar committed places
+        are then compared exactly, and those that look more alike than the new-place reference,
+        and that the motion model did not propose already, are returned (at most
+        ``relocalisation_candidates``).
+        """
+        limit = self.config.relocalisation_candidates
+        if self._log_relocalise == -math.inf or not self.leaves or not self.leaves[0].is_new:
+            return np.zeros(0, np.int64)
+        committed = len(self.committed_state_of_keyframe)
+        searchable = committed - self.config.relocalisation_skip
+        if searchable <= 0:
+            return np.zeros(0, np.int64)
+        similarity = self._index.view[:searchable] @ self._index.view[keyframe]
+        states = self.committed_state_of_keyframe.view[:searchable]
+        similarity = np.where(states == np.arange(searchable), similarity, -np.inf)  # first visits only
+        shortlist = min(4 * limit, searchable)
+        top = np.argpartition(-similarity, shortlist - 1)[:shortlist]
+        top = top[np.isfinite(similarity[top]) & ~np.isin(top, proposed)]
+        if not len(top):
+            return np.zeros(0, np.int64)
+        distances = self.model.distances(observation, self.observations.view[top])
+        order = np.lexsort((top, distances))[:limit]
+        good = distances[order] < self.reference.value
+        return np.sort(top[order][good]).astype(np.int64)
 
     def hypotheses(self) -> list[Hypothesis]:
         return [
@@ -431,6 +532,10 @@ def _recent_states(node: Node | None, count: int) -> tuple[int, ...]:
         states.append(node.state)
         node = node.parent
     return tuple(states)
+
+
+_UNKNOWN_LINK = (1e6, 0.0, 0.0, 1e6, 0.0, 1e6)
+"""Covariance of a relocalisation link: so uncertain that no search crosses it (weight ≫ bound)."""
 
 
 def _flat(covariance: np.ndarray) -> list[float]:
