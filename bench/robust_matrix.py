@@ -41,6 +41,17 @@ FAMILIES: dict[str, dict[str, Any]] = {
 
 ROUTES = ("paper", "figure8", "grid")
 
+BEFORE: dict[str, Any] = {
+    "observation_model": "histogram",
+    "new_state_reference": "fixed",
+    "new_state_coverage": 0.0,
+    "relocalisation_prior": 0.0,
+    "keyframe_adaptive": "off",
+    "place_radius_m": 0.2,
+    "place_heading_deg": 10.0,
+}
+"""The estimator defaults before issue 9 (commit 2551427), for the before/after table."""
+
 
 @dataclass(frozen=True)
 class Scenario:
@@ -92,10 +103,16 @@ def recording(scenario: Scenario, cache: Path, log=print) -> Path:
 
 
 def estimator_config(name: str, scenario: Scenario, overrides: dict[str, Any]):  # -> EstimatorConfig
-    """``default`` or ``paper`` (--paper-faithful); odometry noise is the sensor's, as in ``make bench``."""
+    """``default``, ``paper`` (--paper-faithful) or ``before`` (the defaults before issue 9);
+    odometry noise is the sensor's, as in ``make bench``."""
     from aslam.core.config import EstimatorConfig
 
-    base = EstimatorConfig.paper_faithful() if name == "paper" else EstimatorConfig()
+    if name == "paper":
+        base = EstimatorConfig.paper_faithful()
+    elif name == "before":
+        base = EstimatorConfig(**BEFORE)
+    else:
+        base = EstimatorConfig()
     noise = scenario.settings.get("noise", 0.03)
     return replace(base, odometry_noise=noise, **overrides)
 
@@ -187,17 +204,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--families", nargs="+", default=list(FAMILIES), choices=list(FAMILIES))
     parser.add_argument("--routes", nargs="+", default=list(ROUTES), choices=list(ROUTES))
     parser.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3])
-    parser.add_argument("--estimators", nargs="+", default=["default"], choices=["default", "paper"])
+    parser.add_argument(
+        "--estimators", nargs="+", default=["default"], choices=["default", "paper", "before"]
+    )
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="config override")
     parser.add_argument("--cache", type=Path, default=Path("/tmp/robust/rec"))
     parser.add_argument("--json", type=Path, help="write every row here")
     parser.add_argument("--render-only", action="store_true")
+    parser.add_argument("--cached-only", action="store_true", help="skip scenarios not rendered yet")
     args = parser.parse_args(argv)
     overrides = {}
     for item in args.set:
         name, _, value = item.partition("=")
         overrides[name] = _parse_value(value)
     scenarios = [Scenario(f, r, s) for f in args.families for r in args.routes for s in args.seeds]
+    if args.cached_only:
+        scenarios = [s for s in scenarios if (args.cache / f"{s.name}.mcap").exists()]
     rows = []
     for scenario in scenarios:
         if args.render_only:

@@ -57,7 +57,7 @@ class EstimatorConfig:
 
     # --- observations -------------------------------------------------------------------------
     observation_model: str = _param(
-        "histogram",
+        "thumbnail",
         "How an image is compared with a place: 'histogram' (the paper's gradient-orientation histogram"
         " and χ²) or 'thumbnail' (a patch-normalised 32×24 thumbnail, mean absolute difference).",
     )
@@ -88,7 +88,7 @@ class EstimatorConfig:
     )
 
     new_state_coverage: float = _param(
-        0.0,
+        0.9,
         "How much a mapped place at the predicted pose lowers the prior of 'a new place': the prior is"
         " multiplied by 1 − this × the best revisit transition likelihood (1 for a perfect prediction).",
     )
@@ -99,10 +99,10 @@ class EstimatorConfig:
     )
     drift_deg_per_m: float = _param(0.5, "σ of heading drift while moving forward, degrees per metre.")
     place_radius_m: float = _param(
-        0.2, "Two visits of one place are never at exactly the same pose: σ of that, in position."
+        0.35, "Two visits of one place are never at exactly the same pose: σ of that, in position."
     )
     place_heading_deg: float = _param(
-        10.0, "Two visits of one place are never at exactly the same pose: σ of that, in heading (degrees)."
+        15.0, "Two visits of one place are never at exactly the same pose: σ of that, in heading (degrees)."
     )
     visit_sigma_m: float = _param(
         0.1,
@@ -146,7 +146,7 @@ class EstimatorConfig:
         " found by appearance over the whole map are proposed with this prior (0 = never).",
     )
     relocalisation_candidates: int = _param(
-        3, "At most this many places found by appearance are proposed per keyframe."
+        12, "Places most similar by the index (a matrix product) that are then compared exactly."
     )
     relocalisation_skip: int = _param(
         10,
@@ -241,6 +241,8 @@ class EstimatorConfig:
             "candidate_search": "path",
             "relocalisation_prior": 0.0,
             "keyframe_adaptive": "off",
+            "place_radius_m": 0.2,
+            "place_heading_deg": 10.0,
             "new_state_coverage": 0.0,
         }
         return cls(**{**paper, **overrides})

@@ -241,9 +241,8 @@ class HypothesisTree:
         place). An index of L2-normalised float32 vectors, one per keyframe, is searched by one
         matrix–vector product (O(keyframes × length) multiply-adds: ~2·10⁷ for 10⁵ places of a
         192-long thumbnail, a few milliseconds); the ``shortlist`` most similar committed places
-        are then compared exactly, and those that look more alike than the new-place reference,
-        and that the motion model did not propose already, are returned (at most
-        ``relocalisation_candidates``).
+        are then compared exactly. The best is returned if it looks more alike than the new-place
+        reference, clearly more alike than the runner-up, and the motion model did not propose it.
         """
         limit = self.config.relocalisation_candidates
         if self._log_relocalise == -math.inf or not self.leaves or not self.leaves[0].is_new:
@@ -255,15 +254,20 @@ class HypothesisTree:
         similarity = self._index.view[:searchable] @ self._index.view[keyframe]
         states = self.committed_state_of_keyframe.view[:searchable]
         similarity = np.where(states == np.arange(searchable), similarity, -np.inf)  # first visits only
-        shortlist = min(4 * limit, searchable)
+        shortlist = min(limit, searchable)
         top = np.argpartition(-similarity, shortlist - 1)[:shortlist]
         top = top[np.isfinite(similarity[top]) & ~np.isin(top, proposed)]
         if not len(top):
             return np.zeros(0, np.int64)
         distances = self.model.distances(observation, self.observations.view[top])
-        order = np.lexsort((top, distances))[:limit]
-        good = distances[order] < self.reference.value
-        return np.sort(top[order][good]).astype(np.int64)
+        order = np.lexsort((top, distances))
+        # Distinctive only (Lowe's ratio test): in an aliased stretch, where several places look
+        # alike, appearance alone must not move the robot.
+        if len(order) < 2 or not distances[order[0]] < RELOCALISATION_RATIO * distances[order[1]]:
+            return np.zeros(0, np.int64)
+        if not distances[order[0]] < self.reference.value:
+            return np.zeros(0, np.int64)
+        return top[order[:1]].astype(np.int64)
 
     def hypotheses(self) -> list[Hypothesis]:
         return [
@@ -533,6 +537,9 @@ def _recent_states(node: Node | None, count: int) -> tuple[int, ...]:
         node = node.parent
     return tuple(states)
 
+
+RELOCALISATION_RATIO = 0.8
+"""A place found by appearance alone must be this much closer than the next best (Lowe's ratio)."""
 
 _UNKNOWN_LINK = (1e6, 0.0, 0.0, 1e6, 0.0, 1e6)
 """Covariance of a relocalisation link: so uncertain that no search crosses it (weight ≫ bound)."""
