@@ -107,7 +107,7 @@ class ThumbnailModel:
     beta: float = 8.0
     floor: float = 0.02
     fixed_reference: float = 0.56
-    online_scale: float = 0.75
+    online_scale: float = 0.8
     """Online reference: this × the median distance between consecutive keyframes (≈0.74 on our renders)."""
 
     @property

@@ -205,9 +205,13 @@ class HypothesisTree:
                 )
         # Relocalisation: the best leaf may also jump to a place found by appearance alone, with a
         # small prior and no motion term (a kidnap, an odometry reset, a stretch the motion missed).
+        # It is never the best at birth (at most half the best leaf's new-place child): the next
+        # keyframe must confirm it through the motion model, as a revisit of the next place.
         best = self.leaves[0]
+        ceiling = best.log_belief + log_new + math.log(0.5)
         for state in relocalisation.tolist():
-            children.append((best.log_belief + self._log_relocalise + log_obs_of[state], best, state, False))
+            log_belief = best.log_belief + self._log_relocalise + log_obs_of[state]
+            children.append((min(log_belief, ceiling), best, state, False))
         self._relocalised = set(relocalisation.tolist())
 
         survivors = self._prune(children)
@@ -256,7 +260,8 @@ class HypothesisTree:
         similarity = np.where(states == np.arange(searchable), similarity, -np.inf)  # first visits only
         shortlist = min(limit, searchable)
         top = np.argpartition(-similarity, shortlist - 1)[:shortlist]
-        top = top[np.isfinite(similarity[top]) & ~np.isin(top, proposed)]
+        held = [leaf.state for leaf in self.leaves]  # already hypotheses: nothing to relocalise to
+        top = top[np.isfinite(similarity[top]) & ~np.isin(top, proposed) & ~np.isin(top, held)]
         if not len(top):
             return np.zeros(0, np.int64)
         distances = self.model.distances(observation, self.observations.view[top])
@@ -308,10 +313,16 @@ class HypothesisTree:
         # Normalised so a perfectly predicted revisit with no chain uncertainty scores log 1.
         log_transition = 0.5 * (self._place_logdet - logdet) - 0.5 * mahalanobis2
         reachable = mahalanobis2 <= self._gate
+        # A keyframe is taken because the robot moved a step or turned: it is not where it was.
+        moved = math.hypot(action[0], action[1]) >= 0.5 * self.config.step_m or abs(action[2]) >= 0.5 * (
+            math.radians(self.config.turn_deg)
+        )
         proposals = []
         start = 0
-        for (states, _), size in zip(searches, sizes, strict=True):
+        for leaf, (states, _), size in zip(leaves, searches, sizes, strict=True):
             keep = reachable[start : start + size]
+            if moved:
+                keep = keep & (np.asarray(states, np.int64) != leaf.state)
             proposals.append((np.asarray(states, np.int64)[keep], log_transition[start : start + size][keep]))
             start += size
         return proposals
