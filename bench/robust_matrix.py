@@ -37,7 +37,11 @@ FAMILIES: dict[str, dict[str, Any]] = {
     "noise10": {"noise": 0.10},
     "alias50": {"aliasing": 0.5},
     "alias100": {"aliasing": 1.0},
+    # Derived from the default recording (see ``derive``): the recorder cannot make these yet.
+    "kidnap": {},
+    "reset": {},
 }
+DERIVED = {"kidnap", "reset"}
 
 ROUTES = ("paper", "figure8", "grid")
 
@@ -46,6 +50,7 @@ BEFORE: dict[str, Any] = {
     "new_state_reference": "fixed",
     "new_state_coverage": 0.0,
     "relocalisation_prior": 0.0,
+    "appearance_veto": 0.0,
     "keyframe_adaptive": "off",
     "place_radius_m": 0.2,
     "place_heading_deg": 10.0,
@@ -64,6 +69,11 @@ class Scenario:
         return f"{self.family}-{self.route}-seed{self.seed}"
 
     @property
+    def base(self) -> Scenario:
+        """The rendered scenario this one is made from (itself unless derived)."""
+        return Scenario("default", self.route, self.seed) if self.family in DERIVED else self
+
+    @property
     def settings(self) -> dict[str, Any]:
         return FAMILIES[self.family]
 
@@ -75,6 +85,8 @@ class Scenario:
         return RecordConfig(route=self.route, seed=self.seed, noise=NoiseParams(**noise_fields), **settings)
 
     def command(self) -> str:
+        if self.family in DERIVED:
+            return f"{self.base.command()} then bench/robust_matrix.py derive {self.family}"
         flags = []
         for key, value in self.settings.items():
             flags.append(f"--{key.replace('_', '-')} {value:g}")
@@ -89,19 +101,76 @@ class Row:
     wall_s: float = 0.0
     wrong_within_1m: int | None = None
     """Wrong claims that name a place less than 1 m away: the right place, beyond the 0.5 m criterion."""
+    event_delay: int | None = None
+    """Kidnap / reset: keyframes from the event to the first correct claim (None: never, or no event)."""
+    event_wrong: int | None = None
+    """Kidnap / reset: wrong claims from the event on."""
 
 
 def recording(scenario: Scenario, cache: Path, log=print) -> Path:
-    """The cached recording of ``scenario``, rendered now if missing."""
+    """The cached recording of ``scenario``, rendered (or derived) now if missing."""
     from aslam.recorder.record import record
 
     path = cache / f"{scenario.name}.mcap"
+    if scenario.family in DERIVED and not path.exists():
+        derive(recording(scenario.base, cache, log), scenario.family, path)
+        log(f"  derived {path.name}")
     if not path.exists():
         cache.mkdir(parents=True, exist_ok=True)
         start = time.perf_counter()
         record(scenario.record_config(), path)
         log(f"  rendered {path.name} in {time.perf_counter() - start:.0f} s ({scenario.command()})")
     return path
+
+
+def derive(source: Path, kind: str, output: Path) -> None:
+    """A kidnap or an odometry reset made from a rendered recording (images and truth untouched).
+
+    ``kidnap``: the frames from 60 % to 80 % of the run are dropped — the robot is carried from
+    one place of its second lap to another — and odometry sees nothing (it continues from where
+    it was, then integrates the motion after the jump). ``reset``: at 70 % of the run odometry
+    restarts from zero (x = y = yaw = 0). Written with the project's recording writer.
+    """
+    from contextlib import closing
+
+    import numpy as np
+
+    from aslam.core import se2
+    from aslam.data_formats.images import EncodedImage, ImageFormat
+    from aslam.data_formats.recording import Recording
+    from aslam.data_formats.recording_writer import RecordingWriter
+
+    source_recording = Recording(source)
+    total = source_recording.image_count()
+    assert total is not None
+    jump_from, jump_to, reset_at = int(0.6 * total), int(0.8 * total), int(0.7 * total)
+    metadata = dict(source_recording.metadata())
+    camera = source_recording.camera()
+    anchor = None  # odometry pose the later poses are re-expressed from
+    previous = last = None
+    with (
+        RecordingWriter(output, camera=camera, metadata=metadata, force=True) as writer,
+        closing(source_recording.samples()) as samples,
+    ):
+        for index, sample in enumerate(samples):
+            odometry = np.asarray(sample.odometry_pose, float)
+            if kind == "kidnap":
+                if jump_from <= index < jump_to:
+                    if index == jump_from:
+                        last = previous
+                    continue
+                if index >= jump_to:
+                    if anchor is None:
+                        anchor = (last, odometry)
+                    odometry = se2.compose(anchor[0], se2.between(anchor[1], odometry))
+            elif kind == "reset" and index >= reset_at:
+                if anchor is None:
+                    anchor = odometry
+                odometry = se2.between(anchor, odometry)
+            previous = odometry
+            fmt = ImageFormat.PNG if sample.image.encoding == "png" else ImageFormat.JPEG
+            image = EncodedImage(fmt, bytes(sample.image.data))
+            writer.write(sample.stamp_ns, image, odometry, sample.ground_truth_pose)
 
 
 def estimator_config(name: str, scenario: Scenario, overrides: dict[str, Any]):  # -> EstimatorConfig
@@ -137,7 +206,27 @@ def run_one(scenario: Scenario, estimator: str, cache: Path, overrides: dict[str
     wrong = evaluation.claims & ~evaluation.correct
     distance = np.hypot(evaluation.best_error[:, 0], evaluation.best_error[:, 1])
     near = int((wrong & (distance < 1.0)).sum()) if evaluation.has_ground_truth else None
-    return Row(scenario, estimator, report.summary, wall, near)
+    row = Row(scenario, estimator, report.summary, wall, near)
+    if scenario.family in DERIVED and report.true_poses is not None:
+        event = _event_keyframe(report.actions, report.true_poses)
+        if event is not None:
+            hits = np.flatnonzero(evaluation.correct[event:])
+            row.event_delay = int(hits[0]) if hits.size else None
+            row.event_wrong = int(wrong[event:].sum())
+    return row
+
+
+def _event_keyframe(actions, true_poses) -> int | None:
+    """The first keyframe whose odometry action disagrees with the true motion by over 1 m."""
+    import numpy as np
+
+    from aslam.core import se2
+
+    for t in range(1, len(actions)):
+        true_action = se2.between(true_poses[t - 1], true_poses[t])
+        if np.hypot(*(np.asarray(actions[t][:2]) - true_action[:2])) > 1.0:
+            return t
+    return None
 
 
 def _get(summary: dict[str, Any], dotted: str) -> Any:
@@ -164,11 +253,18 @@ COLUMNS = [
     ("hyp", "hypotheses.max"),
     ("wrong", "loop_closure.wrong"),
     ("w<1m", "loop_closure.wrong_within_1m"),
+    ("evDel", "event.delay"),
+    ("evWr", "event.wrong"),
 ]
 
 
 def _value(row: Row, key: str) -> Any:
-    return row.wrong_within_1m if key == "loop_closure.wrong_within_1m" else _get(row.summary, key)
+    extra = {
+        "loop_closure.wrong_within_1m": row.wrong_within_1m,
+        "event.delay": row.event_delay,
+        "event.wrong": row.event_wrong,
+    }
+    return extra[key] if key in extra else _get(row.summary, key)
 
 
 def _fmt(value: Any) -> str:
@@ -236,7 +332,7 @@ def main(argv: list[str] | None = None) -> int:
         overrides[name] = _parse_value(value)
     scenarios = [Scenario(f, r, s) for f in args.families for r in args.routes for s in args.seeds]
     if args.cached_only:
-        scenarios = [s for s in scenarios if (args.cache / f"{s.name}.mcap").exists()]
+        scenarios = [s for s in scenarios if (args.cache / f"{s.base.name}.mcap").exists()]
     rows = []
     for scenario in scenarios:
         if args.render_only:
@@ -267,6 +363,8 @@ def main(argv: list[str] | None = None) -> int:
                         "overrides": overrides,
                         "wall_s": r.wall_s,
                         "wrong_within_1m": r.wrong_within_1m,
+                        "event_delay_keyframes": r.event_delay,
+                        "event_wrong_claims": r.event_wrong,
                         "summary": r.summary,
                     }
                     for r in rows

@@ -87,6 +87,12 @@ class EstimatorConfig:
         " apart); 'fixed': new_state_chi2 (histogram) or 0.56 (thumbnail).",
     )
 
+    appearance_veto: float = _param(
+        1.25,
+        "A revisit whose distance is at least this × the new-place reference is ruled out whatever"
+        " the motion model says (0 = never): with the online reference, 1.25 is the median distance"
+        " between consecutive keyframes.",
+    )
     new_state_coverage: float = _param(
         0.9,
         "How much a mapped place at the predicted pose lowers the prior of 'a new place': the prior is"
@@ -200,6 +206,8 @@ class EstimatorConfig:
             problems.append(
                 f"relocalisation_skip must be a whole number ≥ 0, got {self.relocalisation_skip!r}"
             )
+        if not (math.isfinite(self.appearance_veto) and self.appearance_veto >= 0):
+            problems.append(f"appearance_veto must be a number ≥ 0, got {self.appearance_veto!r}")
         if not 0 <= self.new_state_coverage < 1:
             problems.append(f"new_state_coverage must be in [0, 1), got {self.new_state_coverage!r}")
         if self.keyframe_adaptive not in ("on", "off"):
@@ -244,6 +252,7 @@ class EstimatorConfig:
             "place_radius_m": 0.2,
             "place_heading_deg": 10.0,
             "new_state_coverage": 0.0,
+            "appearance_veto": 0.0,
         }
         return cls(**{**paper, **overrides})
 

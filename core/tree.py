@@ -188,6 +188,11 @@ class HypothesisTree:
         if len(candidate_ids):
             distances = self.model.distances(observation, self.observations.view[candidate_ids])
             log_obs = self.model.log_likelihood(distances)
+            if self.config.appearance_veto > 0:
+                # A view as unlike the place as views a step apart are is no revisit, whatever
+                # odometry predicts (a kidnap, a reset, a wrong chain).
+                vetoed = distances >= self.config.appearance_veto * self.reference.value
+                log_obs = np.where(vetoed, -np.inf, log_obs)
             log_obs_of = dict(zip(candidate_ids.tolist(), log_obs.tolist(), strict=True))
 
         # (log θ, parent, state, is_new) for every child; the new-state child first for each leaf.
@@ -241,15 +246,14 @@ class HypothesisTree:
     ) -> np.ndarray:
         """Committed places that look like ``observation``, found over the whole map at bounded cost.
 
-        Only when the best hypothesis could not explain the previous keyframe (it called it a new
-        place). An index of L2-normalised float32 vectors, one per keyframe, is searched by one
+        An index of L2-normalised float32 vectors, one per keyframe, is searched by one
         matrix–vector product (O(keyframes × length) multiply-adds: ~2·10⁷ for 10⁵ places of a
         192-long thumbnail, a few milliseconds); the ``shortlist`` most similar committed places
         are then compared exactly. The best is returned if it looks more alike than the new-place
         reference, clearly more alike than the runner-up, and the motion model did not propose it.
         """
         limit = self.config.relocalisation_candidates
-        if self._log_relocalise == -math.inf or not self.leaves or not self.leaves[0].is_new:
+        if self._log_relocalise == -math.inf or not self.leaves:
             return np.zeros(0, np.int64)
         committed = len(self.committed_state_of_keyframe)
         searchable = committed - self.config.relocalisation_skip
@@ -272,6 +276,10 @@ class HypothesisTree:
             return np.zeros(0, np.int64)
         if not distances[order[0]] < self.reference.value:
             return np.zeros(0, np.int64)
+        if len(proposed):  # and clearly more alike than what the motion model predicts
+            predicted = self.model.distances(observation, self.observations.view[proposed])
+            if not distances[order[0]] < RELOCALISATION_RATIO * float(predicted.min()):
+                return np.zeros(0, np.int64)
         return top[order[:1]].astype(np.int64)
 
     def hypotheses(self) -> list[Hypothesis]:
