@@ -59,7 +59,8 @@ class EstimatorConfig:
     observation_model: str = _param(
         "thumbnail",
         "How an image is compared with a place: 'histogram' (the paper's gradient-orientation histogram"
-        " and χ²) or 'thumbnail' (a patch-normalised 32×24 thumbnail, mean absolute difference).",
+        " and χ²) or 'thumbnail' (a patch-normalised 16×12 thumbnail, mean absolute difference over small"
+        " horizontal shifts).",
     )
     histogram_bins: int = _param(16, "Gradient-orientation bins over [-π, π).")
     cells_x: int = _param(2, "Columns of spatial cells per image (1 = the paper's single global histogram).")
@@ -148,8 +149,8 @@ class EstimatorConfig:
     relocalisation_prior: float = _param(
         1e-3,
         "Prior probability that the robot is somewhere the motion model cannot predict (carried,"
-        " odometry reset). When the best hypothesis called the last keyframe a new place, places"
-        " found by appearance over the whole map are proposed with this prior (0 = never).",
+        " odometry reset). Each keyframe, a distinctive place found by appearance over the whole map"
+        " is proposed with this prior and must be confirmed by the next keyframe (0 = never).",
     )
     relocalisation_candidates: int = _param(
         12, "Places most similar by the index (a matrix product) that are then compared exactly."
