@@ -147,7 +147,7 @@ class EstimatorConfig:
     )
 
     relocalisation_prior: float = _param(
-        1e-3,
+        1e-4,
         "Prior probability that the robot is somewhere the motion model cannot predict (carried,"
         " odometry reset). Each keyframe, a distinctive place found by appearance over the whole map"
         " is proposed with this prior and must be confirmed by the next keyframe (0 = never).",

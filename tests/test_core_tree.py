@@ -263,7 +263,7 @@ def test_relocalises_after_a_kidnap_by_appearance():
     """Carried from the middle of lap 2 to another side of the rectangle, odometry unaware."""
     world = SyntheticWorld(3)
     actions = rectangle_actions(2)
-    estimator = Estimator(synthetic_config(relocalisation_prior=1e-3))
+    estimator = Estimator(synthetic_config())  # the default relocalisation prior
     rng = np.random.default_rng(0)
     truths = [np.zeros(3)]
     results = [estimator.add_keyframe(0, np.zeros(3), world.observe(truths[0]))]
