@@ -79,6 +79,7 @@ def build_summary(
     links: int,
     keyframes_per_second: float | None,
     committed: AssignmentScore | None = None,
+    slam_ms_per_keyframe: float | None = None,
 ) -> dict[str, Any]:
     """The summary JSON (every key always present; null where not measurable).
 
@@ -122,7 +123,10 @@ def build_summary(
             "best": _stats(evaluation.error_stats(weighted=False)),
             "weighted": _stats(evaluation.error_stats(weighted=True)),
         },
-        "timing": {"keyframes_per_second": keyframes_per_second},
+        "timing": {
+            "keyframes_per_second": keyframes_per_second,
+            "slam_ms_per_keyframe": slam_ms_per_keyframe,
+        },
     }
 
 
@@ -227,6 +231,9 @@ def score(
         links=len(info.graph.links),
         keyframes_per_second=None if info.timing is None else info.timing.keyframes_per_second,
         committed=committed,
+        slam_ms_per_keyframe=None
+        if info.timing is None or not info.timing.keyframes
+        else 1e3 * info.timing.slam_s / info.timing.keyframes,
     )
     return Report(
         estimate_path=estimate,

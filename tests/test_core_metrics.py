@@ -148,3 +148,26 @@ def test_a_map_assignment_is_scored_like_claims():
     assert scored.claims.tolist() == [False] * 4 + [True, True, True, False]
     assert scored.correct.tolist() == [False] * 4 + [True, True, False, False]
     assert scored.precision == 2 / 3 and scored.recall == 2 / 4
+
+
+def test_summary_reports_the_curve_and_the_committed_map():
+    from aslam.app.score import build_summary, summary_keys
+    from aslam.core.metrics import score_assignment
+
+    keys = summary_keys()
+    for key in (
+        "loop_closure.recall_at_full_precision",
+        "loop_closure.auc",
+        "committed.precision",
+        "committed.recall",
+        "timing.slam_ms_per_keyframe",
+    ):
+        assert key in keys
+    steps = [(t, [new(t)]) for t in range(4)]
+    steps += [(4, [claim(0, 0.9)]), (5, [claim(3, 0.4)]), (6, [claim(2, 0.7)]), (7, [new(7)])]
+    evaluation = evaluate(steps, SQUARE)
+    committed = score_assignment(np.array([0, 1, 2, 3, 0, 1, 2, 3]), SQUARE)
+    summary = build_summary(evaluation, states=4, links=4, keyframes_per_second=None, committed=committed)
+    assert summary["loop_closure"]["recall_at_full_precision"] == 0.5
+    assert summary["loop_closure"]["precision"] == 2 / 3
+    assert summary["committed"]["precision"] == 1.0 and summary["committed"]["recall"] == 1.0
