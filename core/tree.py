@@ -150,6 +150,8 @@ class HypothesisTree:
         )
         self._projection = _index_projection(observation_length)
         self._index = GrowableArray((len(self._projection),), np.float32)
+        self._index_states = GrowableArray((), np.int64)
+        """The relocalisation index: one projected, normalised vector per committed place."""
         """L2-normalised observations, one per keyframe: the appearance index for relocalisation."""
         self._relocalised: set[int] = set()
         # statistics
@@ -162,10 +164,8 @@ class HypothesisTree:
     def add_keyframe(self, action: np.ndarray, observation: np.ndarray) -> list[Hypothesis]:
         """Advance every hypothesis by one keyframe; returns the surviving leaves, best first."""
         keyframe = self.observations.append(observation)
-        vector = self._projection @ np.asarray(observation, dtype=np.float32)
-        norm = float(np.linalg.norm(vector))
-        self._index.append(vector / norm if norm > 0 else vector)
         if keyframe == 0:
+            self._index_place(0)
             root = self._new_node(0, 0, None, 0.0, True, IDENTITY_REL)
             self.leaves = [root]
             self.commit_root = root
@@ -247,10 +247,10 @@ class HypothesisTree:
     ) -> np.ndarray:
         """Committed places that look like ``observation``, found over the whole map at bounded cost.
 
-        An index of L2-normalised float32 vectors, one per keyframe (the observation projected to
-        at most ``INDEX_LENGTH`` dimensions), is searched by one matrix–vector product:
-        O(keyframes × 32) multiply-adds, 3·10⁵ for 10⁴ places (about 0.3 ms), 3·10⁶ for 10⁵
-        (a few ms); memory 128 bytes per keyframe. The ``relocalisation_candidates`` most similar
+        An index of L2-normalised float32 vectors, one per committed place (its first view
+        projected to at most ``INDEX_LENGTH`` dimensions), is searched by one matrix–vector
+        product: O(places × 32) multiply-adds, 3·10⁵ for 10⁴ places (about 0.3 ms), 3·10⁶ for 10⁵
+        (a few ms); memory 136 bytes per place. The ``relocalisation_candidates`` most similar
         committed places
         are then compared exactly. The best is returned if it looks more alike than the new-place
         reference, clearly more alike than the runner-up, and the motion model did not propose it.
@@ -258,18 +258,16 @@ class HypothesisTree:
         limit = self.config.relocalisation_candidates
         if self._log_relocalise == -math.inf or not self.leaves:
             return np.zeros(0, np.int64)
-        committed = len(self.committed_state_of_keyframe)
-        searchable = committed - self.config.relocalisation_skip
+        newest = len(self.committed_state_of_keyframe) - self.config.relocalisation_skip
+        searchable = int(np.searchsorted(self._index_states.view, newest))  # places first seen before
         if searchable <= 0:
             return np.zeros(0, np.int64)
         # einsum, not BLAS: single-threaded and summed in a fixed order (same bytes on every run).
-        similarity = np.einsum("ij,j->i", self._index.view[:searchable], self._index.view[keyframe])
-        states = self.committed_state_of_keyframe.view[:searchable]
-        similarity = np.where(states == np.arange(searchable), similarity, -np.inf)  # first visits only
+        similarity = np.einsum("ij,j->i", self._index.view[:searchable], self._project(observation))
         shortlist = min(limit, searchable)
-        top = np.argpartition(-similarity, shortlist - 1)[:shortlist]
+        top = self._index_states.view[np.argpartition(-similarity, shortlist - 1)[:shortlist]]
         held = [leaf.state for leaf in self.leaves]  # already hypotheses: nothing to relocalise to
-        top = top[np.isfinite(similarity[top]) & ~np.isin(top, proposed) & ~np.isin(top, held)]
+        top = top[~np.isin(top, proposed) & ~np.isin(top, held)]
         if not len(top):
             return np.zeros(0, np.int64)
         distances = self.model.distances(observation, self.observations.view[top])
@@ -285,6 +283,16 @@ class HypothesisTree:
             if not distances[order[0]] < RELOCALISATION_RATIO * float(predicted.min()):
                 return np.zeros(0, np.int64)
         return top[order[:1]].astype(np.int64)
+
+    def _project(self, observation: np.ndarray) -> np.ndarray:
+        vector = self._projection @ np.asarray(observation, dtype=np.float32)
+        norm = float(np.linalg.norm(vector))
+        return vector / norm if norm > 0 else vector
+
+    def _index_place(self, state: int) -> None:
+        """Add a committed place (its first view) to the relocalisation index."""
+        self._index.append(self._project(self.observations.view[state]))
+        self._index_states.append(state)
 
     def hypotheses(self) -> list[Hypothesis]:
         return [
@@ -506,6 +514,7 @@ class HypothesisTree:
         for node in reversed(path):
             if node.is_new:
                 self.shared.add_state(node.state)
+                self._index_place(node.state)
             self.shared.add_traversal(node.parent.state, node.state, node.rel)
             self.committed_state_of_keyframe.append(node.state)
             self.committed_rel_of_keyframe.append(node.rel)
