@@ -29,8 +29,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from aslam.core.estimator import Estimator, Keyframer, StepResult
-from aslam.core.features import HistogramConfig, orientation_histogram
+from aslam.core.estimator import Estimator, StepResult
+from aslam.core.estimator import keyframer as make_keyframer
+from aslam.core.observation import ObservationModel, observation_model
 from aslam.data_formats.images import LazyImage
 from aslam.data_formats.pose_sync import Sample
 
@@ -54,14 +55,14 @@ class PipelineCounts:
     slam_s: float = 0.0
 
 
-def _histogram(image: LazyImage, config: HistogramConfig) -> np.ndarray:
-    return orientation_histogram(image.decode_gray(), config)
+def _histogram(image: LazyImage, model: ObservationModel) -> np.ndarray:
+    return model.describe(image.decode_gray())
 
 
 def keyframe_histograms(
     samples: Iterable[Sample],
     keyframe_action: Callable[[np.ndarray], np.ndarray | None],
-    histogram: HistogramConfig,
+    histogram: ObservationModel,
     *,
     counts: PipelineCounts | None = None,
     workers: int = DEFAULT_WORKERS,
@@ -109,7 +110,7 @@ SEND_BATCH = 4
 def keyframes_from_child_process(
     samples: Iterable[Sample],
     keyframe_action: Callable[[np.ndarray], np.ndarray | None],
-    histogram: HistogramConfig,
+    histogram: ObservationModel,
     *,
     counts: PipelineCounts,
     workers: int = DEFAULT_WORKERS,
@@ -198,7 +199,7 @@ def run_estimate(
     keyframes = produce(
         samples,
         estimator.keyframe_action,
-        estimator.config.histogram,
+        estimator.observation_model,
         counts=counts,
         workers=workers,
         depth=depth,
@@ -225,10 +226,10 @@ def run_floor(
     ``estimator`` only lends its configuration: its state is not touched.
     """
     config = estimator.config
-    keyframer = Keyframer(config.step_m, config.turn_deg, config.keyframe_slack)
+    keyframer = make_keyframer(config)
     count = 0
     for _ in keyframe_histograms(
-        samples, keyframer.action_if_keyframe, config.histogram, workers=workers, depth=depth
+        samples, keyframer.action_if_keyframe, observation_model(config), workers=workers, depth=depth
     ):
         count += 1
     return count

@@ -26,7 +26,7 @@ from aslam.app.metric_view import score as score_trajectories
 from aslam.core import se2
 from aslam.core.config import check_report_tolerances
 from aslam.core.errors import InputError
-from aslam.core.metrics import Evaluation, evaluate
+from aslam.core.metrics import AssignmentScore, Evaluation, PRCurve, evaluate, score_assignment
 from aslam.data_formats.errors import EstimateError, RecordingError
 from aslam.data_formats.estimate import EstimateFile, iter_keyframes, read_estimate
 from aslam.data_formats.files import source_files
@@ -80,10 +80,17 @@ def build_summary(
     keyframes_per_second: float | None,
     embedding: Embedding | None = None,
     metric: MetricScores | None = None,
+    committed: AssignmentScore | None = None,
+    slam_ms_per_keyframe: float | None = None,
 ) -> dict[str, Any]:
-    """The summary JSON (every key always present; null where not measurable)."""
+    """The summary JSON (every key always present; null where not measurable).
+
+    ``committed`` scores the final map's assignment (what the hypotheses agreed on) beside the
+    online best hypothesis; the precision–recall curve is over the best hypothesis's belief.
+    """
     counts = evaluation.hypothesis_counts
     has_truth = evaluation.has_ground_truth
+    curve = evaluation.pr_curve() if has_truth else None
     return {
         "keyframes": int(evaluation.keyframes),
         "states": int(states),
@@ -105,13 +112,24 @@ def build_summary(
             "ground_truth_revisits": int(evaluation.true_revisit.sum()) if has_truth else None,
             "precision": evaluation.precision,
             "recall": evaluation.recall,
+            "recall_at_full_precision": None if curve is None else curve.recall_at_full_precision,
+            "auc": None if curve is None else curve.auc,
+        },
+        "committed": {
+            "claims": None if committed is None else int(committed.claims.sum()),
+            "correct": None if committed is None or not has_truth else int(committed.correct.sum()),
+            "precision": None if committed is None or not has_truth else committed.precision,
+            "recall": None if committed is None or not has_truth else committed.recall,
         },
         "error": {
             "best": _stats(evaluation.error_stats(weighted=False)),
             "weighted": _stats(evaluation.error_stats(weighted=True)),
         },
         "trajectory": _trajectory_summary(embedding, metric),
-        "timing": {"keyframes_per_second": keyframes_per_second},
+        "timing": {
+            "keyframes_per_second": keyframes_per_second,
+            "slam_ms_per_keyframe": slam_ms_per_keyframe,
+        },
     }
 
 
@@ -239,6 +257,10 @@ def score(
             metric = score_trajectories(embedding, true_poses, stamps)
         except ValueError as err:
             warn(f"{estimate}: no trajectory scores: {err}")
+    committed = None
+    if true_poses is not None:
+        assignment = map_assignment(info.graph.states, len(steps))
+        committed = score_assignment(assignment, true_poses, radius_m=radius_m, heading_deg=heading_deg)
     summary = build_summary(
         evaluation,
         states=len(info.graph.states),
@@ -246,6 +268,10 @@ def score(
         keyframes_per_second=None if info.timing is None else info.timing.keyframes_per_second,
         embedding=embedding,
         metric=metric,
+        committed=committed,
+        slam_ms_per_keyframe=None
+        if info.timing is None or not info.timing.keyframes
+        else 1e3 * info.timing.slam_s / info.timing.keyframes,
     )
     return Report(
         estimate_path=estimate,
@@ -259,6 +285,21 @@ def score(
         metric=metric,
         summary=summary,
     )
+
+
+def map_assignment(states: Iterable[Any], keyframes: int) -> np.ndarray:
+    """(n,) the state of each keyframe in a map (``MapState``s with their keyframes); -1 if none."""
+    assignment = np.full(keyframes, -1, dtype=np.int64)
+    for state in states:
+        for keyframe in state.keyframes:
+            if 0 <= keyframe < keyframes:
+                assignment[keyframe] = state.id
+    return assignment
+
+
+def pr_curve(report: Report) -> PRCurve:
+    """The precision–recall curve of a scored estimate (thresholds, precision, recall arrays)."""
+    return report.evaluation.pr_curve()
 
 
 def _find_recording(given: Path | None, info: EstimateFile, warn: Callable[[str], None]) -> Path | None:

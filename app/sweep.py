@@ -627,8 +627,13 @@ def lower_is_better(key: str) -> bool:
     return key.startswith("error.") or "delay" in key
 
 
+#: Where a tail shared by several summary keys resolves to (``precision`` → loop_closure.precision).
+PREFERRED_SECTIONS = ("loop_closure.", "timing.", "trajectory.")
+
+
 def resolve_objectives(text: str) -> list[Objective]:
-    """``precision,recall,-hypotheses.max`` → objectives; a name is a summary key or its unique tail.
+    """``precision,recall,-hypotheses.max`` → objectives; a name is a summary key or its tail, a tail
+    shared by several keys resolving to the first of ``PREFERRED_SECTIONS`` that has it.
 
     ``+NAME``/``-NAME`` force maximising/minimising; otherwise :func:`lower_is_better` decides.
     """
@@ -642,6 +647,12 @@ def resolve_objectives(text: str) -> list[Objective]:
             continue
         sign, name = (raw[0], raw[1:]) if raw[0] in "+-" else ("", raw)
         matches = [key for key in known if key == name] or [key for key in known if key.endswith("." + name)]
+        for section in PREFERRED_SECTIONS if len(matches) > 1 else ():
+            # e.g. precision: the online best hypothesis's, not the final map's (committed.precision)
+            in_section = [key for key in matches if key.startswith(section)]
+            if len(in_section) == 1:
+                matches = in_section
+                break
         if len(matches) != 1:
             what = f"is ambiguous ({', '.join(matches)})" if matches else "is not a summary key"
             problems.append(f"--pareto: '{name}' {what}")

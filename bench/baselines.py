@@ -28,9 +28,10 @@ from aslam.app.pipeline import keyframe_histograms
 from aslam.app.score import truth_at_stamps
 from aslam.core import se2
 from aslam.core.config import EstimatorConfig
-from aslam.core.estimator import Keyframer
+from aslam.core.estimator import keyframer as make_keyframer
 from aslam.core.features import chi2_distances
 from aslam.core.metrics import Evaluation, evaluate
+from aslam.core.observation import HistogramModel
 from aslam.core.se2 import dead_reckoning
 from aslam.core.tree import Hypothesis
 from aslam.data_formats.recording import Recording
@@ -52,10 +53,12 @@ class Keyframes:
 def read_keyframes(recording: Path, config: EstimatorConfig | None = None) -> Keyframes:
     """The keyframes of ``recording`` under ``config``'s keyframe test and histogram settings."""
     config = config or EstimatorConfig()
-    keyframer = Keyframer(config.step_m, config.turn_deg, config.keyframe_slack)
+    keyframer = make_keyframer(config)
     stamps, actions, histograms = [], [], []
     with closing(
-        keyframe_histograms(Recording(recording).samples(), keyframer.action_if_keyframe, config.histogram)
+        keyframe_histograms(
+            Recording(recording).samples(), keyframer.action_if_keyframe, HistogramModel(config.histogram)
+        )
     ) as keyframes:
         for keyframe in keyframes:
             stamps.append(keyframe.stamp_ns)

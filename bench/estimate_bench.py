@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from aslam.core.config import EstimatorConfig
-from aslam.core.estimator import Estimator, Keyframer
-from aslam.core.features import orientation_histogram
+from aslam.core.estimator import Estimator, keyframer
+from aslam.core.observation import observation_model
 from aslam.data_formats.camera import CameraIntrinsics
 from aslam.data_formats.estimate import EstimateWriter
 from aslam.data_formats.images import encode_image
@@ -72,11 +72,11 @@ def stages(recording: Path, config: EstimatorConfig, output: Path) -> dict[str, 
     """Seconds of each stage alone, in-process, one thread: where the estimate's time goes."""
     timings: dict[str, float] = {}
     start = time.perf_counter()
-    keyframer = Keyframer(config.step_m, config.turn_deg, config.keyframe_slack)
+    keyframe_test = keyframer(config)
     keyframes = []
     with closing(Recording(recording).samples()) as samples:
         for sample in samples:
-            action = keyframer.action_if_keyframe(sample.odometry_pose)
+            action = keyframe_test.action_if_keyframe(sample.odometry_pose)
             if action is not None:
                 keyframes.append((sample.stamp_ns, action, sample.image))
     timings["read_and_sync_s"] = time.perf_counter() - start
@@ -84,13 +84,14 @@ def stages(recording: Path, config: EstimatorConfig, output: Path) -> dict[str, 
     grays = [image.decode_gray() for _, _, image in keyframes]
     timings["decode_s"] = time.perf_counter() - start
     start = time.perf_counter()
-    histograms = [orientation_histogram(gray, config.histogram) for gray in grays]
-    timings["histogram_s"] = time.perf_counter() - start
+    model = observation_model(config)
+    observations = [model.describe(gray) for gray in grays]
+    timings["describe_s"] = time.perf_counter() - start
     estimator = Estimator(config)
     start = time.perf_counter()
     steps = [
-        estimator.add_keyframe(stamp, action, histogram)
-        for (stamp, action, _), histogram in zip(keyframes, histograms, strict=True)
+        estimator.add_keyframe(stamp, action, observation)
+        for (stamp, action, _), observation in zip(keyframes, observations, strict=True)
     ]
     result = estimator.result()
     timings["slam_s"] = time.perf_counter() - start

@@ -1,7 +1,8 @@
 """Per-keyframe SLAM time against map size, on a long synthetic walk (no images).
 
 Two synthetic worlds (1 m steps, 90° turns, 3 % odometry noise; each place-and-heading has its
-own random histogram, each view a noisy copy): ``blocks`` drives twice round each city block and
+own random observation — a histogram or a thumbnail-like vector, as the default model needs —
+each view a noisy copy): ``blocks`` drives twice round each city block and
 moves on, so the map grows for ever at constant density; ``random`` wanders a bounded grid, so
 the map saturates and its links grow denser. Prints the mean per-keyframe time of ``add_keyframe`` over
 the first and the last 1,000 keyframes and their ratio (target ≤ 1.3), measured in one run,
@@ -25,6 +26,7 @@ import numpy as np
 from aslam.core import se2
 from aslam.core.config import EstimatorConfig
 from aslam.core.estimator import Estimator
+from aslam.core.observation import HistogramModel
 
 
 def block_walk(keyframes: int, laps: int = 2, width: int = 6, height: int = 4):
@@ -68,13 +70,20 @@ def random_walk(keyframes: int, size: int, seed: int):
 def run(keyframes: int, world: str, size: int, seed: int, trace_memory: bool) -> dict:
     rng = np.random.default_rng(seed + 1)
     config = EstimatorConfig()
-    length = config.histogram.length
+    model = Estimator(config).observation_model
+    length = model.length
+    histogram = isinstance(model, HistogramModel)
     signatures: dict[tuple[int, int, int], np.ndarray] = {}
 
     def observe(pose: np.ndarray) -> np.ndarray:
+        """A histogram (noisy copy of the place's) or a thumbnail-like vector (the place's plus noise)."""
         key = (round(pose[0]), round(pose[1]), round(math.degrees(pose[2]) / 90) % 4)
         if key not in signatures:
-            signatures[key] = rng.dirichlet(np.full(length, 2.0))
+            signatures[key] = (
+                rng.dirichlet(np.full(length, 2.0)) if histogram else rng.standard_normal(length)
+            )
+        if not histogram:
+            return (signatures[key] + 0.3 * rng.standard_normal(length)).astype(np.float32)
         view = np.abs(signatures[key] * (1.0 + 0.05 * rng.standard_normal(length)))
         return (view / view.sum()).astype(np.float32)
 

@@ -185,7 +185,7 @@ def met(ok: bool) -> str:
 
 
 ESTIMATES = (("estimate_320x240", "grid route, 320×240"), ("estimate_640x480", "grid route, 640×480"))
-STAGES = ("read_and_sync_s", "decode_s", "histogram_s", "slam_s", "write_s", "sha256_s")
+STAGES = ("read_and_sync_s", "decode_s", "describe_s", "slam_s", "write_s", "sha256_s")
 
 
 def estimate_rows(speed: dict[str, Any]) -> list[list[str]]:

@@ -86,8 +86,19 @@ class EstimatorConfig:
         0.3,
         "Fraction of step_m/turn_deg forgiven: noisy odometry may measure a commanded 1 m as 0.9 m.",
     )
+    keyframe_adaptive: str = _param(
+        "on",
+        "'on': on a dense stream (several poses per step) take the pose nearest the full step or turn"
+        " instead of the first within the slack; 'off': the paper's rule.",
+    )
 
     # --- observations -------------------------------------------------------------------------
+    observation_model: str = _param(
+        "thumbnail",
+        "How an image is compared with a place: 'histogram' (the paper's gradient-orientation histogram"
+        " and χ²) or 'thumbnail' (a patch-normalised 16×12 thumbnail, mean absolute difference over small"
+        " horizontal shifts).",
+    )
     histogram_bins: int = _param(16, "Gradient-orientation bins over [-π, π).")
     cells_x: int = _param(2, "Columns of spatial cells per image (1 = the paper's single global histogram).")
     cells_y: int = _param(1, "Rows of spatial cells.")
@@ -103,16 +114,39 @@ class EstimatorConfig:
         ),
     )
 
+    thumbnail_beta: float = _param(
+        8.0,
+        "Sensitivity β of the thumbnail model, P(z|x) = d^-β (its distances span a narrower range than χ²).",
+    )
+    new_state_reference: str = _param(
+        "online",
+        "'online': the reference distance of an unseen place is calibrated on the run itself (a fixed"
+        " fraction of the running median distance between consecutive keyframes, views about 1 m"
+        " apart); 'fixed': new_state_chi2 (histogram) or 0.56 (thumbnail).",
+    )
+
+    appearance_veto: float = _param(
+        1.25,
+        "A revisit whose distance is at least this × the new-place reference is ruled out whatever"
+        " the motion model says (0 = never): with the online reference, 1.25 is the median distance"
+        " between consecutive keyframes.",
+    )
+    new_state_coverage: float = _param(
+        0.9,
+        "How much a mapped place at the predicted pose lowers the prior of 'a new place': the prior is"
+        " multiplied by 1 − this × the best revisit transition likelihood (1 for a perfect prediction).",
+    )
+
     # --- transitions ----------------------------------------------------------------------------
     odometry_noise: float = _param(
         0.03, "σ of odometry per metre moved and per radian turned (the paper's 3 %)."
     )
     drift_deg_per_m: float = _param(0.5, "σ of heading drift while moving forward, degrees per metre.")
     place_radius_m: float = _param(
-        0.2, "Two visits of one place are never at exactly the same pose: σ of that, in position."
+        0.35, "Two visits of one place are never at exactly the same pose: σ of that, in position."
     )
     place_heading_deg: float = _param(
-        10.0, "Two visits of one place are never at exactly the same pose: σ of that, in heading (degrees)."
+        15.0, "Two visits of one place are never at exactly the same pose: σ of that, in heading (degrees)."
     )
     visit_sigma_m: float = _param(
         0.1,
@@ -149,6 +183,20 @@ class EstimatorConfig:
         "The graph search also stops after this many states: the cost per keyframe is bounded.",
     )
 
+    relocalisation_prior: float = _param(
+        1e-4,
+        "Prior probability that the robot is somewhere the motion model cannot predict (carried,"
+        " odometry reset). Each keyframe, a distinctive place found by appearance over the whole map"
+        " is proposed with this prior and must be confirmed by the next keyframe (0 = never).",
+    )
+    relocalisation_candidates: int = _param(
+        12, "Places most similar by the index (a matrix product) that are then compared exactly."
+    )
+    relocalisation_skip: int = _param(
+        10,
+        "The most recent committed keyframes are left out of the appearance search (the motion covers them).",
+    )
+
     # --- hypothesis tree ------------------------------------------------------------------------
     prune_ratio: float = _param(
         0.005, "Hypotheses whose belief is below this fraction of the best are removed."
@@ -170,8 +218,10 @@ class EstimatorConfig:
             value = getattr(self, name)
             if not bounds.holds(value):
                 problems.append(f"{name} must be {bounds.describe()}, got {value!r}")
-        if self.candidate_search not in ("graph", "path"):
-            problems.append(f"candidate_search must be 'graph' or 'path', got {self.candidate_search!r}")
+        for name, choices in CHOICES.items():
+            value = getattr(self, name)
+            if value not in choices:
+                problems.append(f"{name} must be {' or '.join(map(repr, choices))}, got {value!r}")
         if isinstance(self.histogram_bins, int) and self.histogram_bins % 2:
             problems.append(f"histogram_bins must be even, got {self.histogram_bins}")
         length = self.histogram_bins * self.cells_x * self.cells_y
@@ -184,7 +234,20 @@ class EstimatorConfig:
     @classmethod
     def paper_faithful(cls, **overrides: object) -> EstimatorConfig:
         """The paper's estimator: one global histogram per image, candidates along the path only."""
-        return cls(**{"cells_x": 1, "cells_y": 1, "candidate_search": "path", **overrides})
+        paper = {
+            "observation_model": "histogram",
+            "new_state_reference": "fixed",
+            "cells_x": 1,
+            "cells_y": 1,
+            "candidate_search": "path",
+            "relocalisation_prior": 0.0,
+            "keyframe_adaptive": "off",
+            "place_radius_m": 0.2,
+            "place_heading_deg": 10.0,
+            "new_state_coverage": 0.0,
+            "appearance_veto": 0.0,
+        }
+        return cls(**{**paper, **overrides})
 
     @classmethod
     def parameters(cls) -> list[tuple[str, type, object, str]]:
@@ -203,6 +266,13 @@ class EstimatorConfig:
 
 
 #: Accepted values of every numeric parameter (shown in the option help and docs/usage.md).
+CHOICES: dict[str, tuple[str, ...]] = {
+    "observation_model": ("histogram", "thumbnail"),
+    "keyframe_adaptive": ("on", "off"),
+    "new_state_reference": ("online", "fixed"),
+    "candidate_search": ("graph", "path"),
+}
+"""The text parameters and the values each may take."""
 RANGES: dict[str, Bounds] = {
     "step_m": Bounds(0, 100, low_open=True),
     "turn_deg": Bounds(0, 360, low_open=True),
@@ -227,6 +297,12 @@ RANGES: dict[str, Bounds] = {
     "prune_ratio": Bounds(0, 1, low_open=True, high_open=True),
     "max_hypotheses": Bounds(1, 10_000, integer=True),
     "merge_window": Bounds(1, 1000, integer=True),
+    "thumbnail_beta": Bounds(0, 50, low_open=True),
+    "appearance_veto": Bounds(0, 100),
+    "new_state_coverage": Bounds(0, 1, high_open=True),
+    "relocalisation_prior": Bounds(0, 1, high_open=True),
+    "relocalisation_candidates": Bounds(1, 10_000, integer=True),
+    "relocalisation_skip": Bounds(0, 100_000, integer=True),
 }
 #: Length of one observation vector (bins × cells); bounds the memory per keyframe.
 MAX_OBSERVATION_LENGTH = 16_384

@@ -11,16 +11,29 @@ from aslam.core import se2
 from aslam.core.config import EstimatorConfig
 from aslam.core.mapgraph import SharedMap
 from aslam.core.motion import rel_covariance
+from aslam.core.observation import ObservationModel, observation_model
 from aslam.core.tree import Hypothesis, HypothesisTree, TreeStats
 
 
 class Keyframer:
-    """Decides from odometry alone when to look: after ``step_m`` metres or ``turn_deg`` of turning."""
+    """Decides from odometry alone when to look: after ``step_m`` metres or ``turn_deg`` of turning.
 
-    def __init__(self, step_m: float, turn_deg: float, slack: float) -> None:
+    Odometry is noisy, so a commanded step may be measured short: ``slack`` forgives that
+    fraction. On a dense stream (many poses per step, e.g. video) that slack would fire early,
+    every 0.7–0.8 m and mid-turn, so a second lap's keyframes fall between the first lap's places.
+    With ``adaptive`` the threshold is also at least ``step − increment/2`` (and likewise for the
+    turn), ``increment`` being the motion since the previous pose: the keyframe is the pose
+    nearest the full step that the stream offers. With one pose per step it changes nothing.
+    """
+
+    def __init__(self, step_m: float, turn_deg: float, slack: float, *, adaptive: bool = False) -> None:
+        self._full_step_m = step_m
+        self._full_turn_rad = math.radians(turn_deg)
         self._step_m = step_m * (1.0 - slack)
         self._turn_rad = math.radians(turn_deg) * (1.0 - slack)
+        self._adaptive = adaptive
         self._last: np.ndarray | None = None
+        self._previous: np.ndarray | None = None
 
     def action_if_keyframe(self, odometry_pose: np.ndarray) -> np.ndarray | None:
         """The odometry action since the last keyframe if this pose is a keyframe, else None.
@@ -28,14 +41,27 @@ class Keyframer:
         The first pose is always a keyframe, with a zero action.
         """
         pose = np.asarray(odometry_pose, dtype=float)
+        previous, self._previous = self._previous, pose
         if self._last is None:
             self._last = pose
             return np.zeros(3)
         action = se2.between(self._last, pose)
-        if math.hypot(action[0], action[1]) >= self._step_m or abs(action[2]) >= self._turn_rad:
+        step_m, turn_rad = self._step_m, self._turn_rad
+        if self._adaptive and previous is not None:
+            increment = se2.between(previous, pose)
+            step_m = max(step_m, self._full_step_m - 0.5 * math.hypot(increment[0], increment[1]))
+            turn_rad = max(turn_rad, self._full_turn_rad - 0.5 * abs(float(increment[2])))
+        if math.hypot(action[0], action[1]) >= step_m or abs(action[2]) >= turn_rad:
             self._last = pose
             return action
         return None
+
+
+def keyframer(config: EstimatorConfig) -> Keyframer:
+    """The keyframe test ``config`` describes."""
+    return Keyframer(
+        config.step_m, config.turn_deg, config.keyframe_slack, adaptive=config.keyframe_adaptive == "on"
+    )
 
 
 @dataclass(frozen=True)
@@ -83,9 +109,9 @@ class Estimator:
 
     def __init__(self, config: EstimatorConfig | None = None) -> None:
         self.config = config or EstimatorConfig()
-        self._histogram = self.config.histogram
-        self._keyframer = Keyframer(self.config.step_m, self.config.turn_deg, self.config.keyframe_slack)
-        self._tree = HypothesisTree(self.config, self._histogram.length)
+        self.observation_model: ObservationModel = observation_model(self.config)
+        self._keyframer = keyframer(self.config)
+        self._tree = HypothesisTree(self.config, self.observation_model)
         self._stamps: list[int] = []
 
     def keyframe_action(self, odometry_pose: np.ndarray) -> np.ndarray | None:
@@ -93,7 +119,7 @@ class Estimator:
         return self._keyframer.action_if_keyframe(odometry_pose)
 
     def add_keyframe(self, stamp_ns: int, action: np.ndarray, observation: np.ndarray) -> StepResult:
-        """The SLAM step proper, on an observation histogram: split, weigh, prune, commit."""
+        """The SLAM step proper, on an observation vector (``observation_model.describe`` of the image)."""
         hypotheses = self._tree.add_keyframe(action, observation)
         self._stamps.append(int(stamp_ns))
         a = tuple(float(v) for v in action)

@@ -7,6 +7,11 @@
   ``heading_deg``; a claim by the best hypothesis is correct under the same test.
 * A relocalisation episode is a run of consecutive ground-truth revisits; its delay is the number
   of keyframes from its start until the best hypothesis first names a correct state.
+* As place-recognition work reports it, each claim has a confidence (the belief of the best
+  hypothesis that makes it): sweeping a threshold over it gives a precision–recall curve, its
+  area (average precision) and the recall reached with no wrong claim at all.
+* The *committed* map (each keyframe's place once the hypotheses agreed on it, the map
+  ``Estimator.result()`` returns) is scored with the same test as the online best hypothesis.
 """
 
 from __future__ import annotations
@@ -59,6 +64,8 @@ class Evaluation:
     weighted_error: np.ndarray
     """(n, 3) belief-weighted mean absolute error over the revisit hypotheses; NaN where there are none."""
     episodes: tuple[Episode, ...]
+    confidence: np.ndarray | None = None
+    """(n,) belief of the best hypothesis where it claims a revisit, NaN elsewhere."""
 
     @property
     def precision(self) -> float | None:
@@ -79,9 +86,112 @@ class Evaluation:
         delays = [e.delay for e in self.episodes if e.delay is not None]
         return float(np.mean(delays)) if delays else None
 
+    def pr_curve(self) -> PRCurve:
+        """Precision and recall of the claims whose confidence reaches each threshold."""
+        confidence = self.confidence if self.confidence is not None else np.where(self.claims, 1.0, np.nan)
+        return precision_recall_curve(confidence, self.correct, int(self.true_revisit.sum()))
+
     def error_stats(self, weighted: bool) -> dict[str, ErrorStats]:
         errors = self.weighted_error if weighted else self.best_error
         return {name: ErrorStats.of(errors[:, i]) for i, name in enumerate(("x_m", "y_m", "heading_deg"))}
+
+
+@dataclass(frozen=True)
+class PRCurve:
+    """A precision–recall curve over a confidence threshold, highest threshold first.
+
+    Point i keeps the claims with confidence ≥ ``thresholds[i]``. Empty arrays when there is no
+    claim. ``revisits`` is the number of ground-truth revisits recall is counted against.
+    """
+
+    thresholds: np.ndarray
+    precision: np.ndarray
+    recall: np.ndarray
+    revisits: int
+
+    @property
+    def recall_at_full_precision(self) -> float | None:
+        """The highest recall with no wrong claim (0 when the most confident claim is wrong)."""
+        if self.revisits == 0:
+            return None
+        perfect = self.precision >= 1.0
+        return float(self.recall[perfect].max()) if perfect.any() else 0.0
+
+    @property
+    def auc(self) -> float | None:
+        """Area under the curve as average precision: Σ (R_i − R_{i−1}) P_i, from R = 0."""
+        if self.revisits == 0:
+            return None
+        steps = np.diff(np.concatenate([[0.0], self.recall]))
+        return float((steps * self.precision).sum())
+
+
+def precision_recall_curve(confidence: np.ndarray, correct: np.ndarray, revisits: int) -> PRCurve:
+    """The curve of claims (finite ``confidence``) ranked by confidence; ties enter together.
+
+    ``correct`` (n,) says which claims are right; recall counts against ``revisits``.
+    """
+    confidence = np.asarray(confidence, dtype=float)
+    claimed = np.flatnonzero(np.isfinite(confidence))
+    if claimed.size == 0:
+        empty = np.zeros(0)
+        return PRCurve(empty, empty, empty, revisits)
+    order = claimed[np.argsort(-confidence[claimed], kind="stable")]
+    ranked = confidence[order]
+    true_positives = np.cumsum(np.asarray(correct, dtype=bool)[order])
+    # the last claim of each group of equal confidence closes a threshold
+    last = np.flatnonzero(np.append(ranked[1:] != ranked[:-1], True))
+    claims = last + 1
+    precision = true_positives[last] / claims
+    recall = true_positives[last] / revisits if revisits else np.zeros(len(last))
+    return PRCurve(ranked[last], precision.astype(float), recall.astype(float), revisits)
+
+
+@dataclass(frozen=True)
+class AssignmentScore:
+    """A map's keyframe-to-place assignment scored like the best hypothesis's claims."""
+
+    claims: np.ndarray
+    correct: np.ndarray
+    true_revisit: np.ndarray
+
+    @property
+    def precision(self) -> float | None:
+        claims = int(self.claims.sum())
+        return None if claims == 0 else float(self.correct.sum() / claims)
+
+    @property
+    def recall(self) -> float | None:
+        revisits = int(self.true_revisit.sum())
+        return None if revisits == 0 else float(self.correct.sum() / revisits)
+
+
+def score_assignment(
+    state_of_keyframe: np.ndarray,
+    true_poses: np.ndarray,
+    *,
+    radius_m: float = 0.5,
+    heading_deg: float = 45.0,
+) -> AssignmentScore:
+    """Score a map: keyframe t claims a revisit when its state is an earlier keyframe's place.
+
+    ``state_of_keyframe`` (n,) holds state ids (first-visit keyframes; -1 where unassigned). A
+    claim is correct when the true pose at t is within ``radius_m`` and ``heading_deg`` of the
+    true pose at the state's first visit.
+    """
+    states = np.asarray(state_of_keyframe, dtype=np.int64)
+    n = len(states)
+    index = np.arange(n)
+    claims = (states >= 0) & (states < index)
+    correct = np.zeros(n, dtype=bool)
+    if claims.any():
+        t = index[claims]
+        errors = pose_error(true_poses[t], true_poses[states[claims]])
+        finite = np.isfinite(errors).all(axis=1)
+        good = (np.hypot(errors[:, 0], errors[:, 1]) <= radius_m) & (np.abs(errors[:, 2]) <= heading_deg)
+        correct[t] = finite & good
+    true_revisit = ground_truth_revisits(true_poses, radius_m, heading_deg)
+    return AssignmentScore(claims, correct, true_revisit)
 
 
 def pose_error(true_now: np.ndarray, true_then: np.ndarray) -> np.ndarray:
@@ -140,13 +250,15 @@ def evaluate(
     n = len(steps)
     counts = np.array([len(h) for _, h in steps], dtype=np.int64)
     claims = np.array([bool(h) and not h[0].is_new_state for _, h in steps], dtype=bool)
+    confidence = np.array([h[0].belief if bool(h) and not h[0].is_new_state else np.nan for _, h in steps])
+    confidence = confidence.reshape(n)
     best_error = np.full((n, 3), np.nan)
     weighted_error = np.full((n, 3), np.nan)
     correct = np.zeros(n, dtype=bool)
     has_truth = true_poses is not None and len(true_poses) == n and bool(np.isfinite(true_poses).any())
     if not has_truth:
         return Evaluation(
-            n, counts, claims, False, np.zeros(n, bool), correct, best_error, weighted_error, ()
+            n, counts, claims, False, np.zeros(n, bool), correct, best_error, weighted_error, (), confidence
         )
     assert true_poses is not None
     true_revisit = ground_truth_revisits(true_poses, radius_m, heading_deg)
@@ -176,6 +288,7 @@ def evaluate(
         best_error,
         weighted_error,
         _episodes(true_revisit, correct),
+        confidence,
     )
 
 

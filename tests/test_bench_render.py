@@ -101,7 +101,7 @@ def speed() -> dict[str, Any]:
         "stages": {
             "read_and_sync_s": 0.01,
             "decode_s": 0.05,
-            "histogram_s": 0.08,
+            "describe_s": 0.08,
             "slam_s": 0.045,
             "write_s": 0.002,
             "sha256_s": 0.021,

@@ -86,3 +86,88 @@ def test_true_runs_are_the_maximal_runs(flags):
         assert (start == 0 or not mask[start - 1]) and (stop == len(mask) or not mask[stop])
         rebuilt[start:stop] = True
     assert (rebuilt == mask).all()
+
+
+def test_pr_curve_ranks_claims_by_belief():
+    from aslam.core.metrics import precision_recall_curve
+
+    confidence = np.array([np.nan, 0.9, 0.8, 0.8, 0.3, np.nan])
+    correct = np.array([False, True, True, False, True, False])
+    curve = precision_recall_curve(confidence, correct, revisits=4)
+    assert curve.thresholds.tolist() == [0.9, 0.8, 0.3]  # the tie at 0.8 enters together
+    assert curve.precision.tolist() == [1.0, 2 / 3, 3 / 4]
+    assert curve.recall.tolist() == [0.25, 0.5, 0.75]
+    assert curve.recall_at_full_precision == 0.25
+    assert math.isclose(curve.auc, 0.25 * 1.0 + 0.25 * 2 / 3 + 0.25 * 3 / 4)
+
+
+def test_pr_curve_of_a_wrong_first_claim_and_of_no_claims():
+    from aslam.core.metrics import precision_recall_curve
+
+    curve = precision_recall_curve(np.array([0.9, 0.5]), np.array([False, True]), revisits=2)
+    assert curve.recall_at_full_precision == 0.0
+    empty = precision_recall_curve(np.full(3, np.nan), np.zeros(3, bool), revisits=2)
+    assert empty.thresholds.size == 0 and empty.recall_at_full_precision == 0.0 and empty.auc == 0.0
+    assert precision_recall_curve(np.full(3, np.nan), np.zeros(3, bool), revisits=0).auc is None
+
+
+@given(
+    st.lists(st.tuples(st.one_of(st.none(), st.floats(0.01, 1.0)), st.booleans()), min_size=1, max_size=40)
+)
+def test_pr_curve_ends_at_the_best_hypothesis_precision_and_recall(rows):
+    """The lowest threshold keeps every claim: its point is the plain precision and recall."""
+    from aslam.core.metrics import precision_recall_curve
+
+    confidence = np.array([np.nan if c is None else c for c, _ in rows])
+    correct = np.array([c is not None and ok for c, ok in rows])
+    revisits = max(1, int(correct.sum()))
+    curve = precision_recall_curve(confidence, correct, revisits)
+    claims = np.isfinite(confidence)
+    if claims.any():
+        assert math.isclose(curve.precision[-1], correct.sum() / claims.sum())
+        assert math.isclose(curve.recall[-1], correct.sum() / revisits)
+        assert np.all(np.diff(curve.recall) >= 0) and np.all(np.diff(curve.thresholds) < 0)
+        assert 0.0 <= curve.auc <= 1.0 and curve.recall_at_full_precision <= curve.recall[-1]
+
+
+def test_evaluation_keeps_the_belief_of_each_claim():
+    steps = [(t, [new(t)]) for t in range(4)]
+    steps += [(4, [claim(0, 0.9)]), (5, [claim(3, 0.4)]), (6, [claim(2, 0.7)]), (7, [new(7)])]
+    result = evaluate(steps, SQUARE)
+    assert np.isnan(result.confidence[:4]).all() and result.confidence[4] == 0.9
+    curve = result.pr_curve()
+    assert curve.recall_at_full_precision == 0.5  # 0.9 and 0.7 are right, 0.4 is wrong
+    assert curve.precision[-1] == result.precision and curve.recall[-1] == result.recall
+
+
+def test_a_map_assignment_is_scored_like_claims():
+    from aslam.core.metrics import score_assignment
+
+    assignment = np.array([0, 1, 2, 3, 0, 1, 3, 7])  # keyframe 6 names place 3 at (0, 1): wrong
+    scored = score_assignment(assignment, SQUARE)
+    assert scored.claims.tolist() == [False] * 4 + [True, True, True, False]
+    assert scored.correct.tolist() == [False] * 4 + [True, True, False, False]
+    assert scored.precision == 2 / 3 and scored.recall == 2 / 4
+
+
+def test_summary_reports_the_curve_and_the_committed_map():
+    from aslam.app.score import build_summary, summary_keys
+    from aslam.core.metrics import score_assignment
+
+    keys = summary_keys()
+    for key in (
+        "loop_closure.recall_at_full_precision",
+        "loop_closure.auc",
+        "committed.precision",
+        "committed.recall",
+        "timing.slam_ms_per_keyframe",
+    ):
+        assert key in keys
+    steps = [(t, [new(t)]) for t in range(4)]
+    steps += [(4, [claim(0, 0.9)]), (5, [claim(3, 0.4)]), (6, [claim(2, 0.7)]), (7, [new(7)])]
+    evaluation = evaluate(steps, SQUARE)
+    committed = score_assignment(np.array([0, 1, 2, 3, 0, 1, 2, 3]), SQUARE)
+    summary = build_summary(evaluation, states=4, links=4, keyframes_per_second=None, committed=committed)
+    assert summary["loop_closure"]["recall_at_full_precision"] == 0.5
+    assert summary["loop_closure"]["precision"] == 2 / 3
+    assert summary["committed"]["precision"] == 1.0 and summary["committed"]["recall"] == 1.0

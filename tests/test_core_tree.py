@@ -61,7 +61,15 @@ def run(actions, world: SyntheticWorld, config: EstimatorConfig, odometry_noise:
 
 
 def synthetic_config(**overrides) -> EstimatorConfig:
-    return EstimatorConfig(**{"histogram_bins": BINS, "cells_x": 1, "cells_y": 1, **overrides})
+    """Histogram observations of synthetic views: the χ² reference fixed (it was fitted to such views)."""
+    base = {
+        "observation_model": "histogram",
+        "new_state_reference": "fixed",
+        "histogram_bins": BINS,
+        "cells_x": 1,
+        "cells_y": 1,
+    }
+    return EstimatorConfig(**{**base, **overrides})
 
 
 def test_relocalises_at_the_start_of_the_second_lap_and_never_claims_falsely():
@@ -131,7 +139,7 @@ def test_identical_views_down_a_straight_corridor_never_revisit():
 def test_candidates_are_exactly_the_states_the_motion_model_can_reach(seed, turns, last):
     """On a chain map, the proposals equal a brute-force gate over every state."""
     config = synthetic_config()
-    tree = HypothesisTree(config, BINS)
+    tree = HypothesisTree(config)
     rng = np.random.default_rng(seed)
     view = lambda: rng.dirichlet(np.ones(BINS)).astype(np.float32)  # noqa: E731
     tree.add_keyframe(np.zeros(3), view())
@@ -157,9 +165,12 @@ def test_candidates_are_exactly_the_states_the_motion_model_can_reach(seed, turn
         uncertainty += link_weight(link.rel)
         chain.append((state, rel, uncertainty))
     place = np.diag([config.place_radius_m**2] * 2 + [math.radians(config.place_heading_deg) ** 2])
+    moved = math.hypot(action[0], action[1]) >= 0.5 or abs(action[2]) >= math.pi / 4
     for state, rel, uncertainty in chain:
         if uncertainty > config.search_sigma_m**2:
             break
+        if moved and state == leaf.state:
+            continue  # a keyframe after a step or a turn is never where the robot was
         residual, covariance = revisit_residuals(
             np.array([rel[:3]]), rel_covariance(rel)[None], action, action_cov
         )
@@ -221,3 +232,73 @@ def test_a_dense_map_is_revisited_from_new_directions_without_duplicate_places()
         estimator.add_keyframe(k, action * (1 + 0.03 * rng.standard_normal(3)), world.observe(truth))
     places = len(world.places)
     assert places <= len(estimator.result().states) <= places * 1.02
+
+
+def test_a_dense_stream_keyframes_near_the_full_step_and_turn():
+    """At video rate the slack would fire at 0.7 m and mid-turn; adaptive keyframing waits for the step."""
+    dense = Keyframer(step_m=1.0, turn_deg=90.0, slack=0.3, adaptive=True)
+    plain = Keyframer(step_m=1.0, turn_deg=90.0, slack=0.3)
+    stream = [np.array([0.1 * i, 0.0, 0.0]) for i in range(31)]
+    stream += [np.array([3.0, 0.0, math.radians(9 * i)]) for i in range(1, 11)]
+    fired_dense = [p for p in stream if dense.action_if_keyframe(p) is not None]
+    fired_plain = [p for p in stream if plain.action_if_keyframe(p) is not None]
+    assert [round(p[0], 1) for p in fired_dense[1:4]] == [1.0, 2.0, 3.0]
+    assert round(math.degrees(fired_dense[-1][2])) == 90
+    assert [round(p[0], 1) for p in fired_plain[1:4]] == [0.7, 1.4, 2.1]
+    assert round(math.degrees(fired_plain[-1][2])) in (63, 72)
+
+
+@given(st.lists(st.tuples(st.floats(0.8, 1.2), st.sampled_from([0.0, math.pi / 2])), min_size=1, max_size=30))
+def test_adaptive_keyframing_changes_nothing_at_one_pose_per_step(moves):
+    adaptive = Keyframer(step_m=1.0, turn_deg=90.0, slack=0.3, adaptive=True)
+    plain = Keyframer(step_m=1.0, turn_deg=90.0, slack=0.3)
+    pose = np.zeros(3)
+    for distance, turn in [(0.0, 0.0), *moves]:
+        pose = se2.compose(pose, np.array([distance, 0.0, 0.0]) if turn == 0 else np.array([0.0, 0.0, turn]))
+        a, b = adaptive.action_if_keyframe(pose), plain.action_if_keyframe(pose)
+        assert (a is None) == (b is None)
+
+
+def test_relocalises_after_a_kidnap_by_appearance():
+    """Carried from the middle of lap 2 to another side of the rectangle, odometry unaware."""
+    world = SyntheticWorld(3)
+    actions = rectangle_actions(2)
+    estimator = Estimator(synthetic_config())  # the default relocalisation prior
+    rng = np.random.default_rng(0)
+    truths = [np.zeros(3)]
+    results = [estimator.add_keyframe(0, np.zeros(3), world.observe(truths[0]))]
+    kidnap_at = 34 + 5
+    for i, action in enumerate(actions[: kidnap_at + 8], start=1):
+        truth = se2.compose(truths[-1], action)
+        if i == kidnap_at:
+            truth = np.array([10.0, 5.0, math.pi])  # the far corner, facing back
+        truths.append(truth)
+        measured = action * (1 + 0.03 * rng.standard_normal(3))
+        results.append(estimator.add_keyframe(i, measured, world.observe(truth)))
+    after = list(range(kidnap_at, len(results)))
+    first = next((t for t in after if not results[t].best.is_new_state), None)
+    assert first is not None and first - kidnap_at <= 3, "not relocalised within 3 keyframes"
+    for t in after:
+        best = results[t].best
+        if not best.is_new_state:  # every claim names the place truly visited on lap 1
+            here, there = truths[t], truths[best.state]
+            assert math.hypot(*(here[:2] - there[:2])) < 0.5
+            assert abs(se2.wrap_angle(here[2] - there[2])) < 0.5
+
+
+def test_without_relocalisation_a_kidnap_is_never_recovered():
+    world = SyntheticWorld(3)
+    actions = rectangle_actions(2)
+    estimator = Estimator(synthetic_config(relocalisation_prior=0.0))
+    rng = np.random.default_rng(0)
+    truth = np.zeros(3)
+    estimator.add_keyframe(0, np.zeros(3), world.observe(truth))
+    kidnap_at = 34 + 5
+    results = []
+    for i, action in enumerate(actions[: kidnap_at + 8], start=1):
+        truth = se2.compose(truth, action)
+        if i == kidnap_at:
+            truth = np.array([10.0, 5.0, math.pi])
+        measured = action * (1 + 0.03 * rng.standard_normal(3))
+        results.append(estimator.add_keyframe(i, measured, world.observe(truth)))
+    assert all(r.best.is_new_state for r in results[kidnap_at:])

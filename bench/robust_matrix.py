@@ -1,0 +1,380 @@
+"""Scenarios × seeds × estimator settings: precision, recall, recall at 100 % precision, AUC, delay.
+
+The hard cases of issue 9 that today's recorder can make (off-pose revisits with ``--jitter``,
+video-rate keyframes with ``--fps``, odometry noise, aliasing) on the paper, figure-8 and grid
+routes. Recordings are rendered once and cached (``--cache``, default /tmp/robust/rec); estimates
+are made and scored through the application layer (``aslam.app``), not the CLI.
+
+    python bench/robust_matrix.py --families jitter30 fps10 --seeds 1 2 3 --estimators default paper
+    python bench/robust_matrix.py --render-only ...     # render what is missing, score nothing
+    python bench/robust_matrix.py --set beta=2 --set observation_model=thumbnail ...
+
+Prints one row per (family, route, seed, estimator), then per-family means and worst cases; with
+``--json PATH`` writes every row too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+#: Family → recorder settings (RecordConfig fields; jitter and noise go into NoiseParams).
+FAMILIES: dict[str, dict[str, Any]] = {
+    "default": {},
+    "jitter15": {"jitter_m": 0.15, "jitter_deg": 4.0},
+    "jitter30": {"jitter_m": 0.3, "jitter_deg": 10.0},
+    "fps2": {"fps": 2.0},
+    "fps5": {"fps": 5.0},
+    "fps10": {"fps": 10.0},
+    "noise5": {"noise": 0.05},
+    "noise10": {"noise": 0.10},
+    "alias50": {"aliasing": 0.5},
+    "alias100": {"aliasing": 1.0},
+    # Derived from the default recording (see ``derive``): the recorder cannot make these yet.
+    "kidnap": {},
+    "reset": {},
+}
+DERIVED = {"kidnap", "reset"}
+
+ROUTES = ("paper", "figure8", "grid")
+
+BEFORE: dict[str, Any] = {
+    "observation_model": "histogram",
+    "new_state_reference": "fixed",
+    "new_state_coverage": 0.0,
+    "relocalisation_prior": 0.0,
+    "appearance_veto": 0.0,
+    "keyframe_adaptive": "off",
+    "place_radius_m": 0.2,
+    "place_heading_deg": 10.0,
+}
+"""The estimator defaults before issue 9 (commit 2551427), for the before/after table."""
+
+
+@dataclass(frozen=True)
+class Scenario:
+    family: str
+    route: str
+    seed: int
+
+    @property
+    def name(self) -> str:
+        return f"{self.family}-{self.route}-seed{self.seed}"
+
+    @property
+    def base(self) -> Scenario:
+        """The rendered scenario this one is made from (itself unless derived)."""
+        return Scenario("default", self.route, self.seed) if self.family in DERIVED else self
+
+    @property
+    def settings(self) -> dict[str, Any]:
+        return FAMILIES[self.family]
+
+    def record_config(self):  # -> RecordConfig
+        from aslam.recorder.config import NoiseParams, RecordConfig
+
+        settings = dict(self.settings)
+        noise_fields = {k: settings.pop(k) for k in ("noise", "jitter_m", "jitter_deg") if k in settings}
+        return RecordConfig(route=self.route, seed=self.seed, noise=NoiseParams(**noise_fields), **settings)
+
+    def command(self) -> str:
+        if self.family in DERIVED:
+            return f"{self.base.command()} then bench/robust_matrix.py derive {self.family}"
+        flags = []
+        for key, value in self.settings.items():
+            flags.append(f"--{key.replace('_', '-')} {value:g}")
+        return f"aslam record --route {self.route} --seed {self.seed} {' '.join(flags)}".strip()
+
+
+@dataclass
+class Row:
+    scenario: Scenario
+    estimator: str
+    summary: dict[str, Any] = field(default_factory=dict)
+    wall_s: float = 0.0
+    wrong_within_1m: int | None = None
+    """Wrong claims that name a place less than 1 m away: the right place, beyond the 0.5 m criterion."""
+    event_delay: int | None = None
+    """Kidnap / reset: keyframes from the event to the first correct claim (None: never, or no event)."""
+    event_wrong: int | None = None
+    """Kidnap / reset: wrong claims from the event on."""
+
+
+def recording(scenario: Scenario, cache: Path, log=print) -> Path:
+    """The cached recording of ``scenario``, rendered (or derived) now if missing."""
+    from aslam.recorder.record import record
+
+    path = cache / f"{scenario.name}.mcap"
+    if scenario.family in DERIVED and not path.exists():
+        derive(recording(scenario.base, cache, log), scenario.family, path)
+        log(f"  derived {path.name}")
+    if not path.exists():
+        cache.mkdir(parents=True, exist_ok=True)
+        start = time.perf_counter()
+        record(scenario.record_config(), path)
+        log(f"  rendered {path.name} in {time.perf_counter() - start:.0f} s ({scenario.command()})")
+    return path
+
+
+def derive(source: Path, kind: str, output: Path) -> None:
+    """A kidnap or an odometry reset made from a rendered recording (images and truth untouched).
+
+    ``kidnap``: the frames from 60 % to 80 % of the run are dropped — the robot is carried from
+    one place of its second lap to another — and odometry sees nothing (it continues from where
+    it was, then integrates the motion after the jump). ``reset``: at 70 % of the run odometry
+    restarts from zero (x = y = yaw = 0). Written with the project's recording writer.
+    """
+    from contextlib import closing
+
+    import numpy as np
+
+    from aslam.core import se2
+    from aslam.data_formats.images import EncodedImage, ImageFormat
+    from aslam.data_formats.recording import Recording
+    from aslam.data_formats.recording_writer import RecordingWriter
+
+    source_recording = Recording(source)
+    total = source_recording.image_count()
+    assert total is not None
+    jump_from, jump_to, reset_at = int(0.6 * total), int(0.8 * total), int(0.7 * total)
+    metadata = dict(source_recording.metadata())
+    camera = source_recording.camera()
+    anchor = None  # odometry pose the later poses are re-expressed from
+    previous = last = None
+    with (
+        RecordingWriter(output, camera=camera, metadata=metadata, force=True) as writer,
+        closing(source_recording.samples()) as samples,
+    ):
+        for index, sample in enumerate(samples):
+            odometry = np.asarray(sample.odometry_pose, float)
+            if kind == "kidnap":
+                if jump_from <= index < jump_to:
+                    if index == jump_from:
+                        last = previous
+                    continue
+                if index >= jump_to:
+                    if anchor is None:
+                        anchor = (last, odometry)
+                    odometry = se2.compose(anchor[0], se2.between(anchor[1], odometry))
+            elif kind == "reset" and index >= reset_at:
+                if anchor is None:
+                    anchor = odometry
+                odometry = se2.between(anchor, odometry)
+            previous = odometry
+            fmt = ImageFormat.PNG if sample.image.encoding == "png" else ImageFormat.JPEG
+            image = EncodedImage(fmt, bytes(sample.image.data))
+            writer.write(sample.stamp_ns, image, odometry, sample.ground_truth_pose)
+
+
+def estimator_config(name: str, scenario: Scenario, overrides: dict[str, Any]):  # -> EstimatorConfig
+    """``default``, ``paper`` (--paper-faithful) or ``before`` (the defaults before issue 9);
+    odometry noise is the sensor's, as in ``make bench``."""
+    from aslam.core.config import EstimatorConfig
+
+    if name == "paper":
+        base = EstimatorConfig.paper_faithful()
+    elif name == "before":
+        base = EstimatorConfig(**BEFORE)
+    else:
+        base = EstimatorConfig()
+    noise = scenario.settings.get("noise", 0.03)
+    return replace(base, odometry_noise=noise, **overrides)
+
+
+def run_one(scenario: Scenario, estimator: str, cache: Path, overrides: dict[str, Any]) -> Row:
+    import numpy as np
+
+    from aslam.app.estimate import estimate
+    from aslam.app.score import score
+
+    rec = recording(scenario, cache)
+    config = estimator_config(estimator, scenario, overrides)
+    with tempfile.TemporaryDirectory(prefix="robust-") as folder:
+        out = Path(folder) / "estimate.mcap"
+        start = time.perf_counter()
+        estimate(rec, out, config, force=True, timing=False, workers=1)
+        wall = time.perf_counter() - start
+        report = score(out, recording=rec)
+    evaluation = report.evaluation
+    wrong = evaluation.claims & ~evaluation.correct
+    distance = np.hypot(evaluation.best_error[:, 0], evaluation.best_error[:, 1])
+    near = int((wrong & (distance < 1.0)).sum()) if evaluation.has_ground_truth else None
+    row = Row(scenario, estimator, report.summary, wall, near)
+    if scenario.family in DERIVED and report.true_poses is not None:
+        event = _event_keyframe(report.actions, report.true_poses)
+        if event is not None:
+            hits = np.flatnonzero(evaluation.correct[event:])
+            row.event_delay = int(hits[0]) if hits.size else None
+            row.event_wrong = int(wrong[event:].sum())
+    return row
+
+
+def _event_keyframe(actions, true_poses) -> int | None:
+    """The first keyframe whose odometry action disagrees with the true motion by over 1 m."""
+    import numpy as np
+
+    from aslam.core import se2
+
+    for t in range(1, len(actions)):
+        true_action = se2.between(true_poses[t - 1], true_poses[t])
+        if np.hypot(*(np.asarray(actions[t][:2]) - true_action[:2])) > 1.0:
+            return t
+    return None
+
+
+def _get(summary: dict[str, Any], dotted: str) -> Any:
+    value: Any = summary
+    if dotted == "loop_closure.wrong":
+        claims, correct = _get(summary, "loop_closure.claims"), _get(summary, "loop_closure.correct")
+        return None if correct is None else claims - correct
+    for key in dotted.split("."):
+        if not isinstance(value, dict) or key not in value:
+            return None
+        value = value[key]
+    return value
+
+
+COLUMNS = [
+    ("P", "loop_closure.precision"),
+    ("R", "loop_closure.recall"),
+    ("R@P1", "loop_closure.recall_at_full_precision"),
+    ("AUC", "loop_closure.auc"),
+    ("cP", "committed.precision"),
+    ("cR", "committed.recall"),
+    ("delay", "relocalisation.first_delay_keyframes"),
+    ("mdelay", "relocalisation.mean_delay_keyframes"),
+    ("hyp", "hypotheses.max"),
+    ("wrong", "loop_closure.wrong"),
+    ("w<1m", "loop_closure.wrong_within_1m"),
+    ("evDel", "event.delay"),
+    ("evWr", "event.wrong"),
+]
+
+
+def _value(row: Row, key: str) -> Any:
+    extra = {
+        "loop_closure.wrong_within_1m": row.wrong_within_1m,
+        "event.delay": row.event_delay,
+        "event.wrong": row.event_wrong,
+    }
+    return extra[key] if key in extra else _get(row.summary, key)
+
+
+def _fmt(value: Any) -> str:
+    if value is None:
+        return "  -  "
+    if isinstance(value, float):
+        return f"{value:5.2f}"
+    return f"{value:5d}" if isinstance(value, int) else str(value)
+
+
+def print_table(rows: list[Row]) -> None:
+    header = f"{'scenario':28s} {'est':8s} " + " ".join(f"{c:>5s}" for c, _ in COLUMNS) + "  wall"
+    print(header)
+    for row in rows:
+        cells = " ".join(_fmt(_value(row, key)) for _, key in COLUMNS)
+        print(f"{row.scenario.name:28s} {row.estimator:8s} {cells} {row.wall_s:5.1f}")
+    print()
+    print("per family and estimator: mean (min) of P, R, R@P1; max mean-delay")
+    groups: dict[tuple[str, str], list[Row]] = {}
+    for row in rows:
+        groups.setdefault((row.scenario.family, row.estimator), []).append(row)
+    for (family, estimator), members in groups.items():
+        parts = []
+        for label, key in COLUMNS[:3]:
+            values = [_get(r.summary, key) for r in members]
+            values = [v for v in values if v is not None]
+            if values:
+                parts.append(f"{label} {sum(values) / len(values):.3f} ({min(values):.2f})")
+            else:
+                parts.append(f"{label} -")
+        delays = [_get(r.summary, "relocalisation.mean_delay_keyframes") for r in members]
+        delays = [d for d in delays if d is not None]
+        parts.append(f"delay≤{max(delays):.1f}" if delays else "delay -")
+        print(f"  {family:10s} {estimator:8s} n={len(members)}  " + "  ".join(parts))
+
+
+def _parse_value(text: str) -> Any:
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--families", nargs="+", default=list(FAMILIES), choices=list(FAMILIES))
+    parser.add_argument("--routes", nargs="+", default=list(ROUTES), choices=list(ROUTES))
+    parser.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3])
+    parser.add_argument(
+        "--estimators", nargs="+", default=["default"], choices=["default", "paper", "before"]
+    )
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="config override")
+    parser.add_argument("--cache", type=Path, default=Path("/tmp/robust/rec"))
+    parser.add_argument("--json", type=Path, help="write every row here")
+    parser.add_argument("--render-only", action="store_true")
+    parser.add_argument("--cached-only", action="store_true", help="skip scenarios not rendered yet")
+    args = parser.parse_args(argv)
+    overrides = {}
+    for item in args.set:
+        name, _, value = item.partition("=")
+        overrides[name] = _parse_value(value)
+    scenarios = [Scenario(f, r, s) for f in args.families for r in args.routes for s in args.seeds]
+    if args.cached_only:
+        scenarios = [s for s in scenarios if (args.cache / f"{s.base.name}.mcap").exists()]
+    rows = []
+    for scenario in scenarios:
+        if args.render_only:
+            recording(scenario, args.cache)
+            continue
+        for estimator in args.estimators:
+            row = run_one(scenario, estimator, args.cache, overrides)
+            rows.append(row)
+            print(
+                f"  {scenario.name:28s} {estimator:8s} "
+                + " ".join(f"{c}={_fmt(_value(row, k)).strip()}" for c, k in COLUMNS),
+                file=sys.stderr,
+                flush=True,
+            )
+    if rows:
+        print_table(rows)
+    if args.json is not None:
+        args.json.write_text(
+            json.dumps(
+                [
+                    {
+                        "scenario": r.scenario.name,
+                        "family": r.scenario.family,
+                        "route": r.scenario.route,
+                        "seed": r.scenario.seed,
+                        "command": r.scenario.command(),
+                        "estimator": r.estimator,
+                        "overrides": overrides,
+                        "wall_s": r.wall_s,
+                        "wrong_within_1m": r.wrong_within_1m,
+                        "event_delay_keyframes": r.event_delay,
+                        "event_wrong_claims": r.event_wrong,
+                        "summary": r.summary,
+                    }
+                    for r in rows
+                ],
+                indent=1,
+                default=lambda v: None if isinstance(v, float) and not math.isfinite(v) else v,
+            )
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
