@@ -69,7 +69,7 @@ bench-doc: $(VENV)/.bench-installed
 # through the CLI, every case checked against the error contract. Niced: the machine may be shared.
 FUZZ_CASES ?= 10000
 fuzz: $(VENV)/.dev-installed
-	nice -n 10 $(BIN)/python bench/fuzz.py $(FUZZ_CASES) --json fuzz-summary.json
+	nice -n 10 $(BIN)/python tests/fuzz.py $(FUZZ_CASES) --json fuzz-summary.json
 
 clean:
 	rm -rf $(VENV) $(DEMO) build *.egg-info .pytest_cache .ruff_cache

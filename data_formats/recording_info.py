@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from aslam.data_formats.camera import CameraIntrinsics
+from aslam.data_formats.pose_sync import Sample
 from aslam.data_formats.recording import METADATA_NAME, Recording, RecordingTopics
 
 
@@ -75,6 +76,48 @@ class RecordingInfo:
         }
 
 
+@dataclass
+class SampleStats:
+    """What ``aslam info`` counts over a stream of samples, whatever the source (every image decoded)."""
+
+    samples: int = 0
+    with_truth: int = 0
+    first: int | None = None
+    last: int | None = None
+    encodings: dict[str, int] = field(default_factory=dict)
+    sizes: dict[str, int] = field(default_factory=dict)
+    distance_m: float = 0.0
+    _previous_xy: Any = None
+
+    def add(self, sample: Sample) -> None:
+        gray = sample.image.decode_gray()
+        size = f"{gray.shape[1]}x{gray.shape[0]}"
+        self.sizes[size] = self.sizes.get(size, 0) + 1
+        self.encodings[sample.image.encoding] = self.encodings.get(sample.image.encoding, 0) + 1
+        self.first = sample.stamp_ns if self.first is None else self.first
+        self.last = sample.stamp_ns
+        self.with_truth += sample.ground_truth_pose is not None
+        xy = sample.odometry_pose[:2]
+        if self._previous_xy is not None:
+            self.distance_m += math.hypot(
+                float(xy[0] - self._previous_xy[0]), float(xy[1] - self._previous_xy[1])
+            )
+        self._previous_xy = xy
+        self.samples += 1
+
+    def fields(self) -> dict[str, Any]:
+        """The ``RecordingInfo`` fields these counts fill."""
+        return {
+            "samples": self.samples,
+            "first_stamp_ns": self.first,
+            "last_stamp_ns": self.last,
+            "image_encodings": self.encodings,
+            "image_sizes": self.sizes,
+            "samples_with_ground_truth": self.with_truth,
+            "odometry_distance_m": self.distance_m,
+        }
+
+
 def describe_recording(
     recording: Recording, topics: RecordingTopics = RecordingTopics(), *, warn: Callable[[str], None]
 ) -> RecordingInfo:
@@ -89,27 +132,10 @@ def describe_recording(
     metadata = recording.metadata()
     camera = recording.camera(topics)
 
-    samples = with_truth = 0
-    first = last = None
-    encodings: dict[str, int] = {}
-    sizes: dict[str, int] = {}
-    distance = 0.0
-    previous_xy = None
+    stats = SampleStats()
     for sample in recording.samples(topics):
-        gray = sample.image.decode_gray()
-        size = f"{gray.shape[1]}x{gray.shape[0]}"
-        sizes[size] = sizes.get(size, 0) + 1
-        encodings[sample.image.encoding] = encodings.get(sample.image.encoding, 0) + 1
-        if first is None:
-            first = sample.stamp_ns
-        last = sample.stamp_ns
-        if sample.ground_truth_pose is not None:
-            with_truth += 1
-        xy = sample.odometry_pose[:2]
-        if previous_xy is not None:
-            distance += math.hypot(float(xy[0] - previous_xy[0]), float(xy[1] - previous_xy[1]))
-        previous_xy = xy
-        samples += 1
+        stats.add(sample)
+    sizes = stats.sizes
 
     if camera is not None and sizes:
         expected = f"{camera.width_px}x{camera.height_px}"
@@ -125,13 +151,7 @@ def describe_recording(
         path=str(path),
         size_bytes=source.size,
         topics=topic_infos,
-        samples=samples,
-        first_stamp_ns=first,
-        last_stamp_ns=last,
-        image_encodings=encodings,
-        image_sizes=sizes,
-        samples_with_ground_truth=with_truth,
-        odometry_distance_m=distance,
+        **stats.fields(),
         camera=camera,
         metadata=metadata,
         truncated=source.truncation is not None,

@@ -520,7 +520,7 @@ def describe_bag(
 
     The bag's own facts (kind, storage, files, compression, the topics read) go in ``metadata``.
     """
-    from aslam.data_formats.recording_info import RecordingInfo
+    from aslam.data_formats.recording_info import RecordingInfo, SampleStats
 
     path = Path(path)
     summary = summarize_bag(path, topics)
@@ -533,27 +533,11 @@ def describe_bag(
         if on_warning is not None:
             on_warning(message)
 
-    samples = with_truth = 0
-    first = last = None
-    encodings: dict[str, int] = {}
-    sizes: dict[str, int] = {}
-    distance = 0.0
-    previous_xy = None
+    stats = SampleStats()
     for sample in iter_bag_samples(path, topics, on_warning=warn):
-        gray = sample.image.decode_gray()
-        size = f"{gray.shape[1]}x{gray.shape[0]}"
-        sizes[size] = sizes.get(size, 0) + 1
-        encodings[sample.image.encoding] = encodings.get(sample.image.encoding, 0) + 1
-        first = sample.stamp_ns if first is None else first
-        last = sample.stamp_ns
-        with_truth += sample.ground_truth_pose is not None
-        xy = sample.odometry_pose[:2]
-        if previous_xy is not None:
-            distance += math.hypot(float(xy[0] - previous_xy[0]), float(xy[1] - previous_xy[1]))
-        previous_xy = xy
-        samples += 1
+        stats.add(sample)
         if on_sample is not None:
-            on_sample(samples)
+            on_sample(stats.samples)
     resolved = summary.resolved
     assert resolved is not None
     metadata = {
@@ -570,13 +554,7 @@ def describe_bag(
         path=str(path),
         size_bytes=sum(file.stat().st_size for file in source_files(path)),
         topics=tuple(TopicInfo(t.topic, t.datatype, t.messages) for t in summary.topics),
-        samples=samples,
-        first_stamp_ns=first,
-        last_stamp_ns=last,
-        image_encodings=encodings,
-        image_sizes=sizes,
-        samples_with_ground_truth=with_truth,
-        odometry_distance_m=distance,
+        **stats.fields(),
         camera=read_bag_camera_intrinsics(path),
         metadata=metadata,
         truncated=False,

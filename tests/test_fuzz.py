@@ -1,4 +1,4 @@
-"""A few seconds of the fuzz in ``bench/fuzz.py`` on every test run (the long run: ``make fuzz``).
+"""A few seconds of the fuzz in ``tests/fuzz.py`` on every test run (the long run: ``make fuzz``).
 
 Hypothesis draws the kind of hostile input (a damaged recording, estimate file or route file, or
 hostile option values) and the random seed of its damage; each case must keep the error contract:
@@ -8,22 +8,13 @@ traceback, inputs byte-identical, and after a failure nothing under any output n
 
 from __future__ import annotations
 
-import importlib.util
 import random
 import shutil
-import sys
-from pathlib import Path
 
+import fuzz  # tests/fuzz.py: the harness `make fuzz` runs long
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-
-_FUZZ = Path(__file__).parents[1] / "bench" / "fuzz.py"
-_SPEC = importlib.util.spec_from_file_location("aslam_bench_fuzz", _FUZZ)
-assert _SPEC is not None and _SPEC.loader is not None
-fuzz = importlib.util.module_from_spec(_SPEC)
-sys.modules["aslam_bench_fuzz"] = fuzz
-_SPEC.loader.exec_module(fuzz)
 
 
 @pytest.fixture(scope="module")

@@ -1,6 +1,6 @@
 """Fuzz the command line with hostile inputs and check the error contract on every one.
 
-    python bench/fuzz.py N [--seed S] [--subprocess-every K] [--json FILE]
+    python tests/fuzz.py N [--seed S] [--subprocess-every K] [--json FILE]
 
 Four kinds of input, in turn: damaged recordings (byte flips, truncation, spliced bytes and
 hostile values in an uncompressed copy of a real small recording) through ``info`` and
