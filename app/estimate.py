@@ -182,7 +182,7 @@ def estimate(
                     keyframes=keyframes,
                 )
             embed_start = time.perf_counter()
-            embedding = embed_run(np.array(actions).reshape(-1, 3), result.states, config)
+            embedding = embed_run(np.array(actions).reshape(-1, 3), result.states, result.links, config)
             scene = None if embedding is None else metric_scene(embedding, result.keyframe_stamps_ns)
             writer.finish(result, metadata, run_timing, scene)
             embed_s = time.perf_counter() - embed_start

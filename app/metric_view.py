@@ -13,6 +13,7 @@ GTSAM and evo are imported inside the functions that need them: ``aslam --help``
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -27,7 +28,7 @@ from aslam.core.motion import MotionNoise, action_covariance
 
 if TYPE_CHECKING:
     from aslam.core.config import EstimatorConfig
-    from aslam.core.estimator import MapState
+    from aslam.core.estimator import MapLink, MapState
     from aslam.data_formats.foxglove import MetricScene
 
 OUTVOTED_SIGMA = 5.0
@@ -36,6 +37,12 @@ outvoted by the rest of the graph: reported as probably wrong, drawn red in Foxg
 
 PRIOR_SIGMA = 1e-6
 """σ (m and rad) pinning keyframe 0 at the origin: the view's frame is the odometry's start."""
+
+
+JUMP_VARIANCE = 1e4
+"""A map link with this position variance (m²) or more is no constraint (the estimator marks a
+relocalisation jump with 1e6)."""
+JUMP_SIGMA_M = 1e3
 
 
 class Kernel(StrEnum):
@@ -147,13 +154,21 @@ def check_assignment(assignment: np.ndarray) -> list[str]:
     return problems
 
 
-def embed(actions: np.ndarray, assignment: np.ndarray, options: EmbedOptions | None = None) -> Embedding:
+def embed(
+    actions: np.ndarray,
+    assignment: np.ndarray,
+    options: EmbedOptions | None = None,
+    jumps: np.ndarray | None = None,
+) -> Embedding:
     """Optimise the best hypothesis's keyframes as a pose graph (Levenberg–Marquardt, GTSAM).
 
     ``actions`` (n, 3) are the keyframe-to-keyframe odometry actions (the first is the start's and
     ignored); ``assignment`` (n,) the state of each keyframe, where a state is the keyframe of its
     first visit, so keyframe k with ``assignment[k] != k`` revisits the place of keyframe
-    ``assignment[k]``. The result is in the frame of keyframe 0. ValueError on inconsistent input.
+    ``assignment[k]``. ``jumps`` (n,) marks the actions that are no constraint: the robot was
+    carried, or odometry restarted, and the estimator relocalised (its link has a huge covariance);
+    those factors get a σ of ``JUMP_SIGMA_M`` so the closures place what follows. The result is in
+    the frame of keyframe 0. ValueError on inconsistent input.
     """
     import gtsam
 
@@ -182,6 +197,8 @@ def embed(actions: np.ndarray, assignment: np.ndarray, options: EmbedOptions | N
         initial.insert(k, gtsam.Pose2(*odometry[k]))
         if k:
             covariance = action_covariance(actions[k], options.noise)
+            if jumps is not None and jumps[k]:
+                covariance = np.diag([JUMP_SIGMA_M**2, JUMP_SIGMA_M**2, math.pi**2])
             graph.add(
                 gtsam.BetweenFactorPose2(
                     k - 1, k, gtsam.Pose2(*actions[k]), gtsam.noiseModel.Gaussian.Covariance(covariance)
@@ -414,12 +431,23 @@ def estimator_config(config: dict[str, Any]) -> EstimatorConfig:
         raise ValueError(f"unusable estimator configuration ({err})") from err
 
 
-def embed_run(actions: np.ndarray, states: Sequence[MapState], config: EstimatorConfig) -> Embedding | None:
-    """The metric view of a run's best map (``states`` as ``Estimator.result()`` or the estimate
-    file give them), with the run's own motion noise and place tolerance; None below 2 keyframes.
+def embed_run(
+    actions: np.ndarray, states: Sequence[MapState], links: Sequence[MapLink], config: EstimatorConfig
+) -> Embedding | None:
+    """The metric view of a run's best map (``states`` and ``links`` as ``Estimator.result()`` or the
+    estimate file give them), with the run's own motion noise and place tolerance; None below 2
+    keyframes. An action whose map link the estimator marked as no constraint (a relocalisation
+    after a kidnap or an odometry reset: variance ≥ ``JUMP_VARIANCE``) is not trusted either.
     """
     actions = np.asarray(actions, dtype=float).reshape(-1, 3)
     if len(actions) < 2:
         return None
     assignment = assignment_from_states([(state.id, state.keyframes) for state in states], len(actions))
-    return embed(actions, assignment, EmbedOptions.from_config(config))
+    loose = {
+        frozenset((link.from_state, link.to_state))
+        for link in links
+        if max(link.covariance[0][0], link.covariance[1][1]) >= JUMP_VARIANCE
+    }
+    pairs = [frozenset((int(a), int(b))) for a, b in itertools.pairwise(assignment)]
+    jumps = np.array([False] + [pair in loose for pair in pairs])
+    return embed(actions, assignment, EmbedOptions.from_config(config), jumps)

@@ -248,7 +248,9 @@ def score(
         true_poses = None
     action_array = np.array(actions, dtype=float).reshape(-1, 3)
     try:
-        embedding = embed_run(action_array, info.graph.states, estimator_config(info.metadata.config))
+        embedding = embed_run(
+            action_array, info.graph.states, info.graph.links, estimator_config(info.metadata.config)
+        )
     except ValueError as err:
         raise EstimateError(f"no metric view of the map ({err})", path=estimate) from err
     metric = None

@@ -235,3 +235,24 @@ def test_metric_modules_import_no_heavy_library():
         "assert not loaded, loaded\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True, capture_output=True)
+
+
+def test_a_relocalisation_jump_is_no_constraint():
+    """After a kidnap the action across the jump is wrong (odometry saw nothing): marked as a jump,
+    the closures put the second lap back on the first; trusted, the wrong action wins."""
+    lap = [np.array([x, 0.0, 0.0]) for x in range(4)]
+    lap += [np.array([3.0, y, np.pi / 2]) for y in range(1, 4)]
+    lap += [np.array([x, 3.0, np.pi]) for x in range(2, -1, -1)]
+    lap += [np.array([0.0, y, -np.pi / 2]) for y in range(2, 0, -1)]
+    truth = np.array(lap + lap)
+    actions = np.vstack([np.zeros(3), se2.between(truth[:-1], truth[1:])])
+    n = len(lap)
+    actions[n] = np.array([50.0, 0.0, 0.0])  # carried back to the start: odometry says 50 m on
+    assignment = np.concatenate([np.arange(n), np.arange(n)])
+    jumps = np.zeros(2 * n, bool)
+    jumps[n] = True
+    options = EmbedOptions(kernel=Kernel.CAUCHY)
+    marked = embed(actions, assignment, options, jumps)
+    np.testing.assert_allclose(marked.poses[n:, :2], marked.poses[:n, :2], atol=0.05)
+    trusted = embed(actions, assignment, options)
+    assert np.abs(trusted.poses[n:, :2] - trusted.poses[:n, :2]).max() > 10
