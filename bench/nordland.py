@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from seqslam import SeqSlamParams, difference_matrix, enhance_contrast, patch_normalise, sequence_search
 
 from aslam.core.config import HistogramConfig
-from aslam.core.features import chi2_distances, orientation_histogram
+from aslam.core.observation import HistogramModel, ObservationModel, ThumbnailModel
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "nordland-64x32"
 TOLERANCE = 1
@@ -68,14 +68,14 @@ def seqslam(references: np.ndarray, queries: np.ndarray, length: int) -> dict[st
     return {**scores, "seconds": time.perf_counter() - start}
 
 
-def single_image(references: np.ndarray, queries: np.ndarray, config: HistogramConfig) -> dict[str, float]:
-    """aslam's observation (gradient-orientation histogram, χ²), best match per image alone."""
+def single_image(references: np.ndarray, queries: np.ndarray, model: ObservationModel) -> dict[str, float]:
+    """One of aslam's observation models, best match per image alone (no sequence, no odometry)."""
     start = time.perf_counter()
-    stored = np.stack([orientation_histogram(image, config) for image in references])
+    stored = np.stack([model.describe(image) for image in references])
     match = np.empty(len(queries), int)
     confidence = np.empty(len(queries))
     for j, image in enumerate(queries):
-        distances = chi2_distances(orientation_histogram(image, config), stored)
+        distances = model.distances(model.describe(image), stored)
         best = int(np.argmin(distances))
         outside = np.concatenate([distances[: max(best - 10, 0)], distances[best + 11 :]])
         match[j] = best
@@ -101,8 +101,9 @@ def main() -> None:
         "tolerance_files": TOLERANCE,
         "seqslam_length_10": seqslam(summer, winter, 10),
         "seqslam_length_20": seqslam(summer, winter, 20),
-        "aslam_histogram_paper": single_image(summer, winter, HistogramConfig(bins=16, cells_x=1, cells_y=1)),
-        "aslam_histogram_cells": single_image(summer, winter, HistogramConfig(bins=16, cells_x=2, cells_y=1)),
+        "aslam_histogram_paper": single_image(summer, winter, HistogramModel(HistogramConfig(16, 1, 1))),
+        "aslam_histogram_cells": single_image(summer, winter, HistogramModel(HistogramConfig(16, 2, 1))),
+        "aslam_thumbnail": single_image(summer, winter, ThumbnailModel()),
     }
     print(json.dumps(result, indent=1))
 
