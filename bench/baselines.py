@@ -31,7 +31,7 @@ from aslam.core.config import EstimatorConfig
 from aslam.core.estimator import keyframer as make_keyframer
 from aslam.core.features import chi2_distances
 from aslam.core.metrics import Evaluation, evaluate
-from aslam.core.observation import HistogramModel
+from aslam.core.observation import HistogramModel, ObservationModel
 from aslam.core.se2 import dead_reckoning
 from aslam.core.tree import Hypothesis
 from aslam.data_formats.recording import Recording
@@ -50,15 +50,17 @@ class Keyframes:
     """(n, 3) ground truth at the keyframe stamps (NaN where unknown)."""
 
 
-def read_keyframes(recording: Path, config: EstimatorConfig | None = None) -> Keyframes:
-    """The keyframes of ``recording`` under ``config``'s keyframe test and histogram settings."""
+def read_keyframes(
+    recording: Path, config: EstimatorConfig | None = None, *, model: ObservationModel | None = None
+) -> Keyframes:
+    """The keyframes of ``recording`` under ``config``'s keyframe test, described by ``model``
+    (default: the gradient-orientation histogram of ``config``'s settings, the baselines' own)."""
     config = config or EstimatorConfig()
+    model = model if model is not None else HistogramModel(config.histogram)
     keyframer = make_keyframer(config)
     stamps, actions, histograms = [], [], []
     with closing(
-        keyframe_histograms(
-            Recording(recording).samples(), keyframer.action_if_keyframe, HistogramModel(config.histogram)
-        )
+        keyframe_histograms(Recording(recording).samples(), keyframer.action_if_keyframe, model)
     ) as keyframes:
         for keyframe in keyframes:
             stamps.append(keyframe.stamp_ns)

@@ -48,9 +48,11 @@ def slam_profile(recording: Path) -> dict[str, float]:
     import cProfile
     import pstats
 
+    from aslam.core.config import EstimatorConfig
     from aslam.core.estimator import Estimator
+    from aslam.core.observation import observation_model
 
-    keyframes = baselines.read_keyframes(recording)
+    keyframes = baselines.read_keyframes(recording, model=observation_model(EstimatorConfig()))
     profiler = cProfile.Profile()
     estimator = Estimator()
     profiler.enable()

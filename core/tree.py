@@ -144,7 +144,7 @@ class HypothesisTree:
         )
         self._log_revisit = math.log(config.revisit_prior)
         self._log_relocalise = (
-            math.log(config.revisit_prior * config.relocalisation_prior)
+            math.log(config.revisit_prior) + math.log(config.relocalisation_prior)  # no underflow
             if config.relocalisation_prior > 0
             else -math.inf
         )
