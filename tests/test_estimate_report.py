@@ -238,7 +238,7 @@ def test_bad_option_values_are_one_line_exit_2(recording: Path, tmp_path: Path, 
         ("step_m = 1\n", "step_m"),
         ("[estimator\nstep_m = 1\n", "not valid TOML"),
         ('[estimator]\nstep_m = "far"\n', "step_m must be a number"),
-        ("[estimator]\nstep_m = -1.0\nbeta = 0\n", "beta must be a number in (0, 50]"),
+        ("[estimator]\nstep_m = -1.0\nbeta = 0\n", "beta must be a number in [0.001, 50]"),
     ],
 )
 def test_bad_config_files_are_one_line_exit_2(recording: Path, tmp_path: Path, capsys, text, needle):

@@ -232,7 +232,7 @@ def test_sweep_file_problems_are_one_line_exit_2_naming_the_file(tmp_path, capsy
 @pytest.mark.parametrize(
     ("text", "needle"),
     [
-        ("[grid]\nbeta = [-1.0, 3.0]\n", "beta must be a number in (0, 50], got -1.0"),
+        ("[grid]\nbeta = [-1.0, 3.0]\n", "beta must be a number in [0.001, 50], got -1.0"),
         ("[grid]\ncandidate_search = ['graph', 'sideways']\n", "candidate_search must be 'graph' or 'path'"),
         ("[score]\nradius_m = 0\n[[render]]\nseeds = 1\n", "score.radius_m must be positive"),
         ("[grid]\nbeta = 3.0\n", "no recordings"),
@@ -371,7 +371,7 @@ def test_several_grids_run_in_turn_and_every_row_shows_the_effective_values(tmp_
     ]
     bad = tmp_path / "bad.toml"
     bad.write_text("[[render]]\n[[grid]]\nbeta = 1.0\n[[grid]]\nbeta = -1.0\n")
-    with pytest.raises(ConfigError, match="grid #2: beta must be a number in \\(0, 50\\]"):
+    with pytest.raises(ConfigError, match=r"grid #2: beta must be a number in \[0\.001, 50\]"):
         read_sweep_file(bad)
 
 
