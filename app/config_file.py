@@ -29,19 +29,24 @@ def estimator_options_markdown() -> str:
     return "\n".join(rows) + "\n"
 
 
-def read_config_file(path: Path) -> dict[str, Any]:
-    """The ``[estimator]`` table of a TOML file, checked: every unknown key and wrong type at once."""
+def read_toml(path: Path, *, what: str) -> dict[str, Any]:
+    """The TOML document at ``path``; ConfigError naming the file on any read or parse problem."""
     try:
-        with path.open("rb") as f:
-            document = tomllib.load(f)
+        with Path(path).open("rb") as f:
+            return tomllib.load(f)
     except FileNotFoundError as err:
         raise ConfigError("no such file", path=path) from err
     except IsADirectoryError as err:
-        raise ConfigError("is a directory, not a TOML file", path=path) from err
+        raise ConfigError(f"is a directory, not {what}", path=path) from err
     except OSError as err:
         raise ConfigError(f"cannot read: {err.strerror or err}", path=path) from err
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
         raise ConfigError(f"not valid TOML ({err})", path=path) from err
+
+
+def read_config_file(path: Path) -> dict[str, Any]:
+    """The ``[estimator]`` table of a TOML file, checked: every unknown key and wrong type at once."""
+    document = read_toml(path, what="a TOML file")
     unknown = [key for key in document if key != CONFIG_TABLE]
     table = document.get(CONFIG_TABLE, {})
     if not isinstance(table, dict):

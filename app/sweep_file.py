@@ -11,12 +11,12 @@ from __future__ import annotations
 import glob
 import itertools
 import re
-import tomllib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from aslam.app.config_file import read_toml
 from aslam.core.config import EstimatorConfig
 from aslam.core.errors import ConfigError
 from aslam.recorder.config import CameraSpec, NoiseParams, RecordConfig, parse_size
@@ -113,17 +113,7 @@ def _type_problem(where: str, value: Any, kind: type) -> str | None:
 def read_sweep_file(path: Path) -> Sweep:
     """Read and check ``path``; :class:`ConfigError` (exit 2) listing every problem at once."""
     path = Path(path)
-    try:
-        with path.open("rb") as f:
-            document = tomllib.load(f)
-    except FileNotFoundError as err:
-        raise ConfigError("no such sweep file", path=path) from err
-    except IsADirectoryError as err:
-        raise ConfigError("is a directory, not a sweep file", path=path) from err
-    except OSError as err:
-        raise ConfigError(f"cannot read: {err.strerror or err}", path=path) from err
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
-        raise ConfigError(f"not valid TOML ({err})", path=path) from err
+    document = read_toml(path, what="a sweep file")
     problems: list[str] = []
     base = path.absolute().parent
     problems += [

@@ -10,9 +10,13 @@ import math
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
+import pytest
 from mcap_ros2.writer import Writer as Ros2Writer
 
+from aslam.cli.app import main
+from aslam.core import se2
 from aslam.data_formats import ros_msgs
 from aslam.data_formats.camera import CameraIntrinsics
 from aslam.data_formats.images import EncodedImage, ImageFormat, encode_image
@@ -169,3 +173,73 @@ class ForeignRecording:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+# --- the square route: a recording and its estimate, shared by several test modules ----------
+
+SIDE_STEPS = 3
+LAPS = 2
+
+
+def square_route() -> list[np.ndarray]:
+    """True poses: per side 3 one-metre steps then a 90° turn in place; twice round."""
+    poses = [np.zeros(3)]
+    for _ in range(LAPS):
+        for _side in range(4):
+            for _ in range(SIDE_STEPS):
+                x, y, yaw = poses[-1]
+                poses.append(np.array([x + math.cos(yaw), y + math.sin(yaw), yaw]))
+            x, y, yaw = poses[-1]
+            poses.append(
+                np.array([x, y, math.atan2(math.sin(yaw + math.pi / 2), math.cos(yaw + math.pi / 2))])
+            )
+    return poses
+
+
+def square_view(pose: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A 64×48 image that depends on the place and heading (plus a little noise per visit)."""
+    key = (round(pose[0]), round(pose[1]), round(math.degrees(pose[2]) / 90) % 4)
+    place = np.random.default_rng(abs(hash(key)) % (2**32))
+    image = np.full((48, 64, 3), 40, np.uint8)
+    for _ in range(12):
+        p1 = tuple(int(v) for v in place.integers(0, 64, 2))
+        p2 = tuple(int(v) for v in place.integers(0, 64, 2))
+        colour = tuple(int(v) for v in place.integers(60, 255, 3))
+        if place.random() < 0.5:
+            cv2.line(image, p1, p2, colour, int(place.integers(1, 4)))
+        else:
+            cv2.rectangle(image, p1, p2, colour, -1)
+    noise = rng.normal(0, 3, image.shape)
+    return np.clip(image + noise, 0, 255).astype(np.uint8)
+
+
+def write_square_recording(path: Path) -> None:
+    """A small recording of the square route with views that depend on the place (64×48 PNG)."""
+    rng = np.random.default_rng(7)
+    camera = CameraIntrinsics(64, 48, 60.0)
+    odometry = np.zeros(3)
+    previous = None
+    with RecordingWriter(path, camera=camera, metadata={"world": "test", "route": "square"}) as writer:
+        for i, truth in enumerate(square_route()):
+            if previous is not None:
+                step = se2.between(previous, truth)
+                noisy = step * (1 + rng.normal(0, 0.01, 3))
+                odometry = se2.compose(odometry, noisy)
+            previous = truth
+            stamp_ns = 1_000_000_000 * (i + 1)
+            image = encode_image(square_view(truth, rng))
+            writer.write(stamp_ns, image, odometry, truth)
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("rec") / "square.mcap"
+    write_square_recording(path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def estimate_file(recording: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("est") / "estimate.mcap"
+    assert main(["estimate", str(recording), "-o", str(out)]) == 0
+    return out

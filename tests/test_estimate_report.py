@@ -7,19 +7,15 @@ place and heading) along a 3 m × 3 m square driven twice, so it needs no render
 from __future__ import annotations
 
 import json
-import math
 import os
 from pathlib import Path
 
-import cv2
-import numpy as np
 import pytest
-from conftest import one_error_line
+from conftest import one_error_line, square_route
 from mcap.reader import make_reader
 
 from aslam.cli.app import main
 from aslam.core.estimator import Estimator, MapLink, MapState
-from aslam.data_formats.camera import CameraIntrinsics
 from aslam.data_formats.estimate import (
     ESTIMATE_METADATA,
     GRAPH_TOPIC,
@@ -28,77 +24,6 @@ from aslam.data_formats.estimate import (
     iter_keyframes,
     read_estimate,
 )
-from aslam.data_formats.images import encode_image
-from aslam.data_formats.recording_writer import RecordingWriter
-
-SIDE_STEPS = 3
-LAPS = 2
-
-
-def _route() -> list[np.ndarray]:
-    """True poses: per side 3 one-metre steps then a 90° turn in place; twice round."""
-    poses = [np.zeros(3)]
-    for _ in range(LAPS):
-        for _side in range(4):
-            for _ in range(SIDE_STEPS):
-                x, y, yaw = poses[-1]
-                poses.append(np.array([x + math.cos(yaw), y + math.sin(yaw), yaw]))
-            x, y, yaw = poses[-1]
-            poses.append(
-                np.array([x, y, math.atan2(math.sin(yaw + math.pi / 2), math.cos(yaw + math.pi / 2))])
-            )
-    return poses
-
-
-def _view(pose: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """A 64×48 image that depends on the place and heading (plus a little noise per visit)."""
-    key = (round(pose[0]), round(pose[1]), round(math.degrees(pose[2]) / 90) % 4)
-    place = np.random.default_rng(abs(hash(key)) % (2**32))
-    image = np.full((48, 64, 3), 40, np.uint8)
-    for _ in range(12):
-        p1 = tuple(int(v) for v in place.integers(0, 64, 2))
-        p2 = tuple(int(v) for v in place.integers(0, 64, 2))
-        colour = tuple(int(v) for v in place.integers(60, 255, 3))
-        if place.random() < 0.5:
-            cv2.line(image, p1, p2, colour, int(place.integers(1, 4)))
-        else:
-            cv2.rectangle(image, p1, p2, colour, -1)
-    noise = rng.normal(0, 3, image.shape)
-    return np.clip(image + noise, 0, 255).astype(np.uint8)
-
-
-def write_recording(path: Path, *, with_truth: bool = True) -> None:
-    rng = np.random.default_rng(7)
-    camera = CameraIntrinsics(64, 48, 60.0)
-    odometry = np.zeros(3)
-    previous = None
-    with RecordingWriter(path, camera=camera, metadata={"world": "test", "route": "square"}) as writer:
-        for i, truth in enumerate(_route()):
-            if previous is not None:
-                from aslam.core import se2
-
-                step = se2.between(previous, truth)
-                noisy = step * (1 + rng.normal(0, 0.01, 3))
-                odometry = se2.compose(odometry, noisy)
-            previous = truth
-            stamp_ns = 1_000_000_000 * (i + 1)
-            image = encode_image(_view(truth, rng))
-            writer.write(stamp_ns, image, odometry, truth if with_truth else None)
-
-
-@pytest.fixture(scope="module")
-def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    path = tmp_path_factory.mktemp("rec") / "square.mcap"
-    write_recording(path)
-    return path
-
-
-@pytest.fixture(scope="module")
-def estimate_file(recording: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("est") / "estimate.mcap"
-    assert main(["estimate", str(recording), "-o", str(out)]) == 0
-    return out
-
 
 # --- estimate ------------------------------------------------------------------------------------
 
@@ -134,7 +59,7 @@ def test_estimate_file_decodes_with_mcaps_own_reader(estimate_file: Path, record
     assert json.loads(meta["config"])["step_m"] == 1.0
     assert json.loads(meta["topics"])["image"] == "/camera/image/compressed"
     assert float(metadata[TIMING_METADATA]["keyframes_per_second"]) > 0
-    assert len(keyframes) == len(_route())  # every route pose is a keyframe (1 m or 90°)
+    assert len(keyframes) == len(square_route())  # every route pose is a keyframe (1 m or 90°)
     assert [k["index"] for k in keyframes] == list(range(len(keyframes)))
     first = keyframes[0]
     assert set(first) == {"index", "stamp_ns", "action", "hypotheses"}
@@ -298,7 +223,7 @@ def test_report_outputs(estimate_file: Path, tmp_path: Path, capsys):
     assert "keyframes" in out and "Revisit errors" in out
     summary = json.loads(summary_path.read_text())
     _check_summary(summary)
-    assert summary["keyframes"] == len(_route())
+    assert summary["keyframes"] == len(square_route())
     assert summary["ground_truth"] is True
     assert isinstance(summary["loop_closure"]["ground_truth_revisits"], int)
     assert summary["loop_closure"]["ground_truth_revisits"] > 0
@@ -322,7 +247,7 @@ def test_report_json_to_stdout_keeps_stdout_pure(estimate_file: Path, capsys):
 
 
 def test_fail_on_both_ways(estimate_file: Path, capsys):
-    n = len(_route())
+    n = len(square_route())
     assert main(["report", str(estimate_file), "--fail-on", f"keyframes<{n}", "--fail-on", "states<1"]) == 0
     capsys.readouterr()
     code = main(["report", str(estimate_file), "--fail-on", f"keyframes>={n}", "--fail-on", "links<1"])

@@ -24,7 +24,6 @@ from typing import Any
 import numpy as np
 import pytest
 from conftest import FRAME_NS, T0_NS, ForeignRecording, write_with_corrupt_image
-from test_estimate_report import write_recording
 
 from aslam.cli.app import main
 from aslam.data_formats import ros_msgs
@@ -47,20 +46,6 @@ def one_error_line(capsys, *needles: str) -> str:
     for needle in needles:
         assert needle in lines[0], lines[0]
     return lines[0]
-
-
-@pytest.fixture(scope="module")
-def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    path = tmp_path_factory.mktemp("rec") / "square.mcap"
-    write_recording(path)
-    return path
-
-
-@pytest.fixture(scope="module")
-def estimate_file(recording: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("est") / "estimate.mcap"
-    assert main(["estimate", str(recording), "-o", str(out), "-q"]) == 0
-    return out
 
 
 # --- outputs never overwrite inputs ------------------------------------------------------------
