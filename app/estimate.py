@@ -122,8 +122,8 @@ def estimate(
     ``timing=False`` the same inputs give a byte-identical file.
     ``reader_process=False`` reads in this process (see :func:`aslam.app.pipeline.run_estimate`).
     """
-    if workers < 1:
-        raise InputError(f"--workers must be at least 1, got {workers}")
+    if workers < 0:
+        raise InputError(f"--workers must be at least 0, got {workers}")
     recording = Path(recording).absolute()
     output = Path(output).absolute()
     check_output_path(output, force=force, error=EstimateError, inputs=[recording, *source_files(recording)])

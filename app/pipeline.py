@@ -25,7 +25,7 @@ from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -72,17 +72,23 @@ def keyframe_histograms(
 
     ``keyframe_action(odometry_pose)`` is the keyframe test (the action, or None). At most ``depth``
     images are decoded or waiting at once. Stopping early (an exception, KeyboardInterrupt, the
-    consumer closing the generator) cancels the queued work and joins the pool.
+    consumer closing the generator) cancels the queued work and joins the pool. ``workers=0``
+    computes each histogram in the calling thread: a sweep runs one task per core, and a second
+    thread per task there only adds hand-offs.
     """
     counts = counts if counts is not None else PipelineCounts()
     pending: deque[tuple[int, np.ndarray, np.ndarray | None, Future[np.ndarray]]] = deque()
-    pool = ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="aslam-histogram")
+    pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="aslam-histogram") if workers else None
     try:
         for sample in samples:
             counts.samples += 1
             action = keyframe_action(sample.odometry_pose)
             if action is not None:
-                future = pool.submit(_histogram, sample.image, histogram)
+                future = (
+                    pool.submit(_histogram, sample.image, histogram)
+                    if pool is not None
+                    else _computed(_histogram, sample.image, histogram)
+                )
                 pending.append((sample.stamp_ns, action, sample.ground_truth_pose, future))
                 if len(pending) >= depth:
                     yield _take(pending)
@@ -96,7 +102,18 @@ def keyframe_histograms(
     finally:
         for *_, future in pending:
             future.cancel()
-        pool.shutdown(wait=True, cancel_futures=True)
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _computed(function: Callable[..., np.ndarray], *args: Any) -> Future[np.ndarray]:
+    """``function(*args)`` run now, as a finished future (an error is raised where the pool's is)."""
+    future: Future[np.ndarray] = Future()
+    try:
+        future.set_result(function(*args))
+    except Exception as err:
+        future.set_exception(err)
+    return future
 
 
 def _take(pending: deque[tuple[int, np.ndarray, np.ndarray | None, Future[np.ndarray]]]) -> Keyframe:

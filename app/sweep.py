@@ -43,7 +43,18 @@ HASHES_FILE = "hashes.json"
 ESTIMATES_FOLDER = "estimates"
 RENDERS_FOLDER = "recordings"
 #: The Dask setting through which the nanny gives worker processes ``MALLOC_TRIM_THRESHOLD_``.
-NANNY_MALLOC_TRIM = "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_"
+LOCAL_CLUSTER_SETTINGS = {
+    # None: the variable is not set (Dask's convention); see open_client.
+    "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+    # The statistical profiler samples each task's stack every 10 ms for a dashboard nobody looks at
+    # here (measured: 12 % of CPU).
+    "distributed.worker.profile.enabled": False,
+    # Housekeeping for dashboards and event-loop diagnostics, at a second instead of every 20-500 ms:
+    # idle, the scheduler and two workers took a third of a core; 20 sweep tasks ran 10-15 % faster.
+    "distributed.admin.tick.interval": "1s",
+    "distributed.admin.system-monitor.interval": "5s",
+    "distributed.worker.memory.monitor-interval": "1s",
+}
 #: Columns of every row besides the parameters (``param.NAME``) and the figures (summary keys).
 TIMING_COLUMNS = ("estimate_wall_s", "keyframes_per_second", "task_cpu_s")
 #: Columns that legitimately differ between two runs of the same sweep.
@@ -248,9 +259,9 @@ def render_task(config: RecordConfig, path: Path, force: bool) -> Rendered:
 def run_task(task: Task, rendered: Rendered | None = None) -> TaskResult:
     """Estimate and score one task, in this process; every failure becomes the result's error.
 
-    The pipeline reads in this process (``reader_process=False``, one histogram thread): a Dask
-    worker process is daemonic and may not fork a reader, and one task per core is the sweep's
-    parallelism.
+    The pipeline runs in this thread (``reader_process=False``, ``workers=0``): a Dask worker
+    process is daemonic and may not fork a reader, and one task per core is the sweep's parallelism
+    (a histogram thread per task would only add hand-offs between two busy cores).
     """
     from aslam.app.estimate import estimate
     from aslam.app.score import leaves, score
@@ -271,7 +282,7 @@ def run_task(task: Task, rendered: Rendered | None = None) -> TaskResult:
             task.estimate_path,
             task.config,
             force=True,
-            workers=1,
+            workers=0,
             reader_process=False,
             on_warning=warnings.append,
         )
@@ -379,9 +390,7 @@ def open_client(*, workers: int | None, scheduler: str | None) -> Any:
     )
     if count < 1:
         raise InputError(f"--workers must be at least 1, got {count}")
-    # None: the variable is not set (Dask's convention). No statistical profiler either: it samples
-    # the task's stack every 10 ms for a dashboard nobody looks at here (measured: 12 % of CPU).
-    with dask.config.set({NANNY_MALLOC_TRIM: None, "distributed.worker.profile.enabled": False}):
+    with dask.config.set(LOCAL_CLUSTER_SETTINGS):
         cluster = LocalCluster(
             n_workers=count,
             threads_per_worker=1,

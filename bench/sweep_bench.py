@@ -1,29 +1,26 @@
-"""`aslam sweep` on a local cluster against the same tasks run serially, in one process.
+"""`aslam sweep` on a local cluster against the same tasks run one after another.
 
 20 tasks: 2 rendered recordings (paper route, 2 laps, 320×240, seeds 0 and 1; cached in
 bench/.cache/sweep/) × 10 parameter sets (beta 2..4 × cells_x 1, 2). Each task is an estimate and
 a score.
 
-serial           the tasks one after another in this process, calling ``estimate`` (with its
-                 defaults: a forked reader process and two histogram threads, as ``aslam estimate``
-                 runs) then ``score``;
-serial_inproc    the same with the task's own settings (reader in-process, one histogram thread):
-                 what one sweep task costs on one core;
-sweep            ``run_sweep`` on a LocalCluster of N worker processes started beforehand (the
-                 tasks' time: submit to last result);
-sweep_cold       ``run_sweep`` starting and stopping its own LocalCluster, once (the whole command).
+one_core    the tasks one after another in a fresh process with no Dask in it, one thread each
+            (reader and histograms in the calling thread, as a sweep task runs): "one thing after
+            another on one core", the baseline the target is set against;
+serial      the same loop with ``estimate``'s defaults, as ``aslam estimate`` runs: a forked reader
+            process and two histogram threads, so it already uses ~1.35 cores;
+sweep       ``run_sweep`` on a LocalCluster of N worker processes started beforehand, the task
+            modules imported on each (the tasks' time: plan, submit, last result, tables);
+sweep_cold  ``run_sweep`` starting and stopping its own LocalCluster, once (the whole command).
 
-CPU seconds are reported too (serial: this process and its reader children; sweep: the workers'
-CPU during their tasks): on a machine shared with other work, wall-clock ratios say as much about
-the others' load as about the sweep (with Linux's autogroup scheduling, one session's processes
-share one session's CPU share, so two worker processes there need not get twice the CPU of one),
-while CPU per task shows the sweep's own overhead.
+The serial loops run in their own process, after their imports, while no cluster runs: Dask's
+scheduler and idle workers would otherwise take CPU from them. Runs alternate (one_core, serial,
+sweep, ...) so that other load on a shared machine falls on each alike; ratios are per repeat
+(median, min, max). CPU seconds are reported too (serial: the process and its reader children;
+sweep: the workers' CPU during their tasks): on a shared machine wall-clock ratios say as much
+about the neighbours' load as about the sweep. The figures of every run are checked to be equal.
 
-Runs alternate (serial, serial_inproc, sweep, ...) so that other load on a shared machine falls on
-each alike; the ratios are reported per repeat (median, min, max). Target: serial / sweep ≥ 1.7
-with 2 workers on 2 cores. The figures of every sweep run are checked against the serial ones.
-
-    python bench/sweep_bench.py [--workers 2] [--repeats 3]     # prints JSON on stdout
+    python bench/sweep_bench.py [--workers 2] [--repeats 5]     # prints JSON on stdout
 """
 
 from __future__ import annotations
@@ -32,6 +29,7 @@ import argparse
 import json
 import resource
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -78,8 +76,10 @@ def _cpu_s() -> float:
     return time.process_time() + children.ru_utime + children.ru_stime
 
 
-def run_serial(tasks, folder: Path, *, task_settings: bool) -> tuple[float, float, list[dict]]:
-    options = {"workers": 1, "reader_process": False} if task_settings else {}
+def serial_loop(mode: str, folder: Path) -> dict:
+    """The tasks one after another in this process (run as ``--serial MODE``, a process of its own)."""
+    options = {"workers": 0, "reader_process": False} if mode == "one_core" else {}
+    tasks = plan_tasks(read_sweep_file(CACHE / "sweep.toml"), folder / "plan")
     figures = []
     start, cpu_start = time.perf_counter(), _cpu_s()
     for task in tasks:
@@ -87,20 +87,45 @@ def run_serial(tasks, folder: Path, *, task_settings: bool) -> tuple[float, floa
         estimate(task.source.path, output, task.config, force=True, **options)
         report = score(output, recording=task.source.path)
         figures.append(_figures(report.summary))
-    return time.perf_counter() - start, _cpu_s() - cpu_start, figures
+    return {"seconds": time.perf_counter() - start, "cpu_s": _cpu_s() - cpu_start, "figures": figures}
 
 
-def run_parallel(sweep, folder: Path, client) -> tuple[float, float, list[dict]]:
-    """Wall seconds, the workers' CPU seconds spent in the tasks, and the figures."""
-    start = time.perf_counter()
-    run = run_sweep(sweep, folder, client=client, force=True)
-    seconds = time.perf_counter() - start
-    cpu = sum(r.task_cpu_s or 0.0 for r in run.results)
-    return (
-        seconds,
-        cpu,
-        [{k: v for k, v in r.summary.items() if not k.startswith("timing.")} for r in run.results],
+def run_serial(mode: str, folder: Path) -> tuple[float, float, list[dict]]:
+    folder.mkdir()
+    done = subprocess.run(
+        [sys.executable, __file__, "--serial", mode, "--folder", str(folder)],
+        check=True,
+        capture_output=True,
+        text=True,
     )
+    result = json.loads(done.stdout)
+    return result["seconds"], result["cpu_s"], result["figures"]
+
+
+def _import_task_modules() -> None:
+    """What a worker imports for its first task, done before the clock starts (as in the serial loops)."""
+    import aslam.app.estimate
+    import aslam.app.score  # noqa: F401
+
+
+def run_parallel(sweep, folder: Path, workers: int) -> tuple[float, float, list[dict]]:
+    """Wall seconds, the workers' CPU seconds spent in the tasks, and the figures."""
+    client = open_client(workers=workers, scheduler=None)
+    try:
+        client.wait_for_workers(workers)
+        client.run(_import_task_modules)
+        start = time.perf_counter()
+        run = run_sweep(sweep, folder, client=client, force=True)
+        seconds = time.perf_counter() - start
+    finally:
+        client.close()
+        client.cluster.close()
+    cpu = sum(r.task_cpu_s or 0.0 for r in run.results)
+    return seconds, cpu, [_sweep_figures(r) for r in run.results]
+
+
+def _sweep_figures(result) -> dict:
+    return {k: v for k, v in result.summary.items() if not k.startswith("timing.")}
 
 
 def spread(values: list[float]) -> dict[str, float]:
@@ -112,60 +137,51 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--serial", choices=("one_core", "serial"), help=argparse.SUPPRESS)
+    parser.add_argument("--folder", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.serial:
+        print(json.dumps(serial_loop(args.serial, args.folder)))
+        return
     sweep = read_sweep_file(recordings())
+    times: dict[str, list[float]] = {"one_core": [], "serial": [], "sweep": []}
+    cpu: dict[str, list[float]] = {name: [] for name in times}
+    identical = True
+    reference = None
     with tempfile.TemporaryDirectory(prefix="aslam-sweep-bench-") as tmp:
         folder = Path(tmp)
-        tasks = plan_tasks(sweep, folder / "plan")
-        times: dict[str, list[float]] = {"serial": [], "serial_inproc": [], "sweep": []}
-        cpu: dict[str, list[float]] = {name: [] for name in times}
-        identical = True
-        reference = None
-        client = open_client(workers=args.workers, scheduler=None)
-        try:
-            client.wait_for_workers(args.workers)
-            for repeat in range(args.repeats):
-                for name in times:
-                    out = folder / f"{name}-{repeat}"
-                    out.mkdir()
-                    if name == "sweep":
-                        seconds, cpu_s, figures = run_parallel(sweep, out, client)
-                    else:
-                        seconds, cpu_s, figures = run_serial(
-                            tasks, out, task_settings=name == "serial_inproc"
-                        )
-                    reference = reference or figures
-                    identical = identical and figures == reference
-                    times[name].append(seconds)
-                    cpu[name].append(cpu_s)
-                    print(f"{name} #{repeat}: {seconds:.2f} s wall, {cpu_s:.2f} s CPU", file=sys.stderr)
-        finally:
-            client.close()
-            client.cluster.close()
+        for repeat in range(args.repeats):
+            for name in times:
+                out = folder / f"{name}-{repeat}"
+                if name == "sweep":
+                    seconds, cpu_s, figures = run_parallel(sweep, out, args.workers)
+                else:
+                    seconds, cpu_s, figures = run_serial(name, out)
+                reference = reference or figures
+                identical = identical and figures == reference
+                times[name].append(seconds)
+                cpu[name].append(cpu_s)
+                print(f"{name} #{repeat}: {seconds:.2f} s wall, {cpu_s:.2f} s CPU", file=sys.stderr)
         cold_start = time.perf_counter()
         cold = run_sweep(sweep, folder / "cold", workers=args.workers, force=True)
         cold_s = time.perf_counter() - cold_start
-        identical = (
-            identical
-            and [{k: v for k, v in r.summary.items() if not k.startswith("timing.")} for r in cold.results]
-            == reference
-        )
+        identical = identical and [_sweep_figures(r) for r in cold.results] == reference
     ratios = {
         f"{name}_over_sweep": [s / p for s, p in zip(times[name], times["sweep"], strict=True)]
-        for name in ("serial", "serial_inproc")
+        for name in ("one_core", "serial")
     }
     print(
         json.dumps(
             {
-                "tasks": len(tasks),
+                "tasks": len(reference or []),
                 "workers": args.workers,
                 "repeats": args.repeats,
                 "seconds": {name: spread(values) for name, values in times.items()},
                 "cpu_seconds": {name: spread(values) for name, values in cpu.items()},
                 "sweep_cold_s": cold_s,
                 "ratio": {name: spread(values) for name, values in ratios.items()},
-                "target_serial_over_sweep": 1.7,
+                "target_one_core_over_sweep": 1.7,
                 "identical_figures": identical,
             },
             indent=2,

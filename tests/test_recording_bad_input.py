@@ -187,6 +187,19 @@ def test_bad_recording_is_one_line_exit_2(tmp_path, capfd, case):
             sample.image.decode_gray()
 
 
+@pytest.mark.parametrize("workers", [0, 1, 2])
+def test_a_corrupt_image_stops_estimate_with_its_error_and_no_output(tmp_path, workers):
+    """In the calling thread (sweep tasks) or on a pool, the decode error surfaces the same way."""
+    from aslam.app.estimate import estimate
+    from aslam.core.config import EstimatorConfig
+
+    path, output = tmp_path / "bad.mcap", tmp_path / "out.mcap"
+    corrupt_png(path)
+    with pytest.raises(RecordingError, match="corrupt PNG"):
+        estimate(path, output, EstimatorConfig(), workers=workers, reader_process=False)
+    assert list(tmp_path.iterdir()) == [path]
+
+
 def test_missing_path(tmp_path, capfd):
     assert_one_error_line(tmp_path / "nowhere.mcap", capfd, "no such file")
 
