@@ -154,7 +154,10 @@ _FIXED: dict[str, tuple[Any, Any]] = {
         ],
         False,
     ),
-    "workers": (Annotated[int, typer.Option(help="Threads decoding images and computing histograms (0: in the main thread).")], 2),
+    "workers": (
+        Annotated[int, typer.Option(help="Threads decoding images and computing histograms (0: the main thread).")],
+        2,
+    ),
     "quiet": (QuietOption, False),
     "verbose": (VerboseOption, False),
 }
