@@ -51,7 +51,8 @@ def bare_loop_seconds(p, camera) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--laps", type=int, default=4, help="laps of the paper route (4 → 137 keyframes)")
+    parser.add_argument("--route", default="paper", help="paper, or grid (a generated grid world)")
+    parser.add_argument("--laps", type=int, default=None, help="laps (default: the route's own)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--size", default="320x240")
     parser.add_argument("--json", action="store_true", help="print the figures as one JSON object")
@@ -62,7 +63,7 @@ def main() -> None:
 
     width, height = parse_size(args.size)
     config = RecordConfig(
-        route="paper", laps=args.laps, seed=0, camera=CameraSpec(width_px=width, height_px=height)
+        route=args.route, laps=args.laps, seed=0, camera=CameraSpec(width_px=width, height_px=height)
     )
     p = plan(config)
     n = len(p.truth)
@@ -75,6 +76,7 @@ def main() -> None:
             best["loop"] = min(best["loop"], result.render_seconds)
     if args.json:
         result = {
+            "route": args.route,
             "laps": args.laps,
             "keyframes": n,
             "size": f"{width}x{height}",
@@ -90,7 +92,7 @@ def main() -> None:
         }
         print(json.dumps(result))
         return
-    print(f"paper route, {args.laps} laps, {n} keyframes at {width}x{height}, best of {args.repeats}")
+    print(f"{args.route} route, {args.laps or 'default'} laps, {n} keyframes at {width}x{height}, best of {args.repeats}")
     for name, key in (("record end-to-end", "end"), ("record loop", "loop"), ("bare pyrender loop", "bare")):
         print(f"  {name:<18}: {n / best[key]:6.1f} keyframes/s  ({best[key]:.2f} s)")
     print(f"  ratio record loop / bare loop      : {best['loop'] / best['bare']:.2f}")

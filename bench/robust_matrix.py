@@ -37,6 +37,12 @@ FAMILIES: dict[str, dict[str, Any]] = {
     "noise10": {"noise": 0.10},
     "alias50": {"aliasing": 0.5},
     "alias100": {"aliasing": 1.0},
+    "wander30": {"wander_m": 0.3, "wander_deg": 5.0},
+    "lighting50": {"lighting_change": 0.5},
+    # The paper's experiment: truth accumulates the executed error, odometry reports the commands
+    # (no jitter on top, as `aslam record --noise-model paper` defaults).
+    "papernoise3": {"model": "paper", "noise": 0.03, "jitter_m": 0.0, "jitter_deg": 0.0},
+    "papernoise5": {"model": "paper", "noise": 0.05, "jitter_m": 0.0, "jitter_deg": 0.0},
     # Derived from the default recording (see ``derive``): the recorder cannot make these yet.
     "kidnap": {},
     "reset": {},
@@ -81,7 +87,8 @@ class Scenario:
         from aslam.recorder.config import NoiseParams, RecordConfig
 
         settings = dict(self.settings)
-        noise_fields = {k: settings.pop(k) for k in ("noise", "jitter_m", "jitter_deg") if k in settings}
+        noise_keys = ("noise", "jitter_m", "jitter_deg", "wander_m", "wander_deg", "model")
+        noise_fields = {k: settings.pop(k) for k in noise_keys if k in settings}
         return RecordConfig(route=self.route, seed=self.seed, noise=NoiseParams(**noise_fields), **settings)
 
     def command(self) -> str:
@@ -89,7 +96,8 @@ class Scenario:
             return f"{self.base.command()} then bench/robust_matrix.py derive {self.family}"
         flags = []
         for key, value in self.settings.items():
-            flags.append(f"--{key.replace('_', '-')} {value:g}")
+            name = "noise-model" if key == "model" else key.replace("_", "-")
+            flags.append(f"--{name} {value:g}" if isinstance(value, float) else f"--{name} {value}")
         return f"aslam record --route {self.route} --seed {self.seed} {' '.join(flags)}".strip()
 
 
@@ -188,18 +196,22 @@ def estimator_config(name: str, scenario: Scenario, overrides: dict[str, Any]): 
     return replace(base, odometry_noise=noise, **overrides)
 
 
-def run_one(scenario: Scenario, estimator: str, cache: Path, overrides: dict[str, Any]) -> Row:
+def run_one(
+    scenario: Scenario, estimator: str, cache: Path, overrides: dict[str, Any], nn_threshold: float = math.nan
+) -> Row:
     import numpy as np
 
     from aslam.app.estimate import estimate
     from aslam.app.score import score
 
     rec = recording(scenario, cache)
+    if estimator == "nn":
+        return run_nearest_neighbour(scenario, rec, nn_threshold)
     config = estimator_config(estimator, scenario, overrides)
     with tempfile.TemporaryDirectory(prefix="robust-") as folder:
         out = Path(folder) / "estimate.mcap"
         start = time.perf_counter()
-        estimate(rec, out, config, force=True, timing=False, workers=1)
+        estimate(rec, out, config, force=True, timing=False, workers=0, reader_process=False)
         wall = time.perf_counter() - start
         report = score(out, recording=rec)
     evaluation = report.evaluation
@@ -214,6 +226,50 @@ def run_one(scenario: Scenario, estimator: str, cache: Path, overrides: dict[str
             row.event_delay = int(hits[0]) if hits.size else None
             row.event_wrong = int(wrong[event:].sum())
     return row
+
+
+NN_TUNING = ("default", "paper", 1)
+"""The scenario the nearest-neighbour threshold is tuned on (best F1), then used unchanged."""
+
+
+def nn_threshold(cache: Path) -> float:
+    from baselines import read_keyframes, tune_threshold
+
+    threshold, _ = tune_threshold(read_keyframes(recording(Scenario(*NN_TUNING), cache)))
+    return threshold
+
+
+def run_nearest_neighbour(scenario: Scenario, rec: Path, threshold: float) -> Row:
+    """The nearest-neighbour baseline (``bench/baselines.py``) at ``threshold``; its PR curve ranks
+    every nearest match by χ² (the lower, the more confident)."""
+    import numpy as np
+    from baselines import nearest_neighbour, nearest_neighbours, read_keyframes
+
+    from aslam.core.metrics import precision_recall_curve
+
+    start = time.perf_counter()
+    keyframes = read_keyframes(rec)
+    matches = nearest_neighbours(keyframes.histograms)
+    evaluation = nearest_neighbour(keyframes, threshold, matches)
+    every_match = nearest_neighbour(keyframes, math.inf, matches)
+    confidence = np.where(every_match.claims, -matches[1], np.nan)
+    curve = precision_recall_curve(confidence, every_match.correct, int(every_match.true_revisit.sum()))
+    summary = {
+        "loop_closure": {
+            "precision": evaluation.precision,
+            "recall": evaluation.recall,
+            "recall_at_full_precision": curve.recall_at_full_precision,
+            "auc": curve.auc,
+            "claims": int(evaluation.claims.sum()),
+            "correct": int(evaluation.correct.sum()),
+        },
+        "relocalisation": {
+            "first_delay_keyframes": evaluation.first_delay,
+            "mean_delay_keyframes": evaluation.mean_delay,
+        },
+        "hypotheses": {"max": 1},
+    }
+    return Row(scenario, "nn", summary, time.perf_counter() - start)
 
 
 def _event_keyframe(actions, true_poses) -> int | None:
@@ -310,19 +366,116 @@ def _parse_value(text: str) -> Any:
     return text
 
 
+def run_scenario(
+    scenario: Scenario, estimators: list[str], cache: Path, overrides: dict[str, Any], threshold: float
+) -> list[Row]:
+    """Every estimator on one scenario (rendered or derived first if not cached): one task."""
+    return [run_one(scenario, estimator, cache, overrides, threshold) for estimator in estimators]
+
+
+def run_all(
+    scenarios: list[Scenario], estimators: list[str], cache: Path, overrides, threshold, workers: int
+):
+    """Rows as scenarios finish: in this process, or (``workers`` > 1) as tasks on a local Dask
+    cluster through the client ``aslam sweep`` uses."""
+    if workers <= 1:
+        for scenario in scenarios:
+            yield from run_scenario(scenario, estimators, cache, overrides, threshold)
+        return
+    import os
+
+    from distributed import as_completed
+
+    from aslam.app.sweep import open_client
+
+    bench = str(Path(__file__).resolve().parent)  # the workers import this module and baselines
+    os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [bench, os.environ.get("PYTHONPATH")]))
+    client = open_client(workers=workers, scheduler=None)
+    try:
+        futures = [
+            client.submit(run_scenario, s, estimators, cache, overrides, threshold, pure=False)
+            for s in scenarios
+        ]
+        for future in as_completed(futures):
+            yield from future.result()
+    finally:
+        client.close()
+        client.cluster.close()
+
+
+def _mean(values: list[float]) -> float | None:
+    return sum(values) / len(values) if values else None
+
+
+def family_table(rows: list[Row], estimators: list[str]) -> str:
+    """Markdown: one line per family; per estimator the worst precision, mean (worst) recall, mean
+    recall at 100 % precision, the worst mean delay and the most hypotheses, over routes × seeds."""
+    labels = {
+        "default": "defaults",
+        "paper": "--paper-faithful",
+        "nn": "nearest neighbour",
+        "before": "before #9",
+    }
+    head = "| family | runs | " + " | ".join(
+        f"{labels[e]}: P min | R mean (min) | R@100%P | delay | hyp" for e in estimators
+    )
+    lines = [head + " |", "|---|---|" + "---|" * (5 * len(estimators))]
+    families = list(dict.fromkeys(r.scenario.family for r in rows))
+    for family in families:
+        cells = []
+        runs = 0
+        for estimator in estimators:
+            members = [r for r in rows if r.scenario.family == family and r.estimator == estimator]
+            runs = max(runs, len(members))
+
+            def values(key: str, members=members) -> list[float]:
+                return [v for v in (_get(r.summary, key) for r in members) if v is not None]
+
+            precision, recall = values("loop_closure.precision"), values("loop_closure.recall")
+            at_full = values("loop_closure.recall_at_full_precision")
+            delay, hyp = values("relocalisation.mean_delay_keyframes"), values("hypotheses.max")
+            cells += [
+                f"{min(precision):.3f}" if precision else "–",
+                f"{_mean(recall):.3f} ({min(recall):.2f})" if recall else "–",
+                f"{_mean(at_full):.3f}" if at_full else "–",
+                f"{max(delay):.1f}" if delay else "–",
+                f"{max(hyp):.0f}" if hyp else "–",
+            ]
+        lines.append(f"| {family} | {runs} | " + " | ".join(cells) + " |")
+    events = [r for r in rows if r.scenario.family in DERIVED and r.estimator == "default"]
+    if events:
+        lines += [
+            "",
+            "| event (defaults) | runs | relocalised after (keyframes), max | never | wrong claims after |",
+        ]
+        lines.append("|---|---|---|---|---|")
+        for family in sorted({r.scenario.family for r in events}):
+            members = [r for r in events if r.scenario.family == family]
+            delays = [r.event_delay for r in members if r.event_delay is not None]
+            never = sum(r.event_delay is None for r in members)
+            wrong = sum(r.event_wrong or 0 for r in members)
+            worst = f"{max(delays)}" if delays else "–"
+            lines.append(f"| {family} | {len(members)} | {worst} | {never} | {wrong} |")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--families", nargs="+", default=list(FAMILIES), choices=list(FAMILIES))
     parser.add_argument("--routes", nargs="+", default=list(ROUTES), choices=list(ROUTES))
-    parser.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3])
+    parser.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3, 4, 5])
     parser.add_argument(
-        "--estimators", nargs="+", default=["default"], choices=["default", "paper", "before"]
+        "--estimators", nargs="+", default=["default"], choices=["default", "paper", "nn", "before"]
     )
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="config override")
     parser.add_argument("--cache", type=Path, default=Path("/tmp/robust/rec"))
+    parser.add_argument(
+        "--workers", type=int, default=1, help="> 1: scenarios as tasks on a local Dask cluster"
+    )
     parser.add_argument("--json", type=Path, help="write every row here")
+    parser.add_argument("--markdown", type=Path, help="write the per-family table here")
     parser.add_argument("--render-only", action="store_true")
     parser.add_argument("--cached-only", action="store_true", help="skip scenarios not rendered yet")
     args = parser.parse_args(argv)
@@ -333,22 +486,27 @@ def main(argv: list[str] | None = None) -> int:
     scenarios = [Scenario(f, r, s) for f in args.families for r in args.routes for s in args.seeds]
     if args.cached_only:
         scenarios = [s for s in scenarios if (args.cache / f"{s.base.name}.mcap").exists()]
-    rows = []
-    for scenario in scenarios:
-        if args.render_only:
+    if args.render_only:
+        for scenario in scenarios:
             recording(scenario, args.cache)
-            continue
-        for estimator in args.estimators:
-            row = run_one(scenario, estimator, args.cache, overrides)
-            rows.append(row)
-            print(
-                f"  {scenario.name:28s} {estimator:8s} "
-                + " ".join(f"{c}={_fmt(_value(row, k)).strip()}" for c, k in COLUMNS),
-                file=sys.stderr,
-                flush=True,
-            )
+        return 0
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    threshold = nn_threshold(args.cache) if "nn" in args.estimators else math.nan
+    rows = []
+    for row in run_all(scenarios, args.estimators, args.cache, overrides, threshold, args.workers):
+        rows.append(row)
+        print(
+            f"  {row.scenario.name:28s} {row.estimator:8s} "
+            + " ".join(f"{c}={_fmt(_value(row, k)).strip()}" for c, k in COLUMNS),
+            file=sys.stderr,
+            flush=True,
+        )
+    order = {(s.name, e): i for i, (s, e) in enumerate((s, e) for s in scenarios for e in args.estimators)}
+    rows.sort(key=lambda r: order[(r.scenario.name, r.estimator)])
     if rows:
         print_table(rows)
+    if args.markdown is not None:
+        args.markdown.write_text(family_table(rows, args.estimators))
     if args.json is not None:
         args.json.write_text(
             json.dumps(
