@@ -24,7 +24,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from aslam.core import se2
-from aslam.core.motion import MotionNoise, action_covariance
+from aslam.core.config import MotionNoise
+from aslam.core.motion import action_covariance
 
 if TYPE_CHECKING:
     from aslam.core.config import EstimatorConfig

@@ -92,7 +92,10 @@ def main() -> None:
         }
         print(json.dumps(result))
         return
-    print(f"{args.route} route, {args.laps or 'default'} laps, {n} keyframes at {width}x{height}, best of {args.repeats}")
+    print(
+        f"{args.route} route, {args.laps or 'default'} laps, {n} keyframes at {width}x{height},"
+        f" best of {args.repeats}"
+    )
     for name, key in (("record end-to-end", "end"), ("record loop", "loop"), ("bare pyrender loop", "bare")):
         print(f"  {name:<18}: {n / best[key]:6.1f} keyframes/s  ({best[key]:.2f} s)")
     print(f"  ratio record loop / bare loop      : {best['loop'] / best['bare']:.2f}")

@@ -5,7 +5,7 @@ own random observation — a histogram or a thumbnail-like vector, as the defaul
 each view a noisy copy): ``blocks`` drives twice round each city block and
 moves on, so the map grows for ever at constant density; ``random`` wanders a bounded grid, so
 the map saturates and its links grow denser. Prints the mean per-keyframe time of ``add_keyframe`` over
-the first and the last 1,000 keyframes and their ratio (target ≤ 1.3), measured in one run,
+the first and the last 1,000 keyframes and their ratio (target ≤ 1.2), measured in one run,
 plus peak memory.
 
     python bench/slam_scaling_bench.py --keyframes 10000

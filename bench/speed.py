@@ -114,4 +114,5 @@ def speed_benches(quick: bool) -> dict[str, Any]:
     out = estimate_benches(repeats)
     out |= scaling_benches(2_000 if quick else 10_000, 5_000 if quick else SCALING_BIG)
     out["record"] = bench_json("record_bench.py", "--repeats", repeats)
+    out["record_grid"] = bench_json("record_bench.py", "--route", "grid", "--repeats", repeats)
     return out

@@ -12,7 +12,7 @@ import typer
 
 from aslam.cli.app import app
 from aslam.cli.output import ForceOption, QuietOption, Terminal, VerboseOption
-from aslam.data_formats.pose_files import PoseFormat
+from aslam.data_formats.format_names import PoseFormat
 
 
 @app.command("import")

@@ -15,7 +15,7 @@ import typer
 from aslam.cli.app import app
 from aslam.cli.output import ForceOption, QuietOption, Terminal, VerboseOption
 from aslam.core.errors import InputError, QualityGateFailed
-from aslam.data_formats.trajectory import TrajectoryFormat
+from aslam.data_formats.format_names import TrajectoryFormat
 
 
 @app.command()

@@ -6,7 +6,21 @@ import math
 from dataclasses import dataclass, field, fields
 
 from aslam.core.errors import ConfigError
-from aslam.core.motion import MotionNoise
+
+
+@dataclass(frozen=True)
+class MotionNoise:
+    """Odometry noise proportional to distance and angle (the paper injects 3 %); the motion model
+    (:mod:`aslam.core.motion`) turns it into covariances."""
+
+    fraction: float = 0.03
+    """σ of a move's length per metre and of a turn's angle per radian."""
+    drift_rad_per_m: float = math.radians(0.5)
+    """σ of the heading drift while moving forward, per metre."""
+    floor_m: float = 0.01
+    """σ floor in position, so a zero-length action is not infinitely certain."""
+    floor_rad: float = math.radians(0.5)
+    """σ floor in heading."""
 
 
 @dataclass(frozen=True)

@@ -9,28 +9,14 @@ times faster than tiny numpy arrays there. Covariances compose with the SE(2) Ja
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
 from aslam.core import se2
+from aslam.core.config import MotionNoise
 
 Rel = tuple[float, float, float, float, float, float, float, float, float]
 IDENTITY_REL: Rel = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-
-
-@dataclass(frozen=True)
-class MotionNoise:
-    """Odometry noise proportional to distance and angle (the paper injects 3 %)."""
-
-    fraction: float = 0.03
-    """σ of a move's length per metre and of a turn's angle per radian."""
-    drift_rad_per_m: float = math.radians(0.5)
-    """σ of the heading drift while moving forward, per metre."""
-    floor_m: float = 0.01
-    """σ floor in position, so a zero-length action is not infinitely certain."""
-    floor_rad: float = math.radians(0.5)
-    """σ floor in heading."""
 
 
 def action_covariance(action: np.ndarray, noise: MotionNoise) -> np.ndarray:

@@ -20,7 +20,6 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 from decimal import Decimal, InvalidOperation
-from enum import StrEnum
 from pathlib import Path
 from typing import NamedTuple
 
@@ -28,16 +27,11 @@ import numpy as np
 
 from aslam.core.errors import InputError
 from aslam.data_formats import ros_msgs
+from aslam.data_formats.format_names import PoseFormat
 
 
 class PoseFileError(InputError):
     """A pose file that cannot be read; the message is ``PATH: line N: problem`` (exit 2)."""
-
-
-class PoseFormat(StrEnum):
-    TUM = "tum"
-    KITTI = "kitti"
-    CSV = "csv"
 
 
 _FIELDS = {PoseFormat.TUM: 8, PoseFormat.KITTI: 12, PoseFormat.CSV: 4}

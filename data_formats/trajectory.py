@@ -13,7 +13,6 @@ within a microsecond, not to the nanosecond.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from enum import StrEnum
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -21,14 +20,10 @@ import numpy as np
 
 from aslam.data_formats import files
 from aslam.data_formats.errors import TrajectoryError
+from aslam.data_formats.format_names import TrajectoryFormat
 
 PLANAR_TOLERANCE = 1e-6
 """|z| (m) and roll/pitch (rad) up to which a read pose still counts as planar."""
-
-
-class TrajectoryFormat(StrEnum):
-    TUM = "tum"
-    KITTI = "kitti"
 
 
 class TrajectoryPaths(NamedTuple):

@@ -9,8 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from aslam.core import se2
+from aslam.core.config import MotionNoise
 from aslam.core.motion import (
-    MotionNoise,
     action_covariance,
     compose_rel,
     inverse_rel,

@@ -26,7 +26,8 @@ from aslam.app.metric_view import (
 )
 from aslam.cli.app import main
 from aslam.core import se2
-from aslam.core.motion import MotionNoise, action_covariance
+from aslam.core.config import MotionNoise
+from aslam.core.motion import action_covariance
 
 NOISE = MotionNoise(fraction=0.05)
 # A 6 m × 4 m rectangle, 1 m steps, turning 90° left at the corners: 20 keyframes per lap.
