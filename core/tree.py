@@ -32,6 +32,7 @@ from aslam.core.motion import (
     to_rel,
 )
 from aslam.core.observation import ObservationModel, observation_model
+from aslam.core.place_index import PlaceIndex
 
 
 class Node:
@@ -148,11 +149,7 @@ class HypothesisTree:
             if config.relocalisation_prior > 0
             else -math.inf
         )
-        self._projection = _index_projection(observation_length)
-        self._index = GrowableArray((len(self._projection),), np.float32)
-        self._index_states = GrowableArray((), np.int64)
-        """The relocalisation index: one projected, normalised vector per committed place."""
-        """L2-normalised observations, one per keyframe: the appearance index for relocalisation."""
+        self._index = PlaceIndex(observation_length, config.relocalisation_skip)
         self._relocalised: set[int] = set()
         # statistics
         self._count_sum = 0
@@ -247,25 +244,18 @@ class HypothesisTree:
     ) -> np.ndarray:
         """Committed places that look like ``observation``, found over the whole map at bounded cost.
 
-        An index of L2-normalised float32 vectors, one per committed place (its first view
-        projected to at most ``INDEX_LENGTH`` dimensions), is searched by one matrix–vector
-        product: O(places × 32) multiply-adds, 3·10⁵ for 10⁴ places (about 0.3 ms), 3·10⁶ for 10⁵
-        (a few ms); memory 136 bytes per place. The ``relocalisation_candidates`` most similar
-        committed places
-        are then compared exactly. The best is returned if it looks more alike than the new-place
+        The index (:class:`aslam.core.place_index.PlaceIndex`) shortlists the
+        ``relocalisation_candidates`` most similar committed places in O(log places); they are then
+        compared exactly. The best is returned if it looks more alike than the new-place
         reference, clearly more alike than the runner-up, and the motion model did not propose it.
         """
-        limit = self.config.relocalisation_candidates
         if self._log_relocalise == -math.inf or not self.leaves:
             return np.zeros(0, np.int64)
-        newest = len(self.committed_state_of_keyframe) - self.config.relocalisation_skip
-        searchable = int(np.searchsorted(self._index_states.view, newest))  # places first seen before
-        if searchable <= 0:
+        top = self._index.search(
+            observation, len(self.committed_state_of_keyframe), self.config.relocalisation_candidates
+        )
+        if not len(top):
             return np.zeros(0, np.int64)
-        # einsum, not BLAS: single-threaded and summed in a fixed order (same bytes on every run).
-        similarity = np.einsum("ij,j->i", self._index.view[:searchable], self._project(observation))
-        shortlist = min(limit, searchable)
-        top = self._index_states.view[np.argpartition(-similarity, shortlist - 1)[:shortlist]]
         held = [leaf.state for leaf in self.leaves]  # already hypotheses: nothing to relocalise to
         top = top[~np.isin(top, proposed) & ~np.isin(top, held)]
         if not len(top):
@@ -284,15 +274,9 @@ class HypothesisTree:
                 return np.zeros(0, np.int64)
         return top[order[:1]].astype(np.int64)
 
-    def _project(self, observation: np.ndarray) -> np.ndarray:
-        vector = self._projection @ np.asarray(observation, dtype=np.float32)
-        norm = float(np.linalg.norm(vector))
-        return vector / norm if norm > 0 else vector
-
     def _index_place(self, state: int) -> None:
         """Add a committed place (its first view) to the relocalisation index."""
-        self._index.append(self._project(self.observations.view[state]))
-        self._index_states.append(state)
+        self._index.add(state, self.observations.view[state])
 
     def hypotheses(self) -> list[Hypothesis]:
         return [
@@ -568,22 +552,6 @@ def _recent_states(node: Node | None, count: int) -> tuple[int, ...]:
         states.append(node.state)
         node = node.parent
     return tuple(states)
-
-
-INDEX_LENGTH = 32
-"""Dimensions of the relocalisation index: observations longer than this are projected."""
-
-
-def _index_projection(length: int) -> np.ndarray:
-    """A fixed random projection (Johnson–Lindenstrauss) to ``INDEX_LENGTH`` dimensions, or the identity.
-
-    Angles between vectors are nearly kept, so the most similar places by the index are, with
-    few exceptions, the most similar by the model; the model then compares the shortlist exactly.
-    """
-    if length <= INDEX_LENGTH:
-        return np.eye(length, dtype=np.float32)
-    rng = np.random.default_rng(20261129)
-    return (rng.standard_normal((INDEX_LENGTH, length)) / math.sqrt(INDEX_LENGTH)).astype(np.float32)
 
 
 RELOCALISATION_RATIO = 0.8

@@ -1,0 +1,67 @@
+"""The relocalisation index: exact on small maps, only places old enough, deterministic."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from aslam.core.place_index import PlaceIndex
+
+
+def _views(count: int, length: int, seed: int) -> np.ndarray:
+    return np.random.default_rng(seed).standard_normal((count, length)).astype(np.float32)
+
+
+def _cosine_top(views: np.ndarray, query: np.ndarray, index: PlaceIndex, count: int) -> set[int]:
+    projected = np.array([index._project(v) for v in views])
+    similarity = projected @ index._project(query)
+    return set(np.argsort(-similarity, kind="stable")[:count].tolist())
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    places=st.integers(1, 60),
+    length=st.sampled_from([16, 32, 192]),
+    skip=st.integers(0, 15),
+    count=st.integers(1, 12),
+    seed=st.integers(0, 2**16),
+)
+def test_small_maps_give_the_exact_most_similar_old_enough_places(places, length, skip, count, seed):
+    views = _views(places, length, seed)
+    index = PlaceIndex(length, skip)
+    for state, view in enumerate(views):
+        index.add(state, view)
+    keyframes = places + 3
+    query = views[seed % places] + 0.1 * _views(1, length, seed + 1)[0]
+    found = index.search(query, keyframes, count)
+    old_enough = np.arange(places)[np.arange(places) < keyframes - skip]
+    assert set(found.tolist()) <= set(old_enough.tolist())
+    assert len(found) == min(count, len(old_enough))
+    if len(old_enough):
+        assert set(found.tolist()) == _cosine_top(views[old_enough], query, index, count)
+
+
+def test_a_place_is_searchable_only_skip_keyframes_after_it_is_seen():
+    views = _views(5, 32, 0)
+    index = PlaceIndex(32, skip=10)
+    for state, view in enumerate(views):
+        index.add(state, view)
+    assert len(index.search(views[0], keyframes=10, count=3)) == 0
+    assert index.search(views[0], keyframes=11, count=3).tolist() == [0]
+    assert set(index.search(views[4], keyframes=15, count=5).tolist()) == {0, 1, 2, 3, 4}
+
+
+def test_the_same_places_give_the_same_answers():
+    views = _views(3000, 192, 7)
+
+    def answers() -> list[list[int]]:
+        index = PlaceIndex(192, skip=0)
+        for state, view in enumerate(views):
+            index.add(state, view)
+        return [index.search(views[i] + 0.05, 3001, 12).tolist() for i in range(0, 3000, 97)]
+
+    first = answers()
+    assert first == answers()
+    hits = sum(row[0] == i for row, i in zip(first, range(0, 3000, 97), strict=True))
+    assert hits >= 0.9 * len(first)  # the approximate index finds the place itself almost always
