@@ -1,28 +1,31 @@
-"""The relocalisation index: committed places, searchable by appearance at a cost that does not grow
-with the map.
+"""The relocalisation index: committed places, searchable by appearance at a cost that stays
+bounded as the map grows.
 
-A linear scan of every place's view costs O(places) per keyframe: at 40,000 places it took 1.1 of
-the 2.7 ms a SLAM step cost. An HNSW graph (Malkov & Yashunin; faiss's ``IndexHNSWFlat``) answers
-a nearest-neighbour query in O(log places). The index holds each place's first view, projected to
-``INDEX_LENGTH`` dimensions and L2-normalised, so the inner product is the cosine similarity. It
-only shortlists: the observation model then compares the shortlist exactly, so an approximate
-answer can miss a candidate but never make a claim.
+Each place is kept as its first view, projected to ``INDEX_LENGTH`` dimensions and L2-normalised
+(so the inner product is the cosine similarity). Up to ``EXACT_LIMIT`` places a query is one exact
+matrix–vector product (≤ 0.1 ms, no start-up cost). Beyond, a scan would grow with the map — at
+40,000 places it took 1.1 of the 2.7 ms a SLAM step cost — so the index moves into an HNSW graph
+(Malkov & Yashunin; faiss's ``IndexHNSWFlat``), which answers in O(log places); faiss is imported
+only then. The index only shortlists: the observation model compares the shortlist exactly, so
+an approximate answer can miss a candidate but never make a claim.
 """
 
 from __future__ import annotations
 
 import math
 from collections import deque
+from typing import Any
 
-import faiss
 import numpy as np
 
 from aslam.core.mapgraph import GrowableArray
 
 INDEX_LENGTH = 32
 """Dimensions of the index: observations longer than this are projected."""
+EXACT_LIMIT = 4096
+"""Places up to which the index is searched exactly (the scan costs about as much as one HNSW query)."""
 NEIGHBOURS_PER_NODE = 16
-"""HNSW's M: links per place in the graph (memory ≈ 2 × M × 4 bytes per place on top of the view)."""
+"""HNSW's M: links per place in the graph (2 × M × 4 bytes per place on top of its view)."""
 SEARCH_BREADTH = 64
 """HNSW's efSearch floor: candidates kept while searching; well above the shortlist, near-exact."""
 
@@ -31,37 +34,54 @@ class PlaceIndex:
     """The places of the committed map by appearance; a place becomes searchable ``skip`` keyframes
     after it is first seen (until then the motion model covers it).
 
-    Deterministic: places are added one at a time, in state order, and HNSW's level draws come
-    from its own seeded generator.
+    Deterministic: the exact scan is single-threaded ``einsum`` (a fixed summation order); the
+    HNSW graph takes the places one at a time, in state order, and draws its levels from its own
+    seeded generator.
     """
 
-    def __init__(self, observation_length: int, skip: int) -> None:
+    def __init__(self, observation_length: int, skip: int, *, exact_limit: int = EXACT_LIMIT) -> None:
         self._projection = _projection(observation_length)
         self._skip = skip
-        self._hnsw = faiss.IndexHNSWFlat(
-            len(self._projection), NEIGHBOURS_PER_NODE, faiss.METRIC_INNER_PRODUCT
-        )
+        self._exact_limit = exact_limit
+        self._vectors = GrowableArray((len(self._projection),), np.float32)
         self._states = GrowableArray((), np.int64)
         self._waiting: deque[tuple[int, np.ndarray]] = deque()
+        self._hnsw: Any = None
 
     def __len__(self) -> int:
         return len(self._states) + len(self._waiting)
+
+    @property
+    def approximate(self) -> bool:
+        """Whether queries go to the HNSW graph (the map outgrew ``exact_limit``)."""
+        return self._hnsw is not None
 
     def add(self, state: int, observation: np.ndarray) -> None:
         """A newly committed place (states arrive in increasing order: a state is its first keyframe)."""
         self._waiting.append((state, self._project(observation)))
 
     def search(self, observation: np.ndarray, keyframes: int, count: int) -> np.ndarray:
-        """Up to ``count`` places most like ``observation`` among those first seen at least ``skip``
-        keyframes before keyframe ``keyframes``."""
+        """Up to ``count`` places most like ``observation`` (in no particular order) among those
+        first seen at least ``skip`` keyframes before keyframe ``keyframes``."""
         while self._waiting and self._waiting[0][0] < keyframes - self._skip:
             state, vector = self._waiting.popleft()
-            self._hnsw.add(vector[None, :])
+            self._vectors.append(vector)
             self._states.append(state)
-        if not len(self._states):
+            if self._hnsw is not None:
+                self._hnsw.add(vector[None, :])
+        searchable = len(self._states)
+        if not searchable:
             return np.zeros(0, np.int64)
+        count = min(count, searchable)
+        query = self._project(observation)
+        if searchable <= self._exact_limit:
+            # einsum, not BLAS: single-threaded and summed in a fixed order (same bytes on every run).
+            similarity = np.einsum("ij,j->i", self._vectors.view, query)
+            return self._states.view[np.argpartition(-similarity, count - 1)[:count]]
+        if self._hnsw is None:
+            self._hnsw = _hnsw_of(self._vectors.view)
         self._hnsw.hnsw.efSearch = max(SEARCH_BREADTH, count)
-        _, found = self._hnsw.search(self._project(observation)[None, :], min(count, len(self._states)))
+        _, found = self._hnsw.search(query[None, :], count)
         found = found[0]
         return self._states.view[found[found >= 0]]
 
@@ -69,6 +89,16 @@ class PlaceIndex:
         vector = self._projection @ np.asarray(observation, dtype=np.float32)
         norm = float(np.linalg.norm(vector))
         return (vector / norm if norm > 0 else vector).astype(np.float32)
+
+
+def _hnsw_of(vectors: np.ndarray) -> Any:
+    """An HNSW graph (inner product) holding ``vectors``, added one at a time in order."""
+    import faiss
+
+    graph = faiss.IndexHNSWFlat(vectors.shape[1], NEIGHBOURS_PER_NODE, faiss.METRIC_INNER_PRODUCT)
+    for vector in vectors:
+        graph.add(vector[None, :])
+    return graph
 
 
 def _projection(length: int) -> np.ndarray:

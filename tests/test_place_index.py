@@ -1,4 +1,5 @@
-"""The relocalisation index: exact on small maps, only places old enough, deterministic."""
+"""The relocalisation index: exact on small maps, HNSW on large ones, only places old enough,
+deterministic."""
 
 from __future__ import annotations
 
@@ -26,10 +27,14 @@ def _cosine_top(views: np.ndarray, query: np.ndarray, index: PlaceIndex, count: 
     skip=st.integers(0, 15),
     count=st.integers(1, 12),
     seed=st.integers(0, 2**16),
+    exact_limit=st.sampled_from([4096, 8]),
 )
-def test_small_maps_give_the_exact_most_similar_old_enough_places(places, length, skip, count, seed):
+def test_small_maps_give_the_exact_most_similar_old_enough_places(
+    places, length, skip, count, seed, exact_limit
+):
+    """Exact by scan, and by HNSW too while the map is small (its search breadth covers it)."""
     views = _views(places, length, seed)
-    index = PlaceIndex(length, skip)
+    index = PlaceIndex(length, skip, exact_limit=exact_limit)
     for state, view in enumerate(views):
         index.add(state, view)
     keyframes = places + 3
@@ -52,16 +57,26 @@ def test_a_place_is_searchable_only_skip_keyframes_after_it_is_seen():
     assert set(index.search(views[4], keyframes=15, count=5).tolist()) == {0, 1, 2, 3, 4}
 
 
-def test_the_same_places_give_the_same_answers():
+def test_a_large_map_moves_into_hnsw_and_answers_the_same_every_time():
     views = _views(3000, 192, 7)
+    queries = range(0, 3000, 97)
 
-    def answers() -> list[list[int]]:
-        index = PlaceIndex(192, skip=0)
+    def answers() -> tuple[list[list[int]], bool]:
+        index = PlaceIndex(192, skip=0, exact_limit=1000)
         for state, view in enumerate(views):
             index.add(state, view)
-        return [index.search(views[i] + 0.05, 3001, 12).tolist() for i in range(0, 3000, 97)]
+        found = [index.search(views[i] + 0.05, 3001, 12).tolist() for i in queries]
+        return found, index.approximate
 
-    first = answers()
-    assert first == answers()
-    hits = sum(row[0] == i for row, i in zip(first, range(0, 3000, 97), strict=True))
-    assert hits >= 0.9 * len(first)  # the approximate index finds the place itself almost always
+    first, approximate = answers()
+    assert approximate
+    assert (first, approximate) == answers()
+    exact = PlaceIndex(192, skip=0, exact_limit=10_000)
+    for state, view in enumerate(views):
+        exact.add(state, view)
+    agree = [
+        set(row) == set(exact.search(views[i] + 0.05, 3001, 12).tolist())
+        for row, i in zip(first, queries, strict=True)
+    ]
+    assert sum(agree) >= 0.9 * len(agree)  # the approximate shortlist is almost always the exact one
+    assert all(row[0] == i or i in row for row, i in zip(first, queries, strict=True))
