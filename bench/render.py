@@ -26,6 +26,8 @@ from tables import Run, agg, fmt, mean, scores, summaries
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results" / "benchmarks.json"
+ROBUST_MATRIX = "robust_matrix.md"
+"""The robust-revisit matrix's table (``bench/robust_matrix.py --markdown``), beside the results."""
 TEMPLATES = Path(__file__).resolve().parent / "templates"
 DRIFT_PLOT = "long-run-drift.png"
 
@@ -122,8 +124,9 @@ def notes(speed: dict[str, Any], search_max_states: int) -> dict[str, Any]:
     }
 
 
-def context(results: dict[str, Any], rel_img: str) -> dict[str, Any]:
-    """Every value the template shows, from the results JSON."""
+def context(results: dict[str, Any], rel_img: str, robust_matrix: str | None = None) -> dict[str, Any]:
+    """Every value the template shows, from the results JSON (and the robust-revisit matrix's
+    table, made apart by ``bench/robust_matrix.py``, when there is one)."""
     runs = results["runs"]
     by_name = {
         name: [runs[n] for n in names] for name, names in results["families"].items() if name != "noise"
@@ -143,6 +146,7 @@ def context(results: dict[str, Any], rel_img: str) -> dict[str, Any]:
     margins += [(f"{r['scenario']['route']} ×{r['scenario']['laps']}", f["f1_margin"]) for r, f in later]
     return shown | {
         "results": results,
+        "robust_matrix": robust_matrix,
         "started": f"{datetime.datetime.fromisoformat(results['started']):%Y-%m-%d %H:%M %Z}",
         "minutes": minutes,
         "seconds": seconds,
@@ -209,7 +213,7 @@ def drift_plot(run: Run, path: Path) -> None:
     plt.close(fig)
 
 
-def render_text(results: dict[str, Any], rel_img: str = "img") -> str:
+def render_text(results: dict[str, Any], rel_img: str = "img", robust_matrix: str | None = None) -> str:
     """The document for ``results`` (no file written)."""
     import jinja2
 
@@ -222,7 +226,7 @@ def render_text(results: dict[str, Any], rel_img: str = "img") -> str:
     )
     environment.filters |= {"fmt": fmt, "agg": agg, "f": format}
     environment.globals["table"] = tables.table
-    text = environment.get_template("benchmarks.md").render(context(results, rel_img))
+    text = environment.get_template("benchmarks.md").render(context(results, rel_img, robust_matrix))
     return text.rstrip() + "\n"
 
 
@@ -233,7 +237,9 @@ def render(results_path: Path, doc: Path, img: Path) -> None:
     long_run = results["runs"][results["families"]["long"][0]]
     drift_plot(long_run, img / DRIFT_PLOT)
     doc.parent.mkdir(parents=True, exist_ok=True)
-    doc.write_text(render_text(results, os.path.relpath(img, doc.parent)))
+    matrix = results_path.with_name(ROBUST_MATRIX)
+    robust_matrix = matrix.read_text() if matrix.exists() else None
+    doc.write_text(render_text(results, os.path.relpath(img, doc.parent), robust_matrix))
 
 
 def main() -> None:

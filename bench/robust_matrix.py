@@ -8,9 +8,13 @@ are made and scored through the application layer (``aslam.app``), not the CLI.
     python bench/robust_matrix.py --families jitter30 fps10 --seeds 1 2 3 --estimators default paper
     python bench/robust_matrix.py --render-only ...     # render what is missing, score nothing
     python bench/robust_matrix.py --set beta=2 --set observation_model=thumbnail ...
+    python bench/robust_matrix.py --estimators default paper nn --workers 2 \
+        --markdown bench/results/robust_matrix.md --json bench/results/robust_matrix.json
+    python bench/robust_matrix.py --table-from bench/results/robust_matrix.json --markdown M.md
 
 Prints one row per (family, route, seed, estimator), then per-family means and worst cases; with
-``--json PATH`` writes every row too.
+``--json PATH`` writes every row too, with ``--markdown PATH`` the per-family table that
+``docs/benchmarks.md`` shows. ``--workers N`` runs the scenarios as tasks on a local Dask cluster.
 """
 
 from __future__ import annotations
@@ -409,7 +413,8 @@ def _mean(values: list[float]) -> float | None:
 
 def family_table(rows: list[Row], estimators: list[str]) -> str:
     """Markdown: one line per family; per estimator the worst precision, mean (worst) recall, mean
-    recall at 100 % precision, the worst mean delay and the most hypotheses, over routes × seeds."""
+    recall at 100 % precision, the worst mean delay, the most hypotheses and the wrong claims (of
+    which less than 1 m from the truth), over routes × seeds."""
     labels = {
         "default": "defaults",
         "paper": "--paper-faithful",
@@ -417,9 +422,9 @@ def family_table(rows: list[Row], estimators: list[str]) -> str:
         "before": "before #9",
     }
     head = "| family | runs | " + " | ".join(
-        f"{labels[e]}: P min | R mean (min) | R@100%P | delay | hyp" for e in estimators
+        f"{labels[e]}: P min | R mean (min) | R@100%P | delay | hyp | wrong (< 1 m)" for e in estimators
     )
-    lines = [head + " |", "|---|---|" + "---|" * (5 * len(estimators))]
+    lines = [head + " |", "|---|---|" + "---|" * (6 * len(estimators))]
     families = list(dict.fromkeys(r.scenario.family for r in rows))
     for family in families:
         cells = []
@@ -434,12 +439,15 @@ def family_table(rows: list[Row], estimators: list[str]) -> str:
             precision, recall = values("loop_closure.precision"), values("loop_closure.recall")
             at_full = values("loop_closure.recall_at_full_precision")
             delay, hyp = values("relocalisation.mean_delay_keyframes"), values("hypotheses.max")
+            wrong = sum(values("loop_closure.wrong"))
+            near = [r.wrong_within_1m for r in members if r.wrong_within_1m is not None]
             cells += [
                 f"{min(precision):.3f}" if precision else "–",
                 f"{_mean(recall):.3f} ({min(recall):.2f})" if recall else "–",
                 f"{_mean(at_full):.3f}" if at_full else "–",
                 f"{max(delay):.1f}" if delay else "–",
                 f"{max(hyp):.0f}" if hyp else "–",
+                f"{wrong:.0f} ({sum(near)})" if near else f"{wrong:.0f}",
             ]
         lines.append(f"| {family} | {runs} | " + " | ".join(cells) + " |")
     events = [r for r in rows if r.scenario.family in DERIVED and r.estimator == "default"]
@@ -457,6 +465,16 @@ def family_table(rows: list[Row], estimators: list[str]) -> str:
             worst = f"{max(delays)}" if delays else "–"
             lines.append(f"| {family} | {len(members)} | {worst} | {never} | {wrong} |")
     return "\n".join(lines) + "\n"
+
+
+def _row_of(item: dict[str, Any]) -> Row:
+    """A row of a ``--json`` file."""
+    row = Row(Scenario(item["family"], item["route"], item["seed"]), item["estimator"], item["summary"])
+    row.wall_s = item["wall_s"]
+    row.wrong_within_1m = item["wrong_within_1m"]
+    row.event_delay = item["event_delay_keyframes"]
+    row.event_wrong = item["event_wrong_claims"]
+    return row
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -477,12 +495,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, help="write every row here")
     parser.add_argument("--markdown", type=Path, help="write the per-family table here")
     parser.add_argument("--render-only", action="store_true")
+    parser.add_argument(
+        "--table-from", type=Path, metavar="JSON", help="the --markdown table of a --json run"
+    )
     parser.add_argument("--cached-only", action="store_true", help="skip scenarios not rendered yet")
     args = parser.parse_args(argv)
     overrides = {}
     for item in args.set:
         name, _, value = item.partition("=")
         overrides[name] = _parse_value(value)
+    if args.table_from is not None:
+        rows = [_row_of(item) for item in json.loads(args.table_from.read_text())]
+        estimators = list(dict.fromkeys(r.estimator for r in rows))
+        table = family_table(rows, estimators)
+        if args.markdown is not None:
+            args.markdown.write_text(table)
+        print(table)
+        return 0
     scenarios = [Scenario(f, r, s) for f in args.families for r in args.routes for s in args.seeds]
     if args.cached_only:
         scenarios = [s for s in scenarios if (args.cache / f"{s.base.name}.mcap").exists()]
