@@ -467,6 +467,10 @@ def family_table(rows: list[Row], estimators: list[str]) -> str:
     return "\n".join(lines) + "\n"
 
 
+JSON_SECTIONS = ("keyframes", "states", "hypotheses", "relocalisation", "loop_closure", "committed")
+"""The summary sections a ``--json`` row keeps (the table's; errors and trajectories are left out)."""
+
+
 def _row_of(item: dict[str, Any]) -> Row:
     """A row of a ``--json`` file."""
     row = Row(Scenario(item["family"], item["route"], item["seed"]), item["estimator"], item["summary"])
@@ -552,7 +556,7 @@ def main(argv: list[str] | None = None) -> int:
                         "wrong_within_1m": r.wrong_within_1m,
                         "event_delay_keyframes": r.event_delay,
                         "event_wrong_claims": r.event_wrong,
-                        "summary": r.summary,
+                        "summary": {k: v for k, v in r.summary.items() if k in JSON_SECTIONS},
                     }
                     for r in rows
                 ],
