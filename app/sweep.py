@@ -42,7 +42,8 @@ TASKS_FOLDER = "tasks"
 HASHES_FILE = "hashes.json"
 ESTIMATES_FOLDER = "estimates"
 RENDERS_FOLDER = "recordings"
-#: The Dask setting through which the nanny gives worker processes ``MALLOC_TRIM_THRESHOLD_``.
+#: Dask settings of the local cluster :func:`open_client` starts (a cluster at ``--scheduler`` keeps
+#: its own); the reason for each is beside it.
 LOCAL_CLUSTER_SETTINGS = {
     # None: the variable is not set (Dask's convention); see open_client.
     "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
