@@ -3,6 +3,7 @@ and checked against Foxglove's published schema package."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from pathlib import Path
@@ -20,6 +21,7 @@ from mcap_protobuf.schema import build_file_descriptor_set
 from aslam.app.metric_view import EmbedOptions, Kernel, embed, metric_scene
 from aslam.core import se2
 from aslam.data_formats.foxglove import (
+    GROWTH_STEPS,
     ODOMETRY_TOPIC,
     SCENE_TOPIC,
     TF_TOPIC,
@@ -186,3 +188,25 @@ def test_scene_file_refuses_to_overwrite_and_leaves_nothing_on_failure(tmp_path:
     with pytest.raises(ValueError, match="NaN"):
         MetricScene(stamps_ns=stamps, poses=embedding.poses * np.nan, assignment=embedding.assignment)
     assert [p.name for p in tmp_path.iterdir()] == ["scene.mcap"]  # no partial file left behind
+
+
+def test_a_large_map_grows_in_bounded_steps(tmp_path: Path):
+    """One whole-map scene per growth would sum to O(places²) entities; the spaced scenes grow with
+    the map's size by at least 1/GROWTH_STEPS each, so their count is logarithmic in it."""
+    n = 1500
+    poses = np.stack([np.arange(n, dtype=float), np.zeros(n), np.zeros(n)], axis=1)
+    stamps = np.arange(n, dtype=np.int64) * 10**9
+    path = tmp_path / "scene.mcap"
+    write_scene(path, MetricScene(stamps, poses, np.arange(n, dtype=np.int64)))
+    scenes = read_all(path)[SCENE_TOPIC]
+    places = [
+        len({e.id: e for e in as_package(scene, SceneUpdate).entities}["places"].spheres)
+        for _, scene in scenes
+    ]
+    assert places[-1] == n and all(b > a for a, b in itertools.pairwise(places))
+    growth = places[:-1]  # the last scene is the whole map, written at the end whatever it grew
+    assert growth[: GROWTH_STEPS // 2] == list(range(1, GROWTH_STEPS // 2 + 1))  # every growth, early
+    drawn = [2 * p - 1 for p in growth]  # places and the links between consecutive ones
+    steps = [(a, b) for a, b in itertools.pairwise(drawn) if a >= GROWTH_STEPS]
+    assert steps and all((b - a) * GROWTH_STEPS >= b for a, b in steps)
+    assert len(scenes) <= GROWTH_STEPS * (1 + math.log(2 * n / GROWTH_STEPS)) + 1
