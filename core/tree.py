@@ -244,9 +244,9 @@ class HypothesisTree:
     ) -> np.ndarray:
         """Committed places that look like ``observation``, found over the whole map at bounded cost.
 
-        The index (:class:`aslam.core.place_index.PlaceIndex`) shortlists the
-        ``relocalisation_candidates`` most similar committed places in O(log places); they are then
-        compared exactly. The best is returned if it looks more alike than the new-place
+        The index (:class:`aslam.core.place_index.PlaceIndex`: an exact scan up to 2,048 places, an
+        HNSW graph beyond) shortlists the ``relocalisation_candidates`` most similar committed
+        places; they are then compared exactly. The best is returned if it looks more alike than the new-place
         reference, clearly more alike than the runner-up, and the motion model did not propose it.
         """
         if self._log_relocalise == -math.inf or not self.leaves:
