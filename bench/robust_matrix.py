@@ -380,31 +380,17 @@ def run_scenario(
 def run_all(
     scenarios: list[Scenario], estimators: list[str], cache: Path, overrides, threshold, workers: int
 ):
-    """Rows as scenarios finish: in this process, or (``workers`` > 1) as tasks on a local Dask
-    cluster through the client ``aslam sweep`` uses."""
+    """Rows as scenarios finish: in this process, or (``workers`` > 1) as tasks on the sweep's local
+    Dask cluster (``bench/dask_tasks.py``)."""
     if workers <= 1:
         for scenario in scenarios:
             yield from run_scenario(scenario, estimators, cache, overrides, threshold)
         return
-    import os
+    from dask_tasks import as_tasks
 
-    from distributed import as_completed
-
-    from aslam.app.sweep import open_client
-
-    bench = str(Path(__file__).resolve().parent)  # the workers import this module and baselines
-    os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [bench, os.environ.get("PYTHONPATH")]))
-    client = open_client(workers=workers, scheduler=None)
-    try:
-        futures = [
-            client.submit(run_scenario, s, estimators, cache, overrides, threshold, pure=False)
-            for s in scenarios
-        ]
-        for future in as_completed(futures):
-            yield from future.result()
-    finally:
-        client.close()
-        client.cluster.close()
+    calls = [(scenario, estimators, cache, overrides, threshold) for scenario in scenarios]
+    for _, rows in as_tasks(run_scenario, calls, workers):
+        yield from rows
 
 
 def _mean(values: list[float]) -> float | None:

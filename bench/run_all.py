@@ -44,6 +44,7 @@ import baselines
 import render
 import scenarios
 import speed
+from dask_tasks import as_tasks
 from machine import load_average, machine
 from scenarios import ROOT, Scenario
 
@@ -172,33 +173,17 @@ def run_scenario(scenario: Scenario, threshold: float, work: Path, plots: Path |
 def run_on_dask(
     jobs: dict[Scenario, tuple[Path | None, bool]], threshold: float, work: Path
 ) -> Iterator[tuple[Scenario, dict[str, Any]]]:
-    """Every scenario as a task on a local Dask cluster, one worker process per core, through the
-    client ``aslam sweep`` uses (``aslam.app.sweep.open_client``); results as they finish.
+    """Every scenario as a task on the sweep's local Dask cluster (``bench/dask_tasks.py``); results
+    as they finish.
 
     Each task records (cached), runs ``aslam estimate``/``aslam report`` as processes (their wall
     time and peak memory are per process, taken while another scenario may run on the other core)
     and the baselines. The figures do not depend on the order; ``runs`` is keyed by name.
     """
-    import os
-
-    from distributed import as_completed
-
-    from aslam.app.sweep import open_client
-
-    bench = str(Path(__file__).resolve().parent)  # the workers import scenarios, baselines from here
-    os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [bench, os.environ.get("PYTHONPATH")]))
-    client = open_client(workers=None, scheduler=None)
-    try:
-        futures = {
-            client.submit(run_scenario, scenario, threshold, work, plots, detail, pure=False): scenario
-            for scenario, (plots, detail) in jobs.items()
-        }
-        for future in as_completed(futures):
-            yield futures[future], future.result()
-    finally:
-        cluster = client.cluster
-        client.close()
-        cluster.close()
+    order = list(jobs)
+    calls = [(scenario, threshold, work, *jobs[scenario]) for scenario in order]
+    for i, run in as_tasks(run_scenario, calls):
+        yield order[i], run
 
 
 def tuned_threshold(scenario: Scenario) -> dict[str, Any]:
