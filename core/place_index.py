@@ -49,9 +49,6 @@ class PlaceIndex:
         self._waiting: deque[tuple[int, np.ndarray]] = deque()
         self._hnsw: Any = None
 
-    def __len__(self) -> int:
-        return len(self._states) + len(self._waiting)
-
     @property
     def approximate(self) -> bool:
         """Whether queries go to the HNSW graph (the map outgrew ``exact_limit``)."""
