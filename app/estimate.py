@@ -19,13 +19,19 @@ from aslam.app.metric_view import embed_run, metric_scene
 from aslam.app.pipeline import DEFAULT_WORKERS, PipelineCounts, run_estimate
 from aslam.core.config import EstimatorConfig
 from aslam.core.errors import InputError
-from aslam.core.estimator import Estimator
+from aslam.core.estimator import Estimator, prior_map
+from aslam.core.mapgraph import PriorMap
+from aslam.core.observation import descriptor_key
 from aslam.data_formats.errors import EstimateError
 from aslam.data_formats.estimate import (
     EstimateMetadata,
     EstimateWriter,
+    MapIdentity,
+    PlaceViews,
     RecordingIdentity,
     Timing,
+    read_estimate,
+    read_place_views,
 )
 from aslam.data_formats.files import check_output_path, source_files, source_sha256
 from aslam.data_formats.provenance import tool_version
@@ -111,6 +117,7 @@ def estimate(
     timing: bool = True,
     workers: int = DEFAULT_WORKERS,
     reader_process: bool = True,
+    prior: Path | None = None,
     on_progress: Callable[[EstimateProgress], None] | None = None,
     on_warning: Callable[[str], None] | None = None,
 ) -> EstimateSummary:
@@ -121,16 +128,22 @@ def estimate(
     ``output`` appears only when complete; any failure or interrupt leaves nothing under it. With
     ``timing=False`` the same inputs give a byte-identical file.
     ``reader_process=False`` reads in this process (see :func:`aslam.app.pipeline.run_estimate`).
+    ``prior`` (``--map``): an earlier estimate file whose map this run starts in, the robot's place
+    in it unknown; the output holds the extended map and numbers this run's keyframes after it.
     """
     if workers < 0:
         raise InputError(f"--workers must be at least 0, got {workers}")
     recording = Path(recording).absolute()
     output = Path(output).absolute()
-    check_output_path(output, force=force, error=EstimateError, inputs=[recording, *source_files(recording)])
+    inputs = [recording, *source_files(recording)] + ([] if prior is None else [Path(prior).absolute()])
+    check_output_path(output, force=force, error=EstimateError, inputs=inputs)
     warn = on_warning or (lambda _line: None)
+    start_map, map_identity = (
+        (None, None) if prior is None else load_prior_map(Path(prior).absolute(), config)
+    )
     source = open_input(recording, topics, on_warning=warn)
     total = source.image_count()
-    estimator = Estimator(config)
+    estimator = Estimator(config, start_map)
     counts = PipelineCounts()
     hasher = FileHasher(recording)
     start = time.perf_counter()
@@ -171,6 +184,7 @@ def estimate(
                 config=asdict(config),
                 recording=RecordingIdentity(str(recording), _size_bytes(hasher.files), hasher.result()),
                 topics=source.stored_topics(),
+                prior_map=map_identity,
             )
             run_timing = None
             if timing:
@@ -182,9 +196,16 @@ def estimate(
                     keyframes=keyframes,
                 )
             embed_start = time.perf_counter()
-            embedding = embed_run(np.array(actions).reshape(-1, 3), result.states, result.links, config)
+            embedding = embed_run(
+                np.array(actions).reshape(-1, 3), result.states, result.links, config, result.first_keyframe
+            )
             scene = None if embedding is None else metric_scene(embedding, result.keyframe_stamps_ns)
-            writer.finish(result, metadata, run_timing, scene)
+            views = PlaceViews(
+                config.observation_model,
+                np.array([state.id for state in result.states], dtype=np.int64),
+                estimator.place_views(result.states),
+            )
+            writer.finish(result, metadata, run_timing, scene, views)
             embed_s = time.perf_counter() - embed_start
     finally:
         hasher.cancel()
@@ -201,6 +222,34 @@ def estimate(
         slam_s=counts.slam_s,
         embed_s=embed_s,
     )
+
+
+def load_prior_map(path: Path, config: EstimatorConfig) -> tuple[PriorMap, MapIdentity]:
+    """The map of the estimate file ``path``, to start a run in; EstimateError when it cannot be:
+    not an estimate, no stored views, views another observation model made."""
+    if not path.exists():
+        raise InputError("no such map (an estimate file from `aslam estimate`)", path=path)
+    info = read_estimate(path)
+    views = read_place_views(path)
+    from aslam.app.metric_view import estimator_config
+
+    try:
+        made_with = estimator_config(info.metadata.config)
+    except ValueError as err:
+        raise EstimateError(str(err), path=path) from err
+    if descriptor_key(made_with) != descriptor_key(config):
+        raise EstimateError(
+            f"the map's views were made by the {made_with.observation_model} model with other settings;"
+            f" run with the map's observation settings ({descriptor_key(made_with)})",
+            path=path,
+        )
+    try:
+        start = prior_map(info.graph.keyframes, info.graph.states, info.graph.links, views.views)
+    except ValueError as err:
+        raise EstimateError(f"not a usable map: {err}", path=path) from err
+    if not np.array_equal(start.states, views.states):
+        raise EstimateError("the stored views are not those of the map's places", path=path)
+    return start, MapIdentity(str(path), source_sha256(path), info.graph.keyframes)
 
 
 def _size_bytes(files: list[Path]) -> int:

@@ -433,21 +433,38 @@ def estimator_config(config: dict[str, Any]) -> EstimatorConfig:
 
 
 def embed_run(
-    actions: np.ndarray, states: Sequence[MapState], links: Sequence[MapLink], config: EstimatorConfig
+    actions: np.ndarray,
+    states: Sequence[MapState],
+    links: Sequence[MapLink],
+    config: EstimatorConfig,
+    first_keyframe: int = 0,
 ) -> Embedding | None:
     """The metric view of a run's best map (``states`` and ``links`` as ``Estimator.result()`` or the
     estimate file give them), with the run's own motion noise and place tolerance; None below 2
-    keyframes. An action whose map link the estimator marked as no constraint (a relocalisation
-    after a kidnap or an odometry reset: variance ≥ ``JUMP_VARIANCE``) is not trusted either.
+    keyframes. With a prior map (``first_keyframe`` > 0) only this run's keyframes are embedded: a
+    revisit of a prior place has no first visit in this run to close on. An action whose map link
+    the estimator marked as no constraint (a relocalisation after a kidnap or an odometry reset:
+    variance ≥ ``JUMP_VARIANCE``) is not trusted either.
     """
     actions = np.asarray(actions, dtype=float).reshape(-1, 3)
     if len(actions) < 2:
         return None
-    assignment = assignment_from_states([(state.id, state.keyframes) for state in states], len(actions))
+    # This run's keyframes only, each place named by its first visit in this run (a prior map's
+    # place first seen here is, for the pose graph, first seen here).
+    label: dict[int, int] = {}
+    session = []
+    for state in states:
+        visits = [k - first_keyframe for k in state.keyframes if k >= first_keyframe]
+        if visits:
+            label[state.id] = min(visits)
+            session.append((label[state.id], visits))
+    assignment = assignment_from_states(session, len(actions))
     loose = {
-        frozenset((link.from_state, link.to_state))
+        frozenset((label[link.from_state], label[link.to_state]))
         for link in links
         if max(link.covariance[0][0], link.covariance[1][1]) >= JUMP_VARIANCE
+        and link.from_state in label
+        and link.to_state in label
     }
     pairs = [frozenset((int(a), int(b))) for a, b in itertools.pairwise(assignment)]
     jumps = np.array([False] + [pair in loose for pair in pairs])

@@ -195,19 +195,21 @@ class Report:
     actions: np.ndarray
     """(n, 3) keyframe actions (x_m, y_m, yaw_rad) from odometry."""
     true_poses: np.ndarray | None
-    """(n, 3) true poses at the keyframes; None without ground truth."""
+    """(n, 3) true poses at this run's keyframes; None without ground truth (or by index)."""
     evaluation: Evaluation
     embedding: Embedding | None
     """The best map embedded as a pose graph (GTSAM); None below two keyframes."""
     metric: MetricScores | None
     """evo's scores of the embedding and of odometry alone; None without ground truth."""
     summary: dict[str, Any]
+    map_truth: np.ndarray | None = None
+    """(first_keyframe + n, 3) truth of every keyframe of the map, prior sessions first."""
 
     def graph_json(self) -> dict[str, Any]:
         return build_graph_json(
             self.estimate.graph,
             self.stamps_ns,
-            self.true_poses,
+            self.map_truth,
             estimate_path=str(self.estimate_path.absolute()),
             recording_path=None if self.recording_path is None else str(self.recording_path),
         )
@@ -219,12 +221,16 @@ def score(
     recording: Path | None = None,
     radius_m: float = 0.5,
     heading_deg: float = 45.0,
+    truth_by_index: bool = False,
     on_warning: Callable[[str], None] | None = None,
 ) -> Report:
     """Score ``estimate`` against the ground truth of ``recording`` (default: the one it names).
 
     Without ground truth (no recording found, none in it) it scores what needs none, with one
-    warning line saying why.
+    warning line saying why. A run in a prior map (``estimate --map``) is scored against the prior
+    map's places too, with the truth of the recordings each map session names. ``truth_by_index``:
+    for datasets whose sessions are aligned frame by frame (Nordland), the k-th keyframe of every
+    session is at x = k, so ``radius_m`` counts keyframes; no recording is read.
     """
     check_report_tolerances(radius_m, heading_deg)
     warn = on_warning or (lambda _line: None)
@@ -238,31 +244,44 @@ def score(
             steps.append((keyframe.index, keyframe.hypotheses))
             stamps.append(keyframe.stamp_ns)
             actions.append(keyframe.action)
-    recording_path = _find_recording(recording, info, warn)
-    true_poses = None
-    if recording_path is not None:
+    first = info.graph.first_keyframe
+    recording_path = None if truth_by_index else _find_recording(recording, info, warn)
+    true_poses = None  # every keyframe of the map: the prior map's, then this run's
+    if truth_by_index:
+        true_poses = index_truth(len(stamps))
+    elif recording_path is not None:
         topics = TopicChoice.from_record(info.metadata.topics)
         true_poses = _ground_truth(recording_path, topics, stamps, warn)
-    evaluation = evaluate(steps, true_poses, radius_m=radius_m, heading_deg=heading_deg)
+    if true_poses is not None and first:
+        earlier = _map_truth(info, estimate, truth_by_index, warn)
+        true_poses = None if earlier is None else np.concatenate([earlier, true_poses])
+    evaluation = evaluate(steps, true_poses, radius_m=radius_m, heading_deg=heading_deg, first_keyframe=first)
     if not evaluation.has_ground_truth:
         true_poses = None
+    run_truth = None if true_poses is None or truth_by_index else true_poses[first:]
     action_array = np.array(actions, dtype=float).reshape(-1, 3)
     try:
         embedding = embed_run(
-            action_array, info.graph.states, info.graph.links, estimator_config(info.metadata.config)
+            action_array,
+            info.graph.states,
+            info.graph.links,
+            estimator_config(info.metadata.config),
+            first,
         )
     except ValueError as err:
         raise EstimateError(f"no metric view of the map ({err})", path=estimate) from err
     metric = None
-    if embedding is not None and true_poses is not None and np.isfinite(true_poses).all(axis=1).sum() >= 2:
+    if embedding is not None and run_truth is not None and np.isfinite(run_truth).all(axis=1).sum() >= 2:
         try:
-            metric = score_trajectories(embedding, true_poses, stamps)
+            metric = score_trajectories(embedding, run_truth, stamps)
         except ValueError as err:
             warn(f"{estimate}: no trajectory scores: {err}")
     committed = None
     if true_poses is not None:
-        assignment = map_assignment(info.graph.states, len(steps))
-        committed = score_assignment(assignment, true_poses, radius_m=radius_m, heading_deg=heading_deg)
+        assignment = map_assignment(info.graph.states, first + len(steps))
+        committed = score_assignment(
+            assignment, true_poses, radius_m=radius_m, heading_deg=heading_deg, first_keyframe=first
+        )
     summary = build_summary(
         evaluation,
         states=len(info.graph.states),
@@ -281,12 +300,56 @@ def score(
         recording_path=recording_path,
         stamps_ns=tuple(stamps),
         actions=action_array,
-        true_poses=true_poses,
+        true_poses=run_truth,
         evaluation=evaluation,
         embedding=embedding,
         metric=metric,
         summary=summary,
+        map_truth=true_poses,
     )
+
+
+def index_truth(keyframes: int) -> np.ndarray:
+    """(n, 3) poses for ``--truth-by-index``: the k-th keyframe of a session at x = k."""
+    return np.column_stack([np.arange(keyframes, dtype=float), np.zeros(keyframes), np.zeros(keyframes)])
+
+
+def _map_truth(
+    info: EstimateFile, path: Path, truth_by_index: bool, warn: Callable[[str], None]
+) -> np.ndarray | None:
+    """(first_keyframe, 3) truth of the prior map's keyframes, session by session back to the first
+    map (each prior estimate names its recording and its own prior); None, with a warning, when a
+    prior estimate is missing. Sessions without truth give NaN rows."""
+    prior = info.metadata.prior_map
+    if prior is None:
+        return np.zeros((0, 3))
+    prior_path = Path(prior.path)
+    if not prior_path.exists():
+        warn(f"map {prior.path} (named in {path}) not found; reporting without ground truth")
+        return None
+    prior_info = read_estimate(prior_path)
+    with closing(iter_keyframes(prior_path)) as keyframes:
+        stamps = [keyframe.stamp_ns for keyframe in keyframes]
+    earlier = _map_truth(prior_info, prior_path, truth_by_index, warn)
+    if earlier is None:
+        return None
+    own = None
+    if truth_by_index:
+        own = index_truth(len(stamps))
+    else:
+        recording = _find_recording(None, prior_info, warn)
+        if recording is not None:
+            topics = TopicChoice.from_record(prior_info.metadata.topics)
+            own = _ground_truth(recording, topics, stamps, warn)
+    own = np.full((len(stamps), 3), np.nan) if own is None else own
+    truth = np.concatenate([earlier, own])
+    if len(truth) != prior.keyframes:
+        raise EstimateError(
+            f"the map has {len(truth)} keyframes where the estimate expects {prior.keyframes}"
+            " (was it estimated again since?)",
+            path=prior_path,
+        )
+    return truth
 
 
 def map_assignment(states: Iterable[Any], keyframes: int) -> np.ndarray:

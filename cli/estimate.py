@@ -86,6 +86,7 @@ def estimate(**options: Any) -> None:
             force=fixed["force"],
             timing=not fixed["no_timing"],
             workers=fixed["workers"],
+            prior=fixed["map"],
             on_progress=on_progress,
             on_warning=terminal.warning,
         )
@@ -125,6 +126,19 @@ _FIXED: dict[str, tuple[Any, Any]] = {
             typer.Option(
                 "--config",
                 help="TOML file with estimator parameters in an \\[estimator] table.",
+                dir_okay=False,
+            ),
+        ],
+        None,
+    ),
+    "map": (
+        Annotated[
+            Path | None,
+            typer.Option(
+                "--map",
+                help="Start in the map of an earlier estimate file (multi-session): the robot's place in it"
+                " is found by appearance, then it is tracked and the map extended. Use the same"
+                " observation settings as that run.",
                 dir_okay=False,
             ),
         ],

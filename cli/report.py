@@ -67,6 +67,14 @@ def report(
     heading_deg: Annotated[
         float, typer.Option(help="A revisit is within this difference of the earlier true heading (degrees).")
     ] = 45.0,
+    truth_by_index: Annotated[
+        bool,
+        typer.Option(
+            "--truth-by-index",
+            help="Sessions aligned frame by frame (Nordland): the k-th keyframe of each session (this run and"
+            " its --map) is the same place; --radius-m then counts keyframes. No recording is read.",
+        ),
+    ] = False,
     force: ForceOption = False,
     quiet: QuietOption = False,
     verbose: VerboseOption = False,
@@ -94,8 +102,15 @@ def report(
     if plots is not None and plots.exists() and not plots.is_dir():
         raise InputError("exists and is not a folder", path=plots)
 
+    if truth_by_index and recording is not None:
+        raise InputError("--truth-by-index reads no recording; leave out --recording")
     result = score(
-        estimate, recording=recording, radius_m=radius_m, heading_deg=heading_deg, on_warning=terminal.warning
+        estimate,
+        recording=recording,
+        radius_m=radius_m,
+        heading_deg=heading_deg,
+        truth_by_index=truth_by_index,
+        on_warning=terminal.warning,
     )
     stdout_taken = "-" in (graph, json_out)
     if not quiet or not stdout_taken:

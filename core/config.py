@@ -211,6 +211,23 @@ class EstimatorConfig:
         "The most recent committed keyframes are left out of the appearance search (the motion covers them).",
     )
 
+    # --- a run in a prior map (estimate --map) ----------------------------------------------------
+    map_relocalisation_prior: float = _param(
+        0.01,
+        "With --map: prior of a jump to one of the map's places found by appearance. Each keyframe the"
+        " map_relocalisation_candidates most similar are proposed, with no distinctiveness test: across"
+        " sessions appearance alone is rarely distinctive: the next keyframes' motion decides (0 = never).",
+    )
+    map_relocalisation_candidates: int = _param(
+        3, "With --map: the map's places proposed by appearance each keyframe (see map_relocalisation_prior)."
+    )
+    map_reference_scale: float = _param(
+        0.95,
+        "With --map: another session's light or season moves every distance to the map's views, so a"
+        " map place is judged against this × the view's median distance to a fixed sample of the map's"
+        " places, where that is above the run's own new-place reference (0 = the run's reference only).",
+    )
+
     # --- hypothesis tree ------------------------------------------------------------------------
     prune_ratio: float = _param(
         0.005, "Hypotheses whose belief is below this fraction of the best are removed."
@@ -317,6 +334,9 @@ RANGES: dict[str, Bounds] = {
     "relocalisation_prior": Bounds(0, 1, high_open=True),
     "relocalisation_candidates": Bounds(1, 10_000, integer=True),
     "relocalisation_skip": Bounds(0, 100_000, integer=True),
+    "map_relocalisation_prior": Bounds(0, 1, high_open=True),
+    "map_relocalisation_candidates": Bounds(1, 10_000, integer=True),
+    "map_reference_scale": Bounds(0, 10),
 }
 #: Length of one observation vector (bins × cells); bounds the memory per keyframe.
 MAX_OBSERVATION_LENGTH = 16_384

@@ -9,10 +9,10 @@ import numpy as np
 
 from aslam.core import se2
 from aslam.core.config import EstimatorConfig
-from aslam.core.mapgraph import SharedMap
+from aslam.core.mapgraph import PriorMap, SharedMap
 from aslam.core.motion import rel_covariance
 from aslam.core.observation import ObservationModel, observation_model
-from aslam.core.tree import Hypothesis, HypothesisTree, TreeStats
+from aslam.core.tree import SESSION_START, Hypothesis, HypothesisTree, TreeStats
 
 
 class Keyframer:
@@ -102,16 +102,51 @@ class EstimateResult:
     hypotheses: tuple[Hypothesis, ...]
     keyframe_stamps_ns: tuple[int, ...]
     stats: TreeStats
+    first_keyframe: int = 0
+    """Index of this session's first keyframe: the prior map's keyframes come before it."""
+
+
+def prior_map(
+    keyframes: int, states: tuple[MapState, ...], links: tuple[MapLink, ...], views: np.ndarray
+) -> PriorMap:
+    """A stored map (an estimate's final graph and place views) as the start of a new session.
+
+    Raises ValueError when the parts do not fit together (a keyframe outside the map, a state
+    without its view, a keyframe in no place, a link to an unknown place).
+    """
+    views = np.asarray(views, dtype=np.float32)
+    ids = np.array([state.id for state in states], dtype=np.int64)
+    if len(ids) != len(views) or np.any(np.diff(ids) <= 0):
+        raise ValueError("the map's places and stored views do not match")
+    assignment = np.full(keyframes, -1, dtype=np.int64)
+    for state in states:
+        for keyframe in state.keyframes:
+            if not 0 <= keyframe < keyframes:
+                raise ValueError(f"place {state.id} names keyframe {keyframe}, outside the map's {keyframes}")
+            assignment[keyframe] = state.id
+    if keyframes and (assignment < 0).any():
+        raise ValueError(f"keyframe {int(np.flatnonzero(assignment < 0)[0])} of the map is in no place")
+    known = set(ids.tolist())
+    rels = []
+    for link in links:
+        if link.from_state not in known or link.to_state not in known:
+            raise ValueError(f"a link joins place {link.from_state} to {link.to_state}, not both in the map")
+        c = link.covariance
+        rel = (*link.action, c[0][0], c[0][1], c[0][2], c[1][1], c[1][2], c[2][2])
+        rels.append((link.from_state, link.to_state, tuple(float(v) for v in rel), link.count))
+    return PriorMap(keyframes, assignment, ids, views, tuple(rels))  # type: ignore[arg-type]
 
 
 class Estimator:
-    """Appearance-based SLAM over a stream of (stamp, odometry pose, image)."""
+    """Appearance-based SLAM over a stream of (stamp, odometry pose, image); optionally starting in
+    the map of an earlier session (``prior``), with the robot's place in it unknown."""
 
-    def __init__(self, config: EstimatorConfig | None = None) -> None:
+    def __init__(self, config: EstimatorConfig | None = None, prior: PriorMap | None = None) -> None:
         self.config = config or EstimatorConfig()
         self.observation_model: ObservationModel = observation_model(self.config)
         self._keyframer = keyframer(self.config)
-        self._tree = HypothesisTree(self.config, self.observation_model)
+        self._tree = HypothesisTree(self.config, self.observation_model, prior)
+        self._first_keyframe = 0 if prior is None else prior.keyframes
         self._stamps: list[int] = []
 
     def keyframe_action(self, odometry_pose: np.ndarray) -> np.ndarray | None:
@@ -123,21 +158,22 @@ class Estimator:
         hypotheses = self._tree.add_keyframe(action, observation)
         self._stamps.append(int(stamp_ns))
         a = tuple(float(v) for v in action)
-        return StepResult(len(self._stamps) - 1, int(stamp_ns), a, tuple(hypotheses))  # type: ignore[arg-type]
+        keyframe = self._first_keyframe + len(self._stamps) - 1
+        return StepResult(keyframe, int(stamp_ns), a, tuple(hypotheses))  # type: ignore[arg-type]
 
     def result(self) -> EstimateResult:
         """The best hypothesis's map: shared history plus its own suffix."""
         tree = self._tree
         if not tree.leaves:
-            empty = tree.stats()
-            return EstimateResult((), (), (), (), empty)
+            return EstimateResult((), (), (), (), tree.stats())
         best = tree.best_leaf()
         graph: SharedMap = tree.shared.copy()
         assignment = list(tree.committed_state_of_keyframe.view.tolist())
         for node in tree.suffix(best):
             if node.is_new:
                 graph.add_state(node.state)
-            graph.add_traversal(node.parent.state, node.state, node.rel)
+            if node.parent.state != SESSION_START:
+                graph.add_traversal(node.parent.state, node.state, node.rel)
             assignment.append(node.state)
         keyframes_of: dict[int, list[int]] = {}
         for keyframe, state in enumerate(assignment):
@@ -149,6 +185,12 @@ class Estimator:
             x, y, yaw = link.rel[:3]
             covariance = tuple(tuple(float(v) for v in row) for row in rel_covariance(link.rel))
             links.append(MapLink(link.from_state, link.to_state, (x, y, yaw), covariance, link.count))  # type: ignore[arg-type]
+        hypotheses = tuple(h for h in tree.hypotheses() if h.state != SESSION_START)
         return EstimateResult(
-            states, tuple(links), tuple(tree.hypotheses()), tuple(self._stamps), tree.stats()
+            states, tuple(links), hypotheses, tuple(self._stamps), tree.stats(), self._first_keyframe
         )
+
+    def place_views(self, states: tuple[MapState, ...]) -> np.ndarray:
+        """(len(states), length) float32: the view stored with each place (its first keyframe's)."""
+        ids = np.array([state.id for state in states], dtype=np.int64)
+        return self._tree.observations.view[ids].copy()

@@ -15,6 +15,26 @@ import numpy as np
 from aslam.core.motion import Rel, fuse_rel, inverse_rel, link_weight
 
 
+@dataclass(frozen=True)
+class PriorMap:
+    """A map an earlier session built, to start a new session in (multi-session mapping).
+
+    The new session numbers its keyframes from ``keyframes`` on, so state ids (first-visit
+    keyframes) stay unique across sessions and the extended map can itself be the next prior.
+    """
+
+    keyframes: int
+    """Keyframes of the earlier sessions: the new session's first keyframe index."""
+    state_of_keyframe: np.ndarray
+    """(keyframes,) int64: the place of each earlier keyframe."""
+    states: np.ndarray
+    """(P,) int64 state ids, ascending."""
+    views: np.ndarray
+    """(P, observation length) float32: the view stored with each state, row for row."""
+    links: tuple[tuple[int, int, Rel, int], ...]
+    """(from_state, to_state, rel, traversals) of each link."""
+
+
 @dataclass
 class LinkRecord:
     """A link as first traversed: ``from_state → to_state``, how often it was driven."""
@@ -51,6 +71,14 @@ class SharedMap:
         self.states.add(state)
         self.adjacency.setdefault(state, {})
 
+    def add_link(self, from_state: int, to_state: int, rel: Rel, count: int) -> None:
+        """Restore a link as a stored map has it (a prior session's map)."""
+        key = (min(from_state, to_state), max(from_state, to_state))
+        self.links[key] = LinkRecord(from_state, to_state, rel, count)
+        weight = link_weight(rel)
+        self.adjacency.setdefault(from_state, {})[to_state] = (rel, weight)
+        self.adjacency.setdefault(to_state, {})[from_state] = (inverse_rel(rel), weight)
+
     def add_traversal(self, from_state: int, to_state: int, rel: Rel) -> None:
         """Record that the robot drove ``rel`` from ``from_state`` to ``to_state``."""
         if from_state == to_state:
@@ -84,6 +112,10 @@ class GrowableArray:
         self._data[self._size] = row
         self._size += 1
         return self._size - 1
+
+    def extend(self, rows: np.ndarray) -> None:
+        for row in rows:
+            self.append(row)
 
     def __len__(self) -> int:
         return self._size

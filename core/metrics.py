@@ -172,12 +172,14 @@ def score_assignment(
     *,
     radius_m: float = 0.5,
     heading_deg: float = 45.0,
+    first_keyframe: int = 0,
 ) -> AssignmentScore:
     """Score a map: keyframe t claims a revisit when its state is an earlier keyframe's place.
 
     ``state_of_keyframe`` (n,) holds state ids (first-visit keyframes; -1 where unassigned). A
     claim is correct when the true pose at t is within ``radius_m`` and ``heading_deg`` of the
-    true pose at the state's first visit.
+    true pose at the state's first visit. Only keyframes from ``first_keyframe`` on are scored
+    (a run in a prior map: the map's own keyframes were scored with it).
     """
     states = np.asarray(state_of_keyframe, dtype=np.int64)
     n = len(states)
@@ -191,7 +193,8 @@ def score_assignment(
         good = (np.hypot(errors[:, 0], errors[:, 1]) <= radius_m) & (np.abs(errors[:, 2]) <= heading_deg)
         correct[t] = finite & good
     true_revisit = ground_truth_revisits(true_poses, radius_m, heading_deg)
-    return AssignmentScore(claims, correct, true_revisit)
+    run = slice(first_keyframe, None)
+    return AssignmentScore(claims[run], correct[run], true_revisit[run])
 
 
 def pose_error(true_now: np.ndarray, true_then: np.ndarray) -> np.ndarray:
@@ -242,12 +245,16 @@ def evaluate(
     *,
     radius_m: float = 0.5,
     heading_deg: float = 45.0,
+    first_keyframe: int = 0,
 ) -> Evaluation:
-    """Score a run: ``steps`` are (keyframe, hypotheses best first); ``true_poses`` (n, 3) or None.
+    """Score a run: ``steps`` are (keyframe, hypotheses best first); ``true_poses`` (first + n, 3) or None.
 
-    Rows of ``true_poses`` may be NaN where the truth is unknown for that keyframe.
+    Rows of ``true_poses`` may be NaN where the truth is unknown for that keyframe. A run in a
+    prior map starts at keyframe ``first_keyframe``: the rows before are the prior map's keyframes,
+    which its claims may name and which count as earlier visits.
     """
     n = len(steps)
+    first = first_keyframe
     counts = np.array([len(h) for _, h in steps], dtype=np.int64)
     claims = np.array([bool(h) and not h[0].is_new_state for _, h in steps], dtype=bool)
     confidence = np.array([h[0].belief if bool(h) and not h[0].is_new_state else np.nan for _, h in steps])
@@ -255,19 +262,23 @@ def evaluate(
     best_error = np.full((n, 3), np.nan)
     weighted_error = np.full((n, 3), np.nan)
     correct = np.zeros(n, dtype=bool)
-    has_truth = true_poses is not None and len(true_poses) == n and bool(np.isfinite(true_poses).any())
+    has_truth = (
+        true_poses is not None
+        and len(true_poses) == first + n
+        and bool(np.isfinite(true_poses[first:]).any())
+    )
     if not has_truth:
         return Evaluation(
             n, counts, claims, False, np.zeros(n, bool), correct, best_error, weighted_error, (), confidence
         )
     assert true_poses is not None
-    true_revisit = ground_truth_revisits(true_poses, radius_m, heading_deg)
+    true_revisit = ground_truth_revisits(true_poses, radius_m, heading_deg)[first:]
     heading_rad = math.radians(heading_deg)
     for t, (_, hypotheses) in enumerate(steps):
-        revisits = [h for h in hypotheses if not h.is_new_state and 0 <= h.state < n]
-        if not revisits or not np.isfinite(true_poses[t]).all():
+        revisits = [h for h in hypotheses if not h.is_new_state and 0 <= h.state < first + n]
+        if not revisits or not np.isfinite(true_poses[first + t]).all():
             continue
-        errors = pose_error(true_poses[t], true_poses[[h.state for h in revisits]])
+        errors = pose_error(true_poses[first + t], true_poses[[h.state for h in revisits]])
         weights = np.array([h.belief for h in revisits])
         finite = np.isfinite(errors).all(axis=1)
         if finite.any() and weights[finite].sum() > 0:

@@ -17,7 +17,7 @@ distance of the same kind (see :class:`aslam.core.tree.NewPlaceReference`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -37,6 +37,11 @@ class ObservationModel(Protocol):
     @property
     def fixed_reference(self) -> float:
         """Distance of an unseen place when the reference is not calibrated online."""
+        ...
+
+    @property
+    def floor(self) -> float:
+        """Distances below this all count as this (likelihoods stay finite; identical views)."""
         ...
 
     @property
@@ -154,6 +159,15 @@ class ThumbnailModel:
 
 
 OBSERVATION_MODELS = ("histogram", "thumbnail")
+
+
+def descriptor_key(config: EstimatorConfig) -> str:
+    """What decides the vector ``describe`` makes under ``config``: views stored by one run can be
+    compared by another only when these are equal (a prior map, ``estimate --map``)."""
+    if config.observation_model == "thumbnail":
+        return "thumbnail"
+    h = config.histogram
+    return f"histogram({', '.join(f'{k}={v}' for k, v in sorted(asdict(h).items()))})"
 
 
 def observation_model(config: EstimatorConfig) -> ObservationModel:

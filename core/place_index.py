@@ -54,8 +54,15 @@ class PlaceIndex:
         """Whether queries go to the HNSW graph (the map outgrew ``exact_limit``)."""
         return self._hnsw is not None
 
-    def add(self, state: int, observation: np.ndarray) -> None:
-        """A newly committed place (states arrive in increasing order: a state is its first keyframe)."""
+    def add(self, state: int, observation: np.ndarray, *, searchable: bool = False) -> None:
+        """A newly committed place (states arrive in increasing order: a state is its first keyframe).
+
+        ``searchable`` skips the wait: a prior session's places are not recent in this one.
+        """
+        if searchable and not self._waiting and self._hnsw is None:
+            self._vectors.append(self._project(observation))
+            self._states.append(state)
+            return
         self._waiting.append((state, self._project(observation)))
 
     def search(self, observation: np.ndarray, keyframes: int, count: int) -> np.ndarray:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from aslam.core.config import EstimatorConfig
-from aslam.core.mapgraph import GrowableArray, SharedMap
+from aslam.core.mapgraph import GrowableArray, PriorMap, SharedMap
 from aslam.core.motion import (
     IDENTITY_REL,
     Rel,
@@ -95,14 +95,18 @@ class NewPlaceReference:
     than the place one step away typically does.
     """
 
-    def __init__(self, fixed: float, scale: float, window: int = 200, warmup: int = 5) -> None:
+    def __init__(self, fixed: float, scale: float, floor: float, window: int = 200, warmup: int = 5) -> None:
         self.fixed = fixed
         self.scale = scale
+        self._floor = floor
         self._recent: deque[float] = deque(maxlen=window)
         self._warmup = warmup
 
     def observe(self, consecutive_distance: float) -> None:
-        if self.scale > 0 and math.isfinite(consecutive_distance):
+        """One distance between consecutive keyframes. Views closer than the likelihood's floor are
+        one scene seen twice (a robot standing still, a repeated frame), not neighbouring places:
+        they are left out, or a stop would drive the reference to zero and make every view new."""
+        if self.scale > 0 and math.isfinite(consecutive_distance) and consecutive_distance > self._floor:
             self._recent.append(consecutive_distance)
 
     @property
@@ -115,7 +119,9 @@ class NewPlaceReference:
 class HypothesisTree:
     """The hypotheses and the shared map, advanced one keyframe at a time."""
 
-    def __init__(self, config: EstimatorConfig, model: ObservationModel | None = None) -> None:
+    def __init__(
+        self, config: EstimatorConfig, model: ObservationModel | None = None, prior: PriorMap | None = None
+    ) -> None:
         self.config = config
         self.model = model if model is not None else observation_model(config)
         observation_length = self.model.length
@@ -142,6 +148,7 @@ class HypothesisTree:
         self.reference = NewPlaceReference(
             self.model.fixed_reference,
             self.model.online_scale if config.new_state_reference == "online" else 0.0,
+            self.model.floor,
         )
         self._log_revisit = math.log(config.revisit_prior)
         self._log_relocalise = (
@@ -149,6 +156,13 @@ class HypothesisTree:
             if config.relocalisation_prior > 0
             else -math.inf
         )
+        self._log_map_relocalise = (
+            math.log(config.revisit_prior) + math.log(config.map_relocalisation_prior)
+            if config.map_relocalisation_prior > 0
+            else -math.inf
+        )
+        self._map_sample = np.zeros(0, np.int64)
+        """A fixed sample of the prior map's places: each view's 'other place' level across sessions."""
         self._index = PlaceIndex(observation_length, config.relocalisation_skip)
         self._relocalised: set[int] = set()
         # statistics
@@ -156,6 +170,41 @@ class HypothesisTree:
         self._count_max = 0
         self._max_uncommitted = 0
         self._searched_sum = 0
+        self._first_keyframe = 0 if prior is None else prior.keyframes
+        if prior is not None:
+            self._seed(prior)
+
+    def _seed(self, prior: PriorMap) -> None:
+        """Start in ``prior``'s map: its places, views and links committed, the robot nowhere yet.
+
+        The leaves start as one *session start* node (state ``SESSION_START``), already committed:
+        the session's first keyframe is then placed by appearance alone (:meth:`_start_session`).
+        How the earlier keyframes arrived at their places is not stored, so the paper's path search
+        (``candidate_search="path"``) does not walk back into the prior.
+        """
+        if prior.views.shape[1:] != (self.model.length,):
+            raise ValueError(
+                f"the map's views have length {prior.views.shape[1]},"
+                f" this observation model's {self.model.length}"
+            )
+        views = np.zeros((prior.keyframes, self.model.length), np.float32)
+        views[prior.states] = prior.views
+        self.observations.extend(views)
+        self.committed_state_of_keyframe.extend(prior.state_of_keyframe)
+        self.committed_rel_of_keyframe.extend(np.tile(np.array(UNKNOWN_REL), (prior.keyframes, 1)))
+        for state, view in zip(prior.states.tolist(), prior.views, strict=True):
+            self.shared.add_state(state)
+            self._index.add(state, view, searchable=True)
+        for from_state, to_state, rel, count in prior.links:
+            self.shared.add_link(from_state, to_state, rel, count)
+        rng = np.random.default_rng(20261130)
+        count = min(MAP_SAMPLE, len(prior.states))
+        self._map_sample = (
+            np.sort(rng.choice(prior.states, count, replace=False)) if count else self._map_sample
+        )
+        start = self._new_node(prior.keyframes - 1, SESSION_START, None, 0.0, False, IDENTITY_REL)
+        self.leaves = [start]
+        self.commit_root = start
 
     # ------------------------------------------------------------------ the step
     def add_keyframe(self, action: np.ndarray, observation: np.ndarray) -> list[Hypothesis]:
@@ -171,6 +220,8 @@ class HypothesisTree:
             self.committed_rel_of_keyframe.append(IDENTITY_REL)
             self._record_count(1)
             return [Hypothesis(root.id, None, 0, 1.0, True)]
+        if self.leaves[0].state == SESSION_START:
+            return self._start_session(observation, keyframe)
 
         self.reference.observe(float(self.model.distances(observation, self.observations.view[-2:-1])[0]))
         log_new = self._log_new_prior + float(self.model.log_likelihood(self.reference.value))
@@ -178,13 +229,16 @@ class HypothesisTree:
         action_cov = action_covariance(action, self._noise)
         proposals = self._propose(self.leaves, action, action_cov)
 
-        relocalisation = self._relocalisation_candidates(observation, keyframe, proposals[0][0])
+        map_scale = self._map_scale(observation)
+        relocalisation, relocalisation_priors = self._relocalisation_candidates(
+            observation, keyframe, proposals[0][0], map_scale
+        )
         candidate_ids = np.unique(
             np.concatenate([p[0] for p in proposals] + [relocalisation, np.zeros(0, np.int64)])
         )
         log_obs_of: dict[int, float] = {}
         if len(candidate_ids):
-            distances = self.model.distances(observation, self.observations.view[candidate_ids])
+            distances = self._distances(observation, candidate_ids, map_scale)
             log_obs = self.model.log_likelihood(distances)
             if self.config.appearance_veto > 0:
                 # A view as unlike the place as views a step apart are is no revisit, whatever
@@ -212,8 +266,8 @@ class HypothesisTree:
         # keyframe must confirm it through the motion model, as a revisit of the next place.
         best = self.leaves[0]
         ceiling = best.log_belief + log_new + math.log(0.5)
-        for state in relocalisation.tolist():
-            log_belief = best.log_belief + self._log_relocalise + log_obs_of[state]
+        for state, log_prior in zip(relocalisation.tolist(), relocalisation_priors, strict=True):
+            log_belief = best.log_belief + log_prior + log_obs_of[state]
             children.append((min(log_belief, ceiling), best, state, False))
         self._relocalised = set(relocalisation.tolist())
 
@@ -234,45 +288,127 @@ class HypothesisTree:
         self._record_count(len(leaves))
         return self.hypotheses()
 
+    def _start_session(self, observation: np.ndarray, keyframe: int) -> list[Hypothesis]:
+        """The first keyframe in a prior map: anywhere in it, or somewhere new.
+
+        Candidates come from appearance over the whole map (the relocalisation index, bounded
+        cost); the revisit prior is shared evenly among them. Nothing links them to the map by
+        odometry, so the next keyframes must confirm one through the motion model.
+        """
+        start = self.leaves[0]
+        log_new = self._log_new_prior + float(self.model.log_likelihood(self.reference.value))
+        children: list[tuple[float, Node, int, bool]] = [(log_new, start, keyframe, True)]
+        top = self._index.search(observation, keyframe, self.config.relocalisation_candidates)
+        if len(top):
+            top = np.sort(top)
+            distances = self._distances(observation, top, self._map_scale(observation))
+            log_obs = self.model.log_likelihood(distances)
+            if self.config.appearance_veto > 0:
+                log_obs = np.where(
+                    distances >= self.config.appearance_veto * self.reference.value, -np.inf, log_obs
+                )
+            log_prior = self._log_revisit - math.log(len(top))
+            children += [
+                (log_prior + lo, start, state, False)
+                for state, lo in zip(top.tolist(), log_obs.tolist(), strict=True)
+                if lo > -math.inf
+            ]
+        self.leaves = [
+            self._new_node(keyframe, state, parent, log_belief, is_new, UNKNOWN_REL)
+            for log_belief, parent, state, is_new in self._prune(children)
+        ]
+        self._commit_shared_history()
+        self._record_count(len(self.leaves))
+        return self.hypotheses()
+
     def _proposed(self, leaf: Node, state: int, proposals: list[tuple[np.ndarray, np.ndarray]]) -> bool:
         """Whether ``state`` was a motion candidate of ``leaf`` this step."""
         index = next(i for i, other in enumerate(self.leaves) if other is leaf)
         return bool(np.any(proposals[index][0] == state))
 
     def _relocalisation_candidates(
-        self, observation: np.ndarray, keyframe: int, proposed: np.ndarray
-    ) -> np.ndarray:
-        """Committed places that look like ``observation``, found over the whole map at bounded cost.
+        self, observation: np.ndarray, keyframe: int, proposed: np.ndarray, map_scale: float
+    ) -> tuple[np.ndarray, list[float]]:
+        """Committed places that look like ``observation``, found over the whole map at bounded cost,
+        with the log prior of a jump to each.
 
         The index (:class:`aslam.core.place_index.PlaceIndex`: an exact scan up to 2,048 places, an
         HNSW graph beyond) shortlists the ``relocalisation_candidates`` most similar committed
         places; they are then compared exactly. The best is returned if it looks more alike than the new-place
         reference, clearly more alike than the runner-up, and the motion model did not propose it.
+        In a prior map, the ``map_relocalisation_candidates`` most alike of the map's own places are
+        returned too, untested (``map_relocalisation_prior``): the sequence that follows decides.
         """
-        if self._log_relocalise == -math.inf or not self.leaves:
-            return np.zeros(0, np.int64)
+        none = (np.zeros(0, np.int64), [])
+        if not self.leaves or (self._log_relocalise == -math.inf and self._log_map_relocalise == -math.inf):
+            return none
         top = self._index.search(
             observation, len(self.committed_state_of_keyframe), self.config.relocalisation_candidates
         )
         if not len(top):
-            return np.zeros(0, np.int64)
+            return none
         held = [leaf.state for leaf in self.leaves]  # already hypotheses: nothing to relocalise to
         top = top[~np.isin(top, proposed) & ~np.isin(top, held)]
         if not len(top):
-            return np.zeros(0, np.int64)
-        distances = self.model.distances(observation, self.observations.view[top])
+            return none
+        distances = self._distances(observation, top, map_scale)
         order = np.lexsort((top, distances))
+        from_map = top[order] < self._first_keyframe
+        found: list[int] = []
+        priors: list[float] = []
+        if self._log_map_relocalise > -math.inf:
+            found = top[order][from_map][: self.config.map_relocalisation_candidates].tolist()
+            priors = [self._log_map_relocalise] * len(found)
+            order = order[~from_map]
+        if self._log_relocalise > -math.inf:
+            own = self._distinctive(observation, top, distances, order, proposed, map_scale)
+            found += own
+            priors += [self._log_relocalise] * len(own)
+        return np.array(found, dtype=np.int64), priors
+
+    def _distinctive(
+        self,
+        observation: np.ndarray,
+        top: np.ndarray,
+        distances: np.ndarray,
+        order: np.ndarray,
+        proposed: np.ndarray,
+        map_scale: float,
+    ) -> list[int]:
+        """The best of ``top`` (ranked by ``order``) if appearance alone singles it out, else none."""
         # Distinctive only (Lowe's ratio test): in an aliased stretch, where several places look
         # alike, appearance alone must not move the robot.
         if len(order) < 2 or not distances[order[0]] < RELOCALISATION_RATIO * distances[order[1]]:
-            return np.zeros(0, np.int64)
+            return []
         if not distances[order[0]] < self.reference.value:
-            return np.zeros(0, np.int64)
+            return []
         if len(proposed):  # and clearly more alike than what the motion model predicts
-            predicted = self.model.distances(observation, self.observations.view[proposed])
+            predicted = self._distances(observation, proposed, map_scale)
             if not distances[order[0]] < RELOCALISATION_RATIO * float(predicted.min()):
-                return np.zeros(0, np.int64)
-        return top[order[:1]].astype(np.int64)
+                return []
+        return [int(top[order[0]])]
+
+    def _map_scale(self, observation: np.ndarray) -> float:
+        """The factor (≤ 1) that puts distances to a prior map's views on this run's scale.
+
+        Another session's light, season or camera moves every distance to the map's views, those
+        of the right place too, so the run's own new-place reference (views a step apart, same
+        session) would call every map place unseen. The map's 'other place' level for this view is
+        its median distance to a fixed sample of the map's places; a map place is judged against
+        ``map_reference_scale`` × that level wherever it lies above the run's own reference.
+        """
+        if not len(self._map_sample) or self.config.map_reference_scale <= 0:
+            return 1.0
+        level = float(np.median(self.model.distances(observation, self.observations.view[self._map_sample])))
+        reference = self.config.map_reference_scale * level
+        return min(1.0, self.reference.value / reference) if reference > 0 else 1.0
+
+    def _distances(self, observation: np.ndarray, states: np.ndarray, map_scale: float) -> np.ndarray:
+        """Distances of ``observation`` to ``states``' views, a prior map's on this run's scale."""
+        distances = self.model.distances(observation, self.observations.view[states])
+        if map_scale < 1.0:
+            distances = np.where(states < self._first_keyframe, distances * map_scale, distances)
+        return distances
 
     def _index_place(self, state: int) -> None:
         """Add a committed place (its first view) to the relocalisation index."""
@@ -282,7 +418,7 @@ class HypothesisTree:
         return [
             Hypothesis(
                 leaf.id,
-                None if leaf.parent is None else leaf.parent.id,
+                None if leaf.parent is None or leaf.parent.state == SESSION_START else leaf.parent.id,
                 leaf.state,
                 math.exp(leaf.log_belief),
                 leaf.is_new,
@@ -446,7 +582,7 @@ class HypothesisTree:
         node = leaf
         while node is not self.commit_root and node.parent is not None:
             a, b = node.parent.state, node.state
-            if a != b:
+            if a != b and a != SESSION_START:
                 overlay.setdefault(a, []).append((b, (node.rel, node.weight)))
                 overlay.setdefault(b, []).append((a, (node.inverse_rel, node.weight)))
             node = node.parent
@@ -499,7 +635,8 @@ class HypothesisTree:
             if node.is_new:
                 self.shared.add_state(node.state)
                 self._index_place(node.state)
-            self.shared.add_traversal(node.parent.state, node.state, node.rel)
+            if node.parent.state != SESSION_START:  # sessions are not linked by odometry
+                self.shared.add_traversal(node.parent.state, node.state, node.rel)
             self.committed_state_of_keyframe.append(node.state)
             self.committed_rel_of_keyframe.append(node.rel)
         if path:
@@ -533,13 +670,13 @@ class HypothesisTree:
         return nodes[::-1]
 
     def stats(self) -> TreeStats:
-        keyframes = len(self.observations)
+        keyframes = len(self.observations) - self._first_keyframe
         return TreeStats(
             keyframes=keyframes,
             nodes_created=self._next_id,
             max_hypotheses=self._count_max,
             mean_hypotheses=self._count_sum / max(keyframes, 1),
-            committed_keyframes=len(self.committed_state_of_keyframe),
+            committed_keyframes=len(self.committed_state_of_keyframe) - self._first_keyframe,
             max_uncommitted=self._max_uncommitted,
             searched_states_mean=self._searched_sum / max(keyframes - 1, 1),
         )
@@ -559,6 +696,12 @@ RELOCALISATION_RATIO = 0.8
 
 _UNKNOWN_LINK = (1e6, 0.0, 0.0, 1e6, 0.0, 1e6)
 """Covariance of a relocalisation link: so uncertain that no search crosses it (weight ≫ bound)."""
+UNKNOWN_REL: Rel = (0.0, 0.0, 0.0, *_UNKNOWN_LINK)
+"""A link odometry did not measure (a session's first keyframe, a prior map's arrivals)."""
+MAP_SAMPLE = 64
+"""Places of a prior map sampled to measure each view's cross-session 'other place' level."""
+SESSION_START = -1
+"""State of the node a session in a prior map starts from: the robot is nowhere yet."""
 
 
 def _flat(covariance: np.ndarray) -> list[float]:

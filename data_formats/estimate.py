@@ -14,6 +14,8 @@ own types (``MapState``, ``MapLink``, ``Hypothesis``, ``TreeStats``).
 
 from __future__ import annotations
 
+import base64
+import binascii
 import json
 from collections.abc import Iterator, Mapping
 from contextlib import closing
@@ -21,6 +23,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, NamedTuple
+
+import numpy as np
 
 from aslam.core.estimator import EstimateResult, MapLink, MapState, StepResult
 from aslam.core.tree import Hypothesis, TreeStats
@@ -35,8 +39,11 @@ ESTIMATE_METADATA = "aslam.estimate"
 TIMING_METADATA = "aslam.timing"
 KEYFRAME_TOPIC = "/aslam/keyframe"
 GRAPH_TOPIC = "/aslam/graph"
+PLACE_VIEWS_TOPIC = "/aslam/place_views"
 KEYFRAME_SCHEMA_NAME = "aslam.Keyframe"
 GRAPH_SCHEMA_NAME = "aslam.Graph"
+PLACE_VIEWS_SCHEMA_NAME = "aslam.PlaceViews"
+PLACES_PER_VIEW_MESSAGE = 1024
 FORMAT_VERSION = "1"
 #: The keys of the ``topics`` metadata (``aslam.data_formats.recording.RecordingTopics``' fields).
 TOPIC_KEYS = ("image", "odometry", "ground_truth", "camera_info")
@@ -80,7 +87,11 @@ GRAPH_SCHEMA: dict[str, Any] = {
     "title": GRAPH_SCHEMA_NAME,
     "type": "object",
     "properties": {
-        "keyframes": {**_INTEGER, "description": "Keyframes in the run."},
+        "keyframes": {**_INTEGER, "description": "Keyframes in the map: the prior map's, then this run's."},
+        "first_keyframe": {
+            **_INTEGER,
+            "description": "Index of this run's first keyframe (0, or the prior map's keyframes with --map).",
+        },
         "states": {
             "type": "array",
             "items": {
@@ -113,7 +124,23 @@ GRAPH_SCHEMA: dict[str, Any] = {
         "hypotheses": {"type": "array", "items": _HYPOTHESIS},
         "tree": {"type": "object", "description": "Hypothesis-tree statistics."},
     },
-    "required": ["keyframes", "states", "links", "hypotheses", "tree"],
+    "required": ["keyframes", "first_keyframe", "states", "links", "hypotheses", "tree"],
+}
+PLACE_VIEWS_SCHEMA: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "title": PLACE_VIEWS_SCHEMA_NAME,
+    "description": "The view stored with each place of the final map, for a later run to start in (--map).",
+    "type": "object",
+    "properties": {
+        "observation_model": {"type": "string", "description": "The model that described the views."},
+        "length": {**_INTEGER, "description": "Numbers per view."},
+        "states": {"type": "array", "items": _INTEGER, "description": "Place ids, ascending."},
+        "views": {
+            "type": "string",
+            "description": "The views, row per state: little-endian float32, base64.",
+        },
+    },
+    "required": ["observation_model", "length", "states", "views"],
 }
 
 
@@ -151,6 +178,7 @@ def _reading_schemas() -> tuple[dict[str, Any], dict[str, Any]]:
     for hypotheses in (keyframe["properties"]["hypotheses"], graph["properties"]["hypotheses"]):
         hypotheses["items"]["properties"]["belief"] = belief
     number = {"type": "number", "minimum": -MAX_ABS_NUMBER, "maximum": MAX_ABS_NUMBER}
+    graph["required"] = [key for key in graph["required"] if key != "first_keyframe"]  # older files: 0
     graph["properties"]["tree"].update(
         required=list(TreeStats.__dataclass_fields__),
         properties={name: number for name in TreeStats.__dataclass_fields__},
@@ -160,6 +188,7 @@ def _reading_schemas() -> tuple[dict[str, Any], dict[str, Any]]:
 
 
 KEYFRAME_READING_SCHEMA, GRAPH_READING_SCHEMA = _reading_schemas()
+PLACE_VIEWS_READING_SCHEMA = _bounded(PLACE_VIEWS_SCHEMA)
 _validators: dict[str, Any] = {}
 
 
@@ -201,15 +230,27 @@ class RecordingIdentity:
 
 
 @dataclass(frozen=True)
+class MapIdentity:
+    """The prior map a run started in (``estimate --map``): an earlier estimate file."""
+
+    path: str
+    """Absolute path at estimate time."""
+    sha256: str
+    keyframes: int
+    """Keyframes in that map: this run's keyframes are numbered from here."""
+
+
+@dataclass(frozen=True)
 class EstimateMetadata:
     tool_version: str
     config: dict[str, Any]
     recording: RecordingIdentity
     topics: dict[str, str]
+    prior_map: MapIdentity | None = None
 
     def as_record(self) -> dict[str, str]:
         """The MCAP metadata map (strings only; structured values as JSON)."""
-        return {
+        record = {
             "format_version": FORMAT_VERSION,
             "tool_version": self.tool_version,
             "config": _dumps(self.config),
@@ -218,6 +259,11 @@ class EstimateMetadata:
             "recording_sha256": self.recording.sha256,
             "topics": _dumps(self.topics),
         }
+        if self.prior_map is not None:
+            record["map_path"] = self.prior_map.path
+            record["map_sha256"] = self.prior_map.sha256
+            record["map_keyframes"] = str(self.prior_map.keyframes)
+        return record
 
     @classmethod
     def from_record(cls, record: Mapping[str, str], path: Path) -> EstimateMetadata:
@@ -231,6 +277,9 @@ class EstimateMetadata:
                     record["recording_sha256"],
                 ),
                 topics=json.loads(record["topics"], parse_constant=_no_constant),
+                prior_map=None
+                if "map_path" not in record
+                else MapIdentity(record["map_path"], record["map_sha256"], int(record["map_keyframes"])),
             )
         except (KeyError, ValueError, TypeError, RecursionError) as err:
             raise EstimateError(f"unreadable '{ESTIMATE_METADATA}' metadata ({err!r})", path=path) from err
@@ -250,6 +299,8 @@ class EstimateMetadata:
             return f"topics must map {', '.join(TOPIC_KEYS)} to topic names (null: found in a bag)"
         if self.recording.size_bytes < 0:
             return "recording_size_bytes is negative"
+        if self.prior_map is not None and self.prior_map.keyframes < 0:
+            return "map_keyframes is negative"
         return None
 
 
@@ -296,10 +347,35 @@ class EstimateGraph:
     """The ``/aslam/graph`` message: the best hypothesis's map and the final hypotheses."""
 
     keyframes: int
+    """Keyframes in the map: the prior map's (``first_keyframe`` of them), then this run's."""
     states: tuple[MapState, ...]
     links: tuple[MapLink, ...]
     hypotheses: tuple[Hypothesis, ...]
     tree: TreeStats
+    first_keyframe: int = 0
+
+
+@dataclass(frozen=True)
+class PlaceViews:
+    """The view stored with each place of the final map (what ``estimate --map`` starts from)."""
+
+    observation_model: str
+    states: np.ndarray
+    """(P,) int64 place ids, ascending."""
+    views: np.ndarray
+    """(P, length) float32, row per place."""
+
+    def messages(self) -> Iterator[dict[str, Any]]:
+        """``/aslam/place_views`` messages, ``PLACES_PER_VIEW_MESSAGE`` places each."""
+        for start in range(0, len(self.states), PLACES_PER_VIEW_MESSAGE):
+            rows = slice(start, start + PLACES_PER_VIEW_MESSAGE)
+            data = np.ascontiguousarray(self.views[rows], dtype="<f4").tobytes()
+            yield {
+                "observation_model": self.observation_model,
+                "length": int(self.views.shape[1]),
+                "states": [int(state) for state in self.states[rows]],
+                "views": base64.b64encode(data).decode("ascii"),
+            }
 
 
 @dataclass(frozen=True)
@@ -342,7 +418,8 @@ def keyframe_message(step: StepResult) -> dict[str, Any]:
 
 def graph_message(result: EstimateResult) -> dict[str, Any]:
     return {
-        "keyframes": len(result.keyframe_stamps_ns),
+        "keyframes": result.first_keyframe + len(result.keyframe_stamps_ns),
+        "first_keyframe": result.first_keyframe,
         "states": [{"id": s.id, "keyframes": list(s.keyframes)} for s in result.states],
         "links": [
             {
@@ -388,6 +465,10 @@ class EstimateWriter:
             )
             self._keyframe_channel = self._writer.register_channel(KEYFRAME_TOPIC, "json", keyframe_schema)
             self._graph_channel = self._writer.register_channel(GRAPH_TOPIC, "json", graph_schema)
+            views_schema = self._writer.register_schema(
+                PLACE_VIEWS_SCHEMA_NAME, "jsonschema", _dumps(PLACE_VIEWS_SCHEMA).encode()
+            )
+            self._views_channel = self._writer.register_channel(PLACE_VIEWS_TOPIC, "json", views_schema)
         except BaseException:
             self.abort()
             raise
@@ -426,12 +507,16 @@ class EstimateWriter:
         metadata: EstimateMetadata,
         timing: Timing | None,
         scene: MetricScene | None = None,
+        views: PlaceViews | None = None,
     ) -> None:
-        """Write the graph, the metric view for Foxglove (if given) and the metadata, close, and
-        move the file to its final name."""
+        """Write the graph, the places' views (if given), the metric view for Foxglove (if given)
+        and the metadata, close, and move the file to its final name."""
 
         def last_writes() -> None:
             self._add(self._graph_channel, self._last_stamp_ns, graph_message(result))
+            if views is not None:
+                for message in views.messages():
+                    self._add(self._views_channel, self._last_stamp_ns, message)
             if scene is not None:
                 from aslam.data_formats.foxglove import write_scene
 
@@ -524,6 +609,7 @@ def _graph(raw: Mapping[str, Any], path: Path) -> EstimateGraph:
             ),
             hypotheses=tuple(_hypothesis(h) for h in raw["hypotheses"]),
             tree=TreeStats(**raw["tree"]),
+            first_keyframe=int(raw.get("first_keyframe", 0)),
         )
     except (KeyError, TypeError, ValueError) as err:
         raise EstimateError(f"malformed '{GRAPH_TOPIC}' message ({err!r})", path=path) from err
@@ -536,6 +622,8 @@ def _graph(raw: Mapping[str, Any], path: Path) -> EstimateGraph:
 def _graph_reference_problem(graph: EstimateGraph) -> str | None:
     """What a schema cannot say: links name states that exist, states name keyframes that exist."""
     ids = {state.id for state in graph.states}
+    if graph.first_keyframe > graph.keyframes:
+        return f"first_keyframe {graph.first_keyframe} is beyond the {graph.keyframes} keyframes"
     if len(ids) != len(graph.states):
         return "two states share an id"
     for state in graph.states:
@@ -558,3 +646,35 @@ def read_estimate(path: Path) -> EstimateFile:
     if graph is None:
         raise EstimateError(f"no '{GRAPH_TOPIC}' message (the estimate is incomplete)", path=source.path)
     return EstimateFile(metadata, timing, _graph(graph, source.path))
+
+
+def read_place_views(path: Path) -> PlaceViews:
+    """The stored views of an estimate's places, checked against its graph's places."""
+    source = _open(path)
+    states: list[int] = []
+    blocks: list[np.ndarray] = []
+    model = None
+    with closing(_messages(source, PLACE_VIEWS_TOPIC)) as messages:
+        for raw in messages:
+            _validate(raw, PLACE_VIEWS_READING_SCHEMA, "place views", source.path)
+            length = int(raw["length"])
+            try:
+                data = base64.b64decode(raw["views"], validate=True)
+            except (binascii.Error, ValueError) as err:
+                raise EstimateError(f"corrupt place views ({err})", path=source.path) from err
+            if length == 0 or len(data) != 4 * length * len(raw["states"]):
+                raise EstimateError("place views of the wrong size", path=source.path)
+            if model is not None and (raw["observation_model"], length) != (model, blocks[-1].shape[1]):
+                raise EstimateError("place views of two kinds", path=source.path)
+            model = raw["observation_model"]
+            states.extend(int(state) for state in raw["states"])
+            blocks.append(np.frombuffer(data, dtype="<f4").reshape(-1, length).astype(np.float32))
+    if model is None:
+        raise EstimateError(
+            f"no '{PLACE_VIEWS_TOPIC}' messages: the map's views were not stored (estimate it again)",
+            path=source.path,
+        )
+    views = np.concatenate(blocks)
+    if not np.isfinite(views).all():
+        raise EstimateError("place views hold a non-finite number", path=source.path)
+    return PlaceViews(model, np.array(states, dtype=np.int64), views)

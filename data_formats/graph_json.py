@@ -35,8 +35,10 @@ def build_graph_json(
     estimate_path: str,
     recording_path: str | None,
 ) -> dict[str, Any]:
-    """The map as JSON (``docs/graph-json.md``)."""
+    """The map as JSON (``docs/graph-json.md``). ``stamps_ns`` are this run's keyframes' (from
+    ``graph.first_keyframe`` on); ``true_poses`` covers every keyframe of the map."""
     n = len(stamps_ns)
+    first = graph.first_keyframe
 
     def truth(keyframe: int) -> dict[str, float] | None:
         if true_poses is None or not 0 <= keyframe < len(true_poses):
@@ -47,7 +49,7 @@ def build_graph_json(
         {
             "id": state.id,
             "keyframes": list(state.keyframes),
-            "stamps_ns": [int(stamps_ns[k]) for k in state.keyframes if 0 <= k < n],
+            "stamps_ns": [int(stamps_ns[k - first]) for k in state.keyframes if first <= k < first + n],
             "first_visit_truth": truth(state.id),
         }
         for state in graph.states
@@ -68,6 +70,7 @@ def build_graph_json(
         "estimate": estimate_path,
         "recording": recording_path,
         "keyframes": n,
+        "first_keyframe": first,
         "ground_truth": true_poses is not None,
         "states": states,
         "links": links,

@@ -63,11 +63,19 @@ def test_thumbnail_tolerates_a_small_pan_and_tells_places_apart():
 
 
 def test_new_place_reference_is_fixed_until_it_has_seen_enough():
-    reference = NewPlaceReference(fixed=0.5, scale=0.75, window=4, warmup=3)
+    reference = NewPlaceReference(fixed=0.5, scale=0.75, floor=0.02, window=4, warmup=3)
     reference.observe(0.8)
     reference.observe(0.9)
     assert reference.value == 0.5
     for d in (1.0, 2.0, 2.0):  # the window keeps the last four: 0.9, 1, 2, 2
         reference.observe(d)
     assert reference.value == pytest.approx(0.75 * 1.5)
-    assert NewPlaceReference(fixed=0.5, scale=0.0).value == 0.5  # scale 0: always fixed
+    assert NewPlaceReference(fixed=0.5, scale=0.0, floor=0.02).value == 0.5  # scale 0: always fixed
+
+
+def test_a_robot_standing_still_does_not_drive_the_reference_to_zero():
+    """Identical consecutive views (a stop, a repeated frame) say nothing about neighbouring places."""
+    reference = NewPlaceReference(fixed=0.5, scale=1.0, floor=0.02, window=10, warmup=3)
+    for d in (0.4, 0.0, 0.0, 0.01, 0.0, 0.6, 0.0, 0.5):
+        reference.observe(d)
+    assert reference.value == pytest.approx(0.5)
