@@ -143,7 +143,7 @@ def estimate(
     )
     source = open_input(recording, topics, on_warning=warn)
     total = source.image_count()
-    estimator = Estimator(config, start_map)
+    estimator = Estimator(config, start_map, odometry_known=source.odometry_known)
     counts = PipelineCounts()
     hasher = FileHasher(recording)
     start = time.perf_counter()

@@ -5,6 +5,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
     import numpy as np
     from rich.console import Console
 
@@ -36,6 +38,13 @@ def sparkline(counts: np.ndarray, width: int = SPARK_WIDTH) -> str:
     return "".join(SPARK[min(len(SPARK) - 1, (int(b.max()) * len(SPARK) - 1) // peak)] for b in buckets)
 
 
+def _truth_source(known: bool, recording: Path | None, first_keyframe: int) -> str:
+    if not known:
+        return "none"
+    source = "keyframe index" if recording is None else str(recording)
+    return f"{source} (and the map's sessions)" if first_keyframe else source
+
+
 def print_report(console: Console, report: Report) -> None:
     """The report's tables and the hypothesis sparkline."""
     from rich.table import Table
@@ -48,7 +57,7 @@ def print_report(console: Console, report: Report) -> None:
     loop = s["loop_closure"]
     reloc = s["relocalisation"]
     rows = [
-        ("ground truth", str(recording) if s["ground_truth"] else "none"),
+        ("ground truth", _truth_source(s["ground_truth"], recording, report.estimate.graph.first_keyframe)),
         ("keyframes", s["keyframes"]),
         ("states (places)", s["states"]),
         ("links", s["links"]),

@@ -213,7 +213,7 @@ class EstimatorConfig:
 
     # --- a run in a prior map (estimate --map) ----------------------------------------------------
     map_relocalisation_prior: float = _param(
-        0.01,
+        1e-3,
         "With --map: prior of a jump to one of the map's places found by appearance. Each keyframe the"
         " map_relocalisation_candidates most similar are proposed, with no distinctiveness test: across"
         " sessions appearance alone is rarely distinctive: the next keyframes' motion decides (0 = never).",

@@ -141,11 +141,24 @@ class Estimator:
     """Appearance-based SLAM over a stream of (stamp, odometry pose, image); optionally starting in
     the map of an earlier session (``prior``), with the robot's place in it unknown."""
 
-    def __init__(self, config: EstimatorConfig | None = None, prior: PriorMap | None = None) -> None:
+    def __init__(
+        self,
+        config: EstimatorConfig | None = None,
+        prior: PriorMap | None = None,
+        *,
+        odometry_known: bool = True,
+    ) -> None:
+        """``odometry_known=False``: the actions are the equal steps assumed for frames without
+        odometry (``aslam import`` of a bare image folder: one pass along a route, SeqSLAM's
+        assumption). With no odometry to fail and no loop in one pass, a jump by appearance to a
+        place of this run could only be a look-alike, so none is proposed; a prior map's places
+        still are (``--map``)."""
         self.config = config or EstimatorConfig()
         self.observation_model: ObservationModel = observation_model(self.config)
         self._keyframer = keyframer(self.config)
-        self._tree = HypothesisTree(self.config, self.observation_model, prior)
+        self._tree = HypothesisTree(
+            self.config, self.observation_model, prior, relocalise_within=odometry_known
+        )
         self._first_keyframe = 0 if prior is None else prior.keyframes
         self._stamps: list[int] = []
 

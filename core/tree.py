@@ -120,8 +120,15 @@ class HypothesisTree:
     """The hypotheses and the shared map, advanced one keyframe at a time."""
 
     def __init__(
-        self, config: EstimatorConfig, model: ObservationModel | None = None, prior: PriorMap | None = None
+        self,
+        config: EstimatorConfig,
+        model: ObservationModel | None = None,
+        prior: PriorMap | None = None,
+        *,
+        relocalise_within: bool = True,
     ) -> None:
+        """``relocalise_within=False``: no jumps by appearance to this run's own places (see
+        :class:`aslam.core.estimator.Estimator`'s ``odometry_known``); a prior map's still."""
         self.config = config
         self.model = model if model is not None else observation_model(config)
         observation_length = self.model.length
@@ -153,7 +160,7 @@ class HypothesisTree:
         self._log_revisit = math.log(config.revisit_prior)
         self._log_relocalise = (
             math.log(config.revisit_prior) + math.log(config.relocalisation_prior)  # no underflow
-            if config.relocalisation_prior > 0
+            if config.relocalisation_prior > 0 and relocalise_within
             else -math.inf
         )
         self._log_map_relocalise = (
@@ -161,6 +168,10 @@ class HypothesisTree:
             if config.map_relocalisation_prior > 0
             else -math.inf
         )
+        self._log_enter_map = self._log_revisit - math.log(config.relocalisation_candidates)
+        """Prior of entering a prior map at one of the places appearance proposes (the revisit prior
+        shared among ``relocalisation_candidates``): at the session's start, and whenever the best
+        hypothesis is off the map."""
         self._map_sample = np.zeros(0, np.int64)
         """A fixed sample of the prior map's places: each view's 'other place' level across sessions."""
         self._index = PlaceIndex(observation_length, config.relocalisation_skip)
@@ -307,7 +318,7 @@ class HypothesisTree:
                 log_obs = np.where(
                     distances >= self.config.appearance_veto * self.reference.value, -np.inf, log_obs
                 )
-            log_prior = self._log_revisit - math.log(len(top))
+            log_prior = self._log_enter_map
             children += [
                 (log_prior + lo, start, state, False)
                 for state, lo in zip(top.tolist(), log_obs.tolist(), strict=True)
@@ -358,7 +369,10 @@ class HypothesisTree:
         priors: list[float] = []
         if self._log_map_relocalise > -math.inf:
             found = top[order][from_map][: self.config.map_relocalisation_candidates].tolist()
-            priors = [self._log_map_relocalise] * len(found)
+            # Tracked in the map, a jump elsewhere in it is a relocalisation; not yet (or no longer)
+            # in it, the robot may enter it anywhere, as at the session's start.
+            in_map = self.leaves[0].state < self._first_keyframe
+            priors = [self._log_map_relocalise if in_map else self._log_enter_map] * len(found)
             order = order[~from_map]
         if self._log_relocalise > -math.inf:
             own = self._distinctive(observation, top, distances, order, proposed, map_scale)

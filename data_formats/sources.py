@@ -96,6 +96,11 @@ class RecordingInput:
     def ground_truth(self) -> Iterator[tuple[int, np.ndarray]]:
         return self.recording.ground_truth(self.topics)
 
+    @property
+    def odometry_known(self) -> bool:
+        """False for an image folder imported without odometry (equal steps assumed, ``aslam import``)."""
+        return self.recording.metadata().get("odometry_known") != "false"
+
     def describe(self) -> RecordingInfo:
         info = describe_recording(self.recording, self.topics, warn=self._warnings)
         return replace(info, warnings=tuple(self._warnings.lines))
@@ -127,6 +132,9 @@ class BagInput:
         if self.choice.ground_truth is None:
             raise BagError("no ground-truth topic named for this bag (--ground-truth-topic)", path=self.path)
         return iter_bag_ground_truth(self.path, self.choice.ground_truth)
+
+    odometry_known = True
+    """A bag's odometry is measured (an ``Odometry`` topic or ``/tf``)."""
 
     def describe(self) -> RecordingInfo:
         info = describe_bag(self.path, self.topics, on_warning=self._warnings)

@@ -213,14 +213,15 @@ def square_view(pose: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return np.clip(image + noise, 0, 255).astype(np.uint8)
 
 
-def write_square_recording(path: Path) -> None:
-    """A small recording of the square route with views that depend on the place (64×48 PNG)."""
-    rng = np.random.default_rng(7)
+def write_square_recording(path: Path, route: list[np.ndarray] | None = None, seed: int = 7) -> None:
+    """A small recording of the square route (or ``route``: true poses) with views that depend on
+    the place (64×48 PNG); ``seed`` draws the image and odometry noise of this run."""
+    rng = np.random.default_rng(seed)
     camera = CameraIntrinsics(64, 48, 60.0)
     odometry = np.zeros(3)
     previous = None
     with RecordingWriter(path, camera=camera, metadata={"world": "test", "route": "square"}) as writer:
-        for i, truth in enumerate(square_route()):
+        for i, truth in enumerate(square_route() if route is None else route):
             if previous is not None:
                 step = se2.between(previous, truth)
                 noisy = step * (1 + rng.normal(0, 0.01, 3))

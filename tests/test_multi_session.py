@@ -1,0 +1,247 @@
+"""Multi-session maps (``estimate --map``): a run starts in an earlier run's map with its place in
+it unknown, relocalises by appearance, tracks and extends it; ``report`` scores its claims against
+the earlier run's places with both runs' ground truth.
+
+The sessions drive the procedurally textured square of ``conftest`` (no renderer): the second
+starts elsewhere on the square, with its own image and odometry noise.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import one_error_line, square_route, write_square_recording
+
+from aslam.cli.app import main
+from aslam.core.config import EstimatorConfig
+from aslam.core.estimator import Estimator, MapLink, MapState, prior_map
+from aslam.data_formats.estimate import iter_keyframes, read_estimate, read_place_views
+
+FIRST_LAP = 16  # poses per lap of the square (4 sides × (3 steps + a turn))
+
+
+def second_session_route(start: int) -> list[np.ndarray]:
+    """One lap of the square from pose ``start`` of the first lap, on to where it began."""
+    lap = square_route()[: FIRST_LAP + 1]
+    return lap[start:] + lap[1 : start + 1]
+
+
+@pytest.fixture(scope="module")
+def sessions(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    folder = tmp_path_factory.mktemp("sessions")
+    first, second = folder / "first.mcap", folder / "second.mcap"
+    write_square_recording(first)
+    write_square_recording(second, second_session_route(5), seed=11)
+    out = {"first": first, "second": second}
+    for name, recording in (("first", first), ("second", second)):
+        estimate = folder / f"{name}.est.mcap"
+        args = ["estimate", str(recording), "-o", str(estimate), "-q", "--no-timing"]
+        if name == "second":
+            args += ["--map", str(out["first.est"])]
+        assert main(args) == 0
+        out[f"{name}.est"] = estimate
+    return out
+
+
+def report_json(estimate: Path, *extra: str, capsys: pytest.CaptureFixture[str]) -> dict:
+    capsys.readouterr()
+    assert main(["report", str(estimate), "--json", "-", "-q", *extra]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_the_second_session_relocalises_in_the_first_map_and_extends_it(sessions):
+    before = read_estimate(sessions["first.est"]).graph
+    after = read_estimate(sessions["second.est"]).graph
+    assert after.first_keyframe == before.keyframes
+    assert after.keyframes == before.keyframes + len(second_session_route(5))
+    keyframes = [k.index for k in iter_keyframes(sessions["second.est"])]
+    assert keyframes == list(range(before.keyframes, after.keyframes))
+    # The earlier map survives whole: every place with all its visits, every link.
+    places = {state.id: state.keyframes for state in after.states}
+    for state in before.states:
+        assert places[state.id][: len(state.keyframes)] == state.keyframes
+    assert {(link.from_state, link.to_state) for link in before.links} <= {
+        (link.from_state, link.to_state) for link in after.links
+    }
+    views = read_place_views(sessions["second.est"])
+    assert views.states.tolist() == sorted(places)
+
+
+def test_report_scores_the_claims_against_the_first_sessions_places(sessions, capsys):
+    summary = report_json(sessions["second.est"], capsys=capsys)
+    assert summary["ground_truth"] is True
+    closure = summary["loop_closure"]
+    # Every keyframe of the second session revisits the first session's square.
+    assert closure["ground_truth_revisits"] == summary["keyframes"]
+    assert closure["precision"] == 1.0
+    assert closure["recall"] >= 0.8
+    assert summary["relocalisation"]["first_delay_keyframes"] <= 2
+
+
+def test_the_graph_json_names_the_first_keyframe_and_the_truth_of_every_place(sessions, tmp_path):
+    graph_path = tmp_path / "graph.json"
+    assert main(["report", str(sessions["second.est"]), "--graph", str(graph_path), "-q"]) == 0
+    graph = json.loads(graph_path.read_text())
+    first = read_estimate(sessions["first.est"]).graph.keyframes
+    assert graph["first_keyframe"] == first
+    assert all(state["first_visit_truth"] is not None for state in graph["states"])
+
+
+def test_without_a_map_the_same_recording_is_a_new_map(sessions, tmp_path, capsys):
+    """The control: without --map only the lap's own closing keyframe can be a revisit."""
+    alone = tmp_path / "alone.est.mcap"
+    assert main(["estimate", str(sessions["second"]), "-o", str(alone), "-q"]) == 0
+    assert report_json(alone, capsys=capsys)["loop_closure"]["claims"] <= 1
+    with_map = report_json(sessions["second.est"], capsys=capsys)["loop_closure"]
+    assert with_map["claims"] >= 0.8 * len(second_session_route(5))
+
+
+def test_an_estimate_with_a_map_is_byte_identical_on_a_rerun(sessions, tmp_path):
+    again = tmp_path / "again.est.mcap"
+    args = ["estimate", str(sessions["second"]), "--map", str(sessions["first.est"]), "--no-timing", "-q"]
+    assert main([*args, "-o", str(again)]) == 0
+    assert again.read_bytes() == sessions["second.est"].read_bytes()
+
+
+def test_a_chain_of_sessions_reports_with_every_sessions_truth(sessions, tmp_path, capsys):
+    third_recording = tmp_path / "third.mcap"
+    write_square_recording(third_recording, second_session_route(9), seed=23)
+    third = tmp_path / "third.est.mcap"
+    args = ["estimate", str(third_recording), "--map", str(sessions["second.est"]), "-o", str(third), "-q"]
+    assert main(args) == 0
+    summary = report_json(third, capsys=capsys)
+    assert summary["ground_truth"] is True
+    assert summary["loop_closure"]["precision"] == 1.0
+
+
+@pytest.mark.parametrize(
+    ("make_map", "words"),
+    [
+        ("recording", "not an aslam estimate file"),
+        ("missing", "no such map"),
+        ("histogram", "observation settings"),
+    ],
+)
+def test_a_map_that_cannot_be_used_is_one_line_and_exit_2(sessions, tmp_path, capsys, make_map, words):
+    if make_map == "recording":
+        the_map = sessions["first"]
+    elif make_map == "missing":
+        the_map = tmp_path / "nowhere.est.mcap"
+    else:
+        the_map = tmp_path / "histogram.est.mcap"
+        args = [
+            "estimate",
+            str(sessions["first"]),
+            "-o",
+            str(the_map),
+            "-q",
+            "--observation-model",
+            "histogram",
+        ]
+        assert main(args) == 0
+    out = tmp_path / "out.est.mcap"
+    capsys.readouterr()
+    code = main(["estimate", str(sessions["second"]), "--map", str(the_map), "-o", str(out)])
+    line = one_error_line(capsys.readouterr().err)
+    assert code == 2
+    assert str(the_map) in line and words in line
+    assert not out.exists()
+
+
+# --- the core --------------------------------------------------------------------------------------
+
+
+def test_prior_map_refuses_parts_that_do_not_fit():
+    views = np.zeros((2, 4), np.float32)
+    states = (MapState(0, (0,)), MapState(1, (1, 2)))
+    link = MapLink(0, 1, (1.0, 0.0, 0.0), ((0.01, 0, 0), (0, 0.01, 0), (0, 0, 0.001)), 1)
+    assert prior_map(3, states, (link,), views).keyframes == 3
+    with pytest.raises(ValueError, match="outside"):
+        prior_map(2, states, (link,), views)
+    with pytest.raises(ValueError, match="in no place"):
+        prior_map(4, states, (link,), views)
+    with pytest.raises(ValueError, match="do not match"):
+        prior_map(3, states, (link,), views[:1])
+    with pytest.raises(ValueError, match="not both"):
+        prior_map(
+            3,
+            states,
+            (MapLink(0, 5, link.action, link.covariance, 1),),
+            views,
+        )
+
+
+def test_a_session_with_no_keyframes_leaves_the_map_as_it_was():
+    config = EstimatorConfig(observation_model="histogram", cells_x=1)
+    first = Estimator(config)
+    rng = np.random.default_rng(0)
+    for k in range(6):
+        first.add_keyframe(
+            k,
+            np.array([1.0, 0, 0]) if k else np.zeros(3),
+            rng.random(first.observation_model.length).astype(np.float32),
+        )
+    done = first.result()
+    start = prior_map(len(done.keyframe_stamps_ns), done.states, done.links, first.place_views(done.states))
+    result = Estimator(config, start).result()
+    assert result.states == done.states and result.hypotheses == () and result.first_keyframe == 6
+
+
+def _random_run(
+    estimator: Estimator, count: int, seed: int = 0, repeat: dict[int, int] | None = None
+) -> list:
+    """``count`` keyframes one metre apart straight ahead, with random views; ``repeat`` maps a
+    keyframe to an earlier one whose view it shows again (a look-alike)."""
+    rng = np.random.default_rng(seed)
+    views: list[np.ndarray] = []
+    steps = []
+    for k in range(count):
+        view = rng.normal(0, 1, estimator.observation_model.length).astype(np.float32)
+        if repeat and k in repeat:
+            view = views[repeat[k]]
+        views.append(view)
+        steps.append(estimator.add_keyframe(k, np.array([1.0, 0, 0]) if k else np.zeros(3), view))
+    return steps
+
+
+def test_without_odometry_a_run_never_jumps_to_its_own_places():
+    """Equal steps (no odometry): one pass along a route, so a view seen again is a look-alike."""
+    look_alikes = {20: 4, 21: 5, 22: 6, 23: 7}
+
+    def claims(odometry_known: bool) -> list[int]:
+        steps = _random_run(Estimator(odometry_known=odometry_known), 26, repeat=look_alikes)
+        return [s.keyframe for s in steps if not s.best.is_new_state]
+
+    assert claims(odometry_known=True)  # with odometry, appearance alone may move the robot
+    assert claims(odometry_known=False) == []
+
+
+def test_place_views_are_written_in_blocks_and_read_back(tmp_path, monkeypatch):
+    from aslam.app.estimate import load_prior_map
+    from aslam.data_formats import estimate as estimate_format
+    from aslam.data_formats.errors import EstimateError
+
+    monkeypatch.setattr(estimate_format, "PLACES_PER_VIEW_MESSAGE", 4)
+    estimator = Estimator()
+    _random_run(estimator, 10)
+    result = estimator.result()
+    metadata = estimate_format.EstimateMetadata(
+        "test", {}, estimate_format.RecordingIdentity("/nowhere.mcap", 0, "0" * 64), {}
+    )
+    views = estimate_format.PlaceViews(
+        "thumbnail", np.array([s.id for s in result.states]), estimator.place_views(result.states)
+    )
+    with_views, without = tmp_path / "with.est.mcap", tmp_path / "without.est.mcap"
+    for path, stored in ((with_views, views), (without, None)):
+        with estimate_format.EstimateWriter(path, tool_version="test") as writer:
+            writer.finish(result, metadata, None, None, stored)
+    back = read_place_views(with_views)
+    assert back.observation_model == "thumbnail"
+    np.testing.assert_array_equal(back.states, views.states)
+    np.testing.assert_array_equal(back.views, views.views)
+    assert load_prior_map(with_views, EstimatorConfig())[0].keyframes == 10
+    with pytest.raises(EstimateError, match="not stored"):
+        load_prior_map(without, EstimatorConfig())
