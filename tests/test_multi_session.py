@@ -245,3 +245,34 @@ def test_place_views_are_written_in_blocks_and_read_back(tmp_path, monkeypatch):
     assert load_prior_map(with_views, EstimatorConfig())[0].keyframes == 10
     with pytest.raises(EstimateError, match="not stored"):
         load_prior_map(without, EstimatorConfig())
+
+
+@pytest.mark.parametrize(
+    ("damage", "words"),
+    [
+        ({"views": "not base64!"}, "corrupt place views"),
+        ({"length": 7}, "wrong size"),
+        ({"states": "all"}, "invalid place views message"),
+    ],
+)
+def test_damaged_place_views_are_one_error_naming_the_map(
+    sessions, tmp_path, monkeypatch, capsys, damage, words
+):
+    from aslam.data_formats import estimate as estimate_format
+
+    honest = estimate_format.PlaceViews.messages
+
+    def damaged(self):
+        for message in honest(self):
+            yield {**message, **damage}
+
+    monkeypatch.setattr(estimate_format.PlaceViews, "messages", damaged)
+    the_map = tmp_path / "damaged.est.mcap"
+    assert main(["estimate", str(sessions["first"]), "-o", str(the_map), "-q"]) == 0
+    monkeypatch.undo()
+    out = tmp_path / "out.est.mcap"
+    capsys.readouterr()
+    code = main(["estimate", str(sessions["second"]), "--map", str(the_map), "-o", str(out)])
+    line = one_error_line(capsys.readouterr().err)
+    assert code == 2 and str(the_map) in line and words in line
+    assert not out.exists()
