@@ -214,18 +214,20 @@ class EstimatorConfig:
     # --- a run in a prior map (estimate --map) ----------------------------------------------------
     map_relocalisation_prior: float = _param(
         1e-3,
-        "With --map: prior of a jump to one of the map's places found by appearance. Each keyframe the"
-        " map_relocalisation_candidates most similar are proposed, with no distinctiveness test: across"
-        " sessions appearance alone is rarely distinctive: the next keyframes' motion decides (0 = never).",
+        "With --map: while the best hypothesis is in the map, prior of a jump elsewhere in it, to one of the"
+        " map_relocalisation_candidates most alike places (no distinctiveness test: across sessions one image"
+        " is weak evidence; the next keyframes' motion decides). Off the map, entering it anywhere is as"
+        " likely as at the first keyframe (0 = no jumps into the map after the first keyframe).",
     )
     map_relocalisation_candidates: int = _param(
         3, "With --map: the map's places proposed by appearance each keyframe (see map_relocalisation_prior)."
     )
     map_reference_scale: float = _param(
-        0.95,
-        "With --map: another session's light or season moves every distance to the map's views, so a"
-        " map place is judged against this × the view's median distance to a fixed sample of the map's"
-        " places, where that is above the run's own new-place reference (0 = the run's reference only).",
+        0.0,
+        "With --map, for maps of another season or light: a map place is judged against this × the view's"
+        " median distance to a fixed sample of the map's places, where that is above the run's own new-place"
+        " reference (e.g. 0.95). Relative, so in ground the map does not cover it makes look-alikes"
+        " (docs/real-data.md); 0 = the run's own reference.",
     )
 
     # --- hypothesis tree ------------------------------------------------------------------------

@@ -409,7 +409,8 @@ class HypothesisTree:
         of the right place too, so the run's own new-place reference (views a step apart, same
         session) would call every map place unseen. The map's 'other place' level for this view is
         its median distance to a fixed sample of the map's places; a map place is judged against
-        ``map_reference_scale`` × that level wherever it lies above the run's own reference.
+        ``map_reference_scale`` × that level wherever it lies above the run's own reference. Off by
+        default (0): being relative, it also lifts the best of unrelated places in new ground.
         """
         if not len(self._map_sample) or self.config.map_reference_scale <= 0:
             return 1.0

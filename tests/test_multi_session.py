@@ -276,3 +276,20 @@ def test_damaged_place_views_are_one_error_naming_the_map(
     line = one_error_line(capsys.readouterr().err)
     assert code == 2 and str(the_map) in line and words in line
     assert not out.exists()
+
+
+def test_new_ground_shaped_like_the_map_gets_no_claim_into_it(sessions, tmp_path, capsys):
+    """The same square driven elsewhere (other views, the same odometry): nothing is the map."""
+    elsewhere = [pose + np.array([100.0, 100.0, 0.0]) for pose in second_session_route(5)]
+    recording = tmp_path / "elsewhere.mcap"
+    write_square_recording(recording, elsewhere, seed=31)
+    out = tmp_path / "elsewhere.est.mcap"
+    args = ["estimate", str(recording), "--map", str(sessions["first.est"]), "-o", str(out), "-q"]
+    assert main(args) == 0
+    first = read_estimate(out).graph.first_keyframe
+    claimed = [
+        k.hypotheses[0].state
+        for k in iter_keyframes(out)
+        if not k.hypotheses[0].is_new_state and k.hypotheses[0].state < first
+    ]
+    assert claimed == []
