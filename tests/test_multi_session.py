@@ -293,3 +293,20 @@ def test_new_ground_shaped_like_the_map_gets_no_claim_into_it(sessions, tmp_path
         if not k.hypotheses[0].is_new_state and k.hypotheses[0].state < first
     ]
     assert claimed == []
+
+
+def test_from_new_ground_into_the_map_it_relocalises_on_entering(sessions, tmp_path, capsys):
+    """Four steps toward the square from outside it (never mapped), then one lap of it."""
+    lap = square_route()[: FIRST_LAP + 1]
+    approach = [np.array([-4.0 + k, 0.0, 0.0]) for k in range(4)]
+    recording = tmp_path / "approach.mcap"
+    write_square_recording(recording, approach + lap, seed=41)
+    out = tmp_path / "approach.est.mcap"
+    args = ["estimate", str(recording), "--map", str(sessions["first.est"]), "-o", str(out), "-q"]
+    assert main(args) == 0
+    first = read_estimate(out).graph.first_keyframe
+    best = [k.hypotheses[0] for k in iter_keyframes(out)]
+    assert all(h.is_new_state or h.state >= first for h in best[: len(approach)])  # nothing claimed outside
+    summary = report_json(out, capsys=capsys)
+    assert summary["loop_closure"]["precision"] == 1.0
+    assert summary["relocalisation"]["first_delay_keyframes"] <= 2
