@@ -239,8 +239,8 @@ def load_prior_map(path: Path, config: EstimatorConfig) -> tuple[PriorMap, MapId
         raise EstimateError(str(err), path=path) from err
     if descriptor_key(made_with) != descriptor_key(config):
         raise EstimateError(
-            f"the map's views were made by the {made_with.observation_model} model with other settings;"
-            f" run with the map's observation settings ({descriptor_key(made_with)})",
+            f"the map's views were made with {descriptor_key(made_with)}, this run's would be made with"
+            f" {descriptor_key(config)}: give this run the map's options",
             path=path,
         )
     try:

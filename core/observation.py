@@ -17,7 +17,7 @@ distance of the same kind (see :class:`aslam.core.tree.NewPlaceReference`).
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -162,12 +162,14 @@ OBSERVATION_MODELS = ("histogram", "thumbnail")
 
 
 def descriptor_key(config: EstimatorConfig) -> str:
-    """What decides the vector ``describe`` makes under ``config``: views stored by one run can be
-    compared by another only when these are equal (a prior map, ``estimate --map``)."""
+    """What decides the vector ``describe`` makes under ``config``, as the ``aslam estimate`` options
+    that set it: views stored by one run can be compared by another only when these are equal (a
+    prior map, ``estimate --map``)."""
     if config.observation_model == "thumbnail":
-        return "thumbnail"
+        return "--observation-model thumbnail"
     h = config.histogram
-    return f"histogram({', '.join(f'{k}={v}' for k, v in sorted(asdict(h).items()))})"
+    cells = f"--cells-x {h.cells_x} --cells-y {h.cells_y}"
+    return f"--observation-model histogram --histogram-bins {h.bins} {cells}"
 
 
 def observation_model(config: EstimatorConfig) -> ObservationModel:

@@ -38,6 +38,8 @@ TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
 IMAGE_FILE_SUFFIXES = (".png", ".jpg", ".jpeg")
 _BAG1_MAGIC = b"#ROSBAG V2.0"
 _SQLITE_MAGIC = b"SQLite format 3\x00"
+ESTIMATE_METADATA_NAME = "aslam.estimate"
+"""``aslam.data_formats.estimate.ESTIMATE_METADATA``, named here so telling inputs apart imports no numpy."""
 _ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
 
 
@@ -91,6 +93,8 @@ def classify(
         # are read by aslam's own reader; any other MCAP file as a rosbag2 storage file.
         if mcap.metadata(METADATA_NAME) is not None or {ours.image, ours.odometry} <= set(mcap.channels):
             return SourceKind.RECORDING, mcap
+        if mcap.metadata(ESTIMATE_METADATA_NAME) is not None:
+            raise BagError("an aslam estimate file, not a recording (`aslam report` reads it)", path=path)
         _need_suffix(path, ".mcap", "an MCAP file")
         return SourceKind.ROSBAG2_FILE, mcap
     if head.startswith(_BAG1_MAGIC):

@@ -122,7 +122,7 @@ def test_a_chain_of_sessions_reports_with_every_sessions_truth(sessions, tmp_pat
     [
         ("recording", "not an aslam estimate file"),
         ("missing", "no such map"),
-        ("histogram", "observation settings"),
+        ("histogram", "give this run the map's options"),
     ],
 )
 def test_a_map_that_cannot_be_used_is_one_line_and_exit_2(sessions, tmp_path, capsys, make_map, words):
@@ -310,3 +310,18 @@ def test_from_new_ground_into_the_map_it_relocalises_on_entering(sessions, tmp_p
     summary = report_json(out, capsys=capsys)
     assert summary["loop_closure"]["precision"] == 1.0
     assert summary["relocalisation"]["first_delay_keyframes"] <= 2
+
+
+@pytest.mark.parametrize("command", ["info", "estimate"])
+def test_an_estimate_given_as_a_recording_is_one_line(sessions, tmp_path, capsys, command):
+    from aslam.data_formats.estimate import ESTIMATE_METADATA
+    from aslam.data_formats.rosbag_source import ESTIMATE_METADATA_NAME
+
+    assert ESTIMATE_METADATA_NAME == ESTIMATE_METADATA
+    args = [command, str(sessions["first.est"])]
+    if command == "estimate":
+        args += ["-o", str(tmp_path / "out.est.mcap")]
+    capsys.readouterr()
+    assert main(args) == 2
+    line = one_error_line(capsys.readouterr().err)
+    assert "an aslam estimate file, not a recording" in line and str(sessions["first.est"].name) in line
