@@ -172,6 +172,7 @@ class HypothesisTree:
         """Prior of entering a prior map at one of the places appearance proposes (the revisit prior
         shared among ``relocalisation_candidates``): at the session's start, and whenever the best
         hypothesis is off the map."""
+        self._recent_steps: deque[float] = deque(maxlen=JUMP_WINDOW)
         self._map_sample = np.zeros(0, np.int64)
         """A fixed sample of the prior map's places: each view's 'other place' level across sessions."""
         self._index = PlaceIndex(observation_length, config.relocalisation_skip)
@@ -238,11 +239,15 @@ class HypothesisTree:
         log_new = self._log_new_prior + float(self.model.log_likelihood(self.reference.value))
         action = np.asarray(action, dtype=float)
         action_cov = action_covariance(action, self._noise)
-        proposals = self._propose(self.leaves, action, action_cov)
+        jumped = self._log_relocalise > -math.inf and self._odometry_jumped(action)
+        if jumped:  # not a motion: nothing to predict from it
+            proposals = [(np.zeros(0, np.int64), np.zeros(0)) for _ in self.leaves]
+        else:
+            proposals = self._propose(self.leaves, action, action_cov)
 
         map_scale = self._map_scale(observation)
         relocalisation, relocalisation_priors = self._relocalisation_candidates(
-            observation, keyframe, proposals[0][0], map_scale
+            observation, keyframe, proposals[0][0], map_scale, untested=jumped
         )
         candidate_ids = np.unique(
             np.concatenate([p[0] for p in proposals] + [relocalisation, np.zeros(0, np.int64)])
@@ -286,7 +291,7 @@ class HypothesisTree:
         action_rel = to_rel(action, action_cov)
         leaves = []
         for log_belief, parent, state, is_new in survivors:
-            rel = action_rel
+            rel = action_rel if not jumped else UNKNOWN_REL
             if not (is_new and parent.is_new):  # measured from or to a visit, not the place itself
                 rel = rel[:3] + tuple(np.add(rel[3:], _flat(self._visit_cov)).tolist())
             if parent is best and state in self._relocalised and not self._proposed(parent, state, proposals):
@@ -337,8 +342,25 @@ class HypothesisTree:
         index = next(i for i, other in enumerate(self.leaves) if other is leaf)
         return bool(np.any(proposals[index][0] == state))
 
+    def _odometry_jumped(self, action: np.ndarray) -> bool:
+        """Whether ``action`` is an odometry failure rather than a motion: over ``JUMP_FACTOR`` times
+        the median of the run's recent keyframe steps (an odometry reset, a driver restart). Judged
+        against the run's own steps, so a dataset with long steps between frames is not flagged."""
+        length = math.hypot(float(action[0]), float(action[1]))
+        recent = self._recent_steps
+        jumped = len(recent) >= JUMP_WARMUP and length > JUMP_FACTOR * float(np.median(recent))
+        if not jumped and length >= 0.25 * self.config.step_m:  # turns in place are no step
+            recent.append(length)
+        return jumped
+
     def _relocalisation_candidates(
-        self, observation: np.ndarray, keyframe: int, proposed: np.ndarray, map_scale: float
+        self,
+        observation: np.ndarray,
+        keyframe: int,
+        proposed: np.ndarray,
+        map_scale: float,
+        *,
+        untested: bool = False,
     ) -> tuple[np.ndarray, list[float]]:
         """Committed places that look like ``observation``, found over the whole map at bounded cost,
         with the log prior of a jump to each.
@@ -349,6 +371,8 @@ class HypothesisTree:
         reference, clearly more alike than the runner-up, and the motion model did not propose it.
         In a prior map, the ``map_relocalisation_candidates`` most alike of the map's own places are
         returned too, untested (``map_relocalisation_prior``): the sequence that follows decides.
+        After an odometry jump (``untested``) the robot may be anywhere: as at a session's start,
+        the ``map_relocalisation_candidates`` most alike places are all returned, untested.
         """
         none = (np.zeros(0, np.int64), [])
         if not self.leaves or (self._log_relocalise == -math.inf and self._log_map_relocalise == -math.inf):
@@ -364,6 +388,9 @@ class HypothesisTree:
             return none
         distances = self._distances(observation, top, map_scale)
         order = np.lexsort((top, distances))
+        if untested:
+            found = top[order][: self.config.map_relocalisation_candidates].tolist()
+            return np.array(found, dtype=np.int64), [self._log_enter_map] * len(found)
         from_map = top[order] < self._first_keyframe
         found: list[int] = []
         priors: list[float] = []
@@ -713,6 +740,12 @@ _UNKNOWN_LINK = (1e6, 0.0, 0.0, 1e6, 0.0, 1e6)
 """Covariance of a relocalisation link: so uncertain that no search crosses it (weight ≫ bound)."""
 UNKNOWN_REL: Rel = (0.0, 0.0, 0.0, *_UNKNOWN_LINK)
 """A link odometry did not measure (a session's first keyframe, a prior map's arrivals)."""
+JUMP_FACTOR = 4.0
+"""An action this many times the median recent keyframe step is an odometry jump, not a motion."""
+JUMP_WINDOW = 50
+"""Recent keyframe steps the median is taken over."""
+JUMP_WARMUP = 5
+"""Steps seen before any action can count as a jump."""
 MAP_SAMPLE = 64
 """Places of a prior map sampled to measure each view's cross-session 'other place' level."""
 SESSION_START = -1

@@ -302,3 +302,48 @@ def test_without_relocalisation_a_kidnap_is_never_recovered():
         measured = action * (1 + 0.03 * rng.standard_normal(3))
         results.append(estimator.add_keyframe(i, measured, world.observe(truth)))
     assert all(r.best.is_new_state for r in results[kidnap_at:])
+
+
+def _reset_run(world: SyntheticWorld, reset_at: int, config: EstimatorConfig):
+    """Two laps of the rectangle; odometry restarts from zero at keyframe ``reset_at``."""
+    actions = rectangle_actions(2)
+    estimator = Estimator(config)
+    rng = np.random.default_rng(0)
+    truths, odometry = [np.zeros(3)], [np.zeros(3)]
+    results = [estimator.add_keyframe(0, np.zeros(3), world.observe(truths[0]))]
+    for i, action in enumerate(actions, start=1):
+        truths.append(se2.compose(truths[-1], action))
+        measured = action * (1 + 0.03 * rng.standard_normal(3))
+        odometry.append(np.zeros(3) if i == reset_at else se2.compose(odometry[-1], measured))
+        step = se2.between(odometry[-2], odometry[-1])
+        results.append(estimator.add_keyframe(i, step, world.observe(truths[-1])))
+    return estimator, results, truths
+
+
+def test_an_odometry_reset_is_a_jump_not_a_motion():
+    """The reset's action (back to the origin, many metres) predicts nothing: on lap 2 the robot is
+    relocalised by appearance within two keyframes, every claim right; on lap 1 the map's link
+    across the reset is marked as no constraint."""
+    reset_at = 34 + 7  # lap 2, on the long side far from the start
+    _, results, truths = _reset_run(SyntheticWorld(5), reset_at, synthetic_config())
+    claims = [t for t in range(reset_at, len(results)) if not results[t].best.is_new_state]
+    assert claims and claims[0] - reset_at <= 2
+    for t in claims:
+        here, there = truths[t], truths[results[t].best.state]
+        assert math.hypot(*(here[:2] - there[:2])) < 0.5
+    reset_at = 8  # lap 1: nothing to relocalise to yet
+    estimator, _, _ = _reset_run(SyntheticWorld(5), reset_at, synthetic_config())
+    state_of = {k: s.id for s in estimator.result().states for k in s.keyframes}
+    ends = {state_of[reset_at - 1], state_of[reset_at]}
+    across = [link for link in estimator.result().links if {link.from_state, link.to_state} == ends]
+    assert across and across[0].covariance[0][0] >= 1e5
+
+
+def test_long_steps_throughout_are_no_jump():
+    """Judged against the run's own steps: a dataset whose frames are all 5 m apart is not a reset."""
+    estimator = Estimator(synthetic_config())
+    rng = np.random.default_rng(1)
+    for k in range(30):
+        view = rng.dirichlet(np.ones(BINS)).astype(np.float32)
+        estimator.add_keyframe(k, np.array([5.0, 0.0, 0.0]) if k else np.zeros(3), view)
+    assert all(link.covariance[0][0] < 1.0 for link in estimator.result().links)
