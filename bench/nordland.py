@@ -6,7 +6,8 @@ usual tolerance). For each method: best-match accuracy, and over a confidence th
 precision-recall curve, its area (AUC, average precision) and the recall at 100 % precision.
 aslam runs twice: its observation models on single images, and the whole tool — summer estimated
 as a map, winter localised in it with ``estimate --map`` (the hypothesis tree as the sequence
-matcher).
+matcher). A control then runs the journey's second half in a map of its first half: every claim
+into the map is wrong there.
 
     python bench/nordland.py [--data ../shared/data/nordland-64x32] [--first 10] [--last 17880]
 
@@ -89,6 +90,27 @@ def single_image(references: np.ndarray, queries: np.ndarray, model: Observation
     return {**place_recognition_scores(match, confidence), "seconds": time.perf_counter() - start}
 
 
+def _recording(data: Path, season: str, numbers: list[int], workdir: Path, name: str) -> Path:
+    """``numbers``' frames of ``season`` imported as a user would (``aslam import``: no odometry)."""
+    from aslam.app.importer import import_image_folder
+
+    folder = workdir / name
+    folder.mkdir()
+    for n in numbers:
+        (folder / f"images-{n:05d}.png").symlink_to((data / season / f"images-{n:05d}.png").absolute())
+    recording = workdir / f"{name}.mcap"
+    import_image_folder(folder, recording, rate_hz=2.5)
+    return recording
+
+
+def _estimate(recording: Path, output: Path, prior: Path | None = None, scale: float = 0.0) -> Path:
+    from aslam.app.estimate import estimate
+    from aslam.core.config import EstimatorConfig
+
+    estimate(recording, output, EstimatorConfig(map_reference_scale=scale), timing=False, prior=prior)
+    return output
+
+
 def aslam_map(data: Path, numbers: list[int], workdir: Path) -> dict[str, float]:
     """aslam itself, as a user runs it: each season imported (no odometry: equal steps), the summer
     estimate as the map, winter estimated in it (``--map``, ``--map-reference-scale 0.95``), scored
@@ -97,26 +119,18 @@ def aslam_map(data: Path, numbers: list[int], workdir: Path) -> dict[str, float]
     The best hypothesis's claim at each winter keyframe is its match; its belief, the confidence.
     ``committed`` scores the map the hypotheses agreed on (each keyframe's final place).
     """
-    from aslam.app.estimate import estimate
-    from aslam.app.importer import import_image_folder
     from aslam.app.score import score
-    from aslam.core.config import EstimatorConfig
 
     start = time.perf_counter()
-    recordings = {}
-    for season in ("summer", "winter"):
-        folder = workdir / season
-        folder.mkdir()
-        for n in numbers:
-            (folder / f"images-{n:05d}.png").symlink_to((data / season / f"images-{n:05d}.png").absolute())
-        recordings[season] = workdir / f"{season}.mcap"
-        import_image_folder(folder, recordings[season], rate_hz=2.5)
-    summer_map = workdir / "summer.est.mcap"
-    estimate(recordings["summer"], summer_map, EstimatorConfig(), timing=False)
-    winter = workdir / "winter.est.mcap"
-    # Another season: map places judged against the map's own level (--map-reference-scale 0.95).
-    in_winter = EstimatorConfig(map_reference_scale=MAP_REFERENCE_SCALE)
-    estimate(recordings["winter"], winter, in_winter, timing=False, prior=summer_map)
+    summer_map = _estimate(
+        _recording(data, "summer", numbers, workdir, "summer"), workdir / "summer.est.mcap"
+    )
+    winter = _estimate(
+        _recording(data, "winter", numbers, workdir, "winter"),
+        workdir / "winter.est.mcap",
+        prior=summer_map,
+        scale=MAP_REFERENCE_SCALE,
+    )
     summary = score(winter, truth_by_index=True, radius_m=float(TOLERANCE)).summary
     closure = summary["loop_closure"]
     return {
@@ -127,6 +141,31 @@ def aslam_map(data: Path, numbers: list[int], workdir: Path) -> dict[str, float]
         "committed_accuracy": summary["committed"]["recall"],
         "seconds": time.perf_counter() - start,
     }
+
+
+def new_ground(data: Path, numbers: list[int], workdir: Path) -> dict[str, dict[str, int]]:
+    """The control: a map of the journey's first half, runs over its second half (no frame of it in
+    the map), with and without ``--map-reference-scale``: every claim into the map is wrong."""
+    from contextlib import closing
+
+    from aslam.data_formats.estimate import iter_keyframes
+
+    half = len(numbers) // 2
+    the_map = _estimate(_recording(data, "summer", numbers[:half], workdir, "map"), workdir / "map.est.mcap")
+    out: dict[str, dict[str, int]] = {}
+    for season in ("winter", "summer"):
+        recording = _recording(data, season, numbers[half:], workdir, f"{season}-new")
+        for scale in (0.0, MAP_REFERENCE_SCALE):
+            estimate_file = _estimate(recording, workdir / f"{season}-{scale}.est.mcap", the_map, scale)
+            with closing(iter_keyframes(estimate_file)) as keyframes:
+                claims = sum(
+                    1 for k in keyframes if not k.hypotheses[0].is_new_state and k.hypotheses[0].state < half
+                )
+            out[f"{season}, map_reference_scale {scale:g}"] = {
+                "frames": len(numbers) - half,
+                "claims_into_map": claims,
+            }
+    return out
 
 
 def main() -> None:
@@ -153,6 +192,8 @@ def main() -> None:
     }
     with tempfile.TemporaryDirectory(prefix="aslam-nordland-") as workdir:
         result["aslam_map"] = aslam_map(args.data, summer_numbers, Path(workdir))
+    with tempfile.TemporaryDirectory(prefix="aslam-nordland-") as workdir:
+        result["aslam_new_ground"] = new_ground(args.data, summer_numbers, Path(workdir))
     print(json.dumps(result, indent=1))
 
 
