@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aslam.app.metric_view import embed_run, metric_scene
+from aslam.app.metric_view import embed_run, estimator_config, metric_scene
 from aslam.app.pipeline import DEFAULT_WORKERS, PipelineCounts, run_estimate
 from aslam.core.config import EstimatorConfig
 from aslam.core.errors import InputError
@@ -231,8 +231,6 @@ def load_prior_map(path: Path, config: EstimatorConfig) -> tuple[PriorMap, MapId
         raise InputError("no such map (an estimate file from `aslam estimate`)", path=path)
     info = read_estimate(path)
     views = read_place_views(path)
-    from aslam.app.metric_view import estimator_config
-
     try:
         made_with = estimator_config(info.metadata.config)
     except ValueError as err:

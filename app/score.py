@@ -245,13 +245,8 @@ def score(
             stamps.append(keyframe.stamp_ns)
             actions.append(keyframe.action)
     first = info.graph.first_keyframe
-    recording_path = None if truth_by_index else _find_recording(recording, info, warn)
-    true_poses = None  # every keyframe of the map: the prior map's, then this run's
-    if truth_by_index:
-        true_poses = index_truth(len(stamps))
-    elif recording_path is not None:
-        topics = TopicChoice.from_record(info.metadata.topics)
-        true_poses = _ground_truth(recording_path, topics, stamps, warn)
+    # every keyframe of the map: the prior map's, then this run's
+    true_poses, recording_path = _session_truth(info, stamps, truth_by_index, recording, warn)
     if true_poses is not None and first:
         earlier = _map_truth(info, estimate, truth_by_index, warn)
         true_poses = None if earlier is None else np.concatenate([earlier, true_poses])
@@ -314,6 +309,23 @@ def index_truth(keyframes: int) -> np.ndarray:
     return np.column_stack([np.arange(keyframes, dtype=float), np.zeros(keyframes), np.zeros(keyframes)])
 
 
+def _session_truth(
+    info: EstimateFile,
+    stamps: list[int],
+    truth_by_index: bool,
+    recording: Path | None,
+    warn: Callable[[str], None],
+) -> tuple[np.ndarray | None, Path | None]:
+    """One session's truth at its keyframe stamps, and the recording it came from: by index, or
+    from ``recording`` (default: the one the estimate names); (None, …) with a warning if none."""
+    if truth_by_index:
+        return index_truth(len(stamps)), None
+    path = _find_recording(recording, info, warn)
+    if path is None:
+        return None, None
+    return _ground_truth(path, TopicChoice.from_record(info.metadata.topics), stamps, warn), path
+
+
 def _map_truth(
     info: EstimateFile, path: Path, truth_by_index: bool, warn: Callable[[str], None]
 ) -> np.ndarray | None:
@@ -333,14 +345,7 @@ def _map_truth(
     earlier = _map_truth(prior_info, prior_path, truth_by_index, warn)
     if earlier is None:
         return None
-    own = None
-    if truth_by_index:
-        own = index_truth(len(stamps))
-    else:
-        recording = _find_recording(None, prior_info, warn)
-        if recording is not None:
-            topics = TopicChoice.from_record(prior_info.metadata.topics)
-            own = _ground_truth(recording, topics, stamps, warn)
+    own, _ = _session_truth(prior_info, stamps, truth_by_index, None, warn)
     own = np.full((len(stamps), 3), np.nan) if own is None else own
     truth = np.concatenate([earlier, own])
     if len(truth) != prior.keyframes:
