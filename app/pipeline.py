@@ -11,8 +11,6 @@ their histograms. The pipeline keeps the SLAM step off that critical path:
 * where the platform can fork, the producer runs in a child process and sends the keyframes
   (stamp, action, histogram: a few hundred bytes each) through a pipe, so the SLAM step, which
   holds the GIL, runs on the other core instead of stalling the decoders.
-
-``run_floor`` is the same pipeline with a keyframe test and no SLAM: the benchmark's reference.
 """
 
 from __future__ import annotations
@@ -30,8 +28,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from aslam.core.estimator import Estimator, StepResult
-from aslam.core.estimator import keyframer as make_keyframer
-from aslam.core.observation import ObservationModel, observation_model
+from aslam.core.observation import ObservationModel
 from aslam.data_formats.images import LazyImage
 from aslam.data_formats.pose_sync import Sample
 
@@ -132,8 +129,11 @@ def keyframes_from_child_process(
     counts: PipelineCounts,
     workers: int = DEFAULT_WORKERS,
     depth: int = DEFAULT_DEPTH,
+    meanwhile: Callable[[], None] | None = None,
 ) -> Iterator[Keyframe]:
     """:func:`keyframe_histograms` run in a forked child; the keyframes arrive here in order.
+
+    ``meanwhile`` runs here once the child has started, while it reads its first keyframes.
 
     ``samples`` must not have been started: the child opens and reads the recording. Errors
     raised in the child (a bad recording) are raised here; closing this generator, or an
@@ -170,6 +170,8 @@ def keyframes_from_child_process(
     process.start()
     sender.close()
     try:
+        if meanwhile is not None:
+            meanwhile()
         while True:
             try:
                 kind, payload, samples_read = receiver.recv()
@@ -203,24 +205,35 @@ def run_estimate(
     workers: int = DEFAULT_WORKERS,
     depth: int = DEFAULT_DEPTH,
     reader_process: bool = True,
+    meanwhile: Callable[[], None] | None = None,
 ) -> Iterator[StepResult]:
     """Feed ``samples`` through ``estimator``; one ``StepResult`` per keyframe, in order.
+
+    ``meanwhile`` is work for this process while the reader starts (e.g. a slow import the end of
+    the run needs); it runs before the first keyframe, whether or not the reader is a child.
 
     ``reader_process=False`` keeps the reader in this process: needed where this process may not
     have children (a daemonic process, such as a Dask worker), and right where one core per run
     is wanted (a sweep running one task per core).
     """
     counts = counts if counts is not None else PipelineCounts()
-    in_child = reader_process and can_fork()
-    produce = keyframes_from_child_process if in_child else keyframe_histograms
-    keyframes = produce(
-        samples,
-        estimator.keyframe_action,
-        estimator.observation_model,
-        counts=counts,
-        workers=workers,
-        depth=depth,
-    )
+    describe = estimator.observation_model
+    if reader_process and can_fork():
+        keyframes = keyframes_from_child_process(
+            samples,
+            estimator.keyframe_action,
+            describe,
+            counts=counts,
+            workers=workers,
+            depth=depth,
+            meanwhile=meanwhile,
+        )
+    else:
+        if meanwhile is not None:
+            meanwhile()
+        keyframes = keyframe_histograms(
+            samples, estimator.keyframe_action, describe, counts=counts, workers=workers, depth=depth
+        )
     try:
         for keyframe in keyframes:
             start = time.perf_counter()
@@ -229,24 +242,3 @@ def run_estimate(
             yield step
     finally:
         keyframes.close()
-
-
-def run_floor(
-    samples: Iterable[Sample],
-    estimator: Estimator,
-    *,
-    workers: int = DEFAULT_WORKERS,
-    depth: int = DEFAULT_DEPTH,
-) -> int:
-    """The pipeline without SLAM (read, keyframe test, decode, histogram); returns the keyframe count.
-
-    ``estimator`` only lends its configuration: its state is not touched.
-    """
-    config = estimator.config
-    keyframer = make_keyframer(config)
-    count = 0
-    for _ in keyframe_histograms(
-        samples, keyframer.action_if_keyframe, observation_model(config), workers=workers, depth=depth
-    ):
-        count += 1
-    return count

@@ -40,16 +40,6 @@ app = typer.Typer(
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 
-_display_type_rich = typer.core.TyperOption.display_type_rich
-
-
-def _no_flag_placeholder(self: typer.core.TyperOption, ctx: typer.Context) -> str | None:
-    """Flags take no value, so the help shows none (typer would print ``<bool>``)."""
-    return None if self.is_flag else _display_type_rich(self, ctx)
-
-
-typer.core.TyperOption.display_type_rich = _no_flag_placeholder  # type: ignore[method-assign]
-
 
 def _print_version(value: bool) -> None:
     if value:
