@@ -145,7 +145,8 @@ class HypothesisTree:
             [config.place_radius_m**2, config.place_radius_m**2, math.radians(config.place_heading_deg) ** 2]
         )
         self._place_logdet = float(np.linalg.slogdet(self._place_cov)[1])
-        self._place_trace = float(np.trace(self._place_cov))
+        self._place_position_trace = 2.0 * config.place_radius_m**2
+        self._place_heading_variance = math.radians(config.place_heading_deg) ** 2
         self._visit_cov = np.diag(
             [config.visit_sigma_m**2, config.visit_sigma_m**2, math.radians(config.visit_sigma_deg) ** 2]
         )
@@ -365,7 +366,7 @@ class HypothesisTree:
         """Committed places that look like ``observation``, found over the whole map at bounded cost,
         with the log prior of a jump to each.
 
-        The index (:class:`aslam.core.place_index.PlaceIndex`: an exact scan up to 2,048 places, an
+        The index (:class:`aslam.core.place_index.PlaceIndex`: an exact scan up to 8,192 places, an
         HNSW graph beyond) shortlists the ``relocalisation_candidates`` most similar committed
         places; they are then compared exactly. The best is returned if it looks more alike than the new-place
         reference, clearly more alike than the runner-up, and the motion model did not propose it.
@@ -524,16 +525,22 @@ class HypothesisTree:
         Full covariances are composed only for states that can pass the gate. Along the way each
         state carries its pose and two scalars: the heading variance ``V`` (exact) and an upper
         bound ``U`` on √(trace of the position covariance). Composing a link of length ℓ gives
-        ``U' ≤ √((U + ℓ√V)² + tr Σ_link,pos)`` (Cauchy–Schwarz on the SE(2) Jacobian); the residual
-        of a state at distance D from the prediction then has covariance trace at most
-        ``(U + D√V)² + V + tr Σ_u + tr Σ_place``, and ``m² ≥ |d|² / trace``.
+        ``U' ≤ √((U + ℓ√V)² + tr Σ_link,pos)`` (Cauchy–Schwarz on the SE(2) Jacobian). The residual
+        of a state at distance D from the prediction then has a position covariance of trace at most
+        ``(U + D√V)² + tr Σ_u,pos + tr Σ_place,pos`` and a heading variance of exactly
+        ``V + σ²_u,yaw + σ²_place,yaw``; its Mahalanobis distance is at least each block's own, so
+        ``m² ≥ D² / position trace`` and ``m² ≥ Δyaw² / heading variance``. Both tests together
+        leave about one candidate in ten that their sum did (the sum let a state facing the other
+        way through wherever the position was uncertain), and never one that can pass the gate.
         """
         overlay = self._suffix_overlay(leaf)
         shared = self.shared.adjacency
         start = leaf.state
         tx, ty, tyaw = float(action[0]), float(action[1]), float(action[2])
-        fixed_trace = float(np.trace(action_cov)) + self._place_trace
-        gate = self._gate
+        # Each bound gets a relative slack far above rounding: the gate itself decides, these only skip.
+        gate = self._gate * (1.0 + 1e-9)
+        fixed_position = float(action_cov[0, 0] + action_cov[1, 1]) + self._place_position_trace
+        fixed_heading = float(action_cov[2, 2]) + self._place_heading_variance
         nearness = self.config.search_nearness
         cost_of: dict[int, float] = {start: 0.0}
         via: dict[int, tuple[int, Rel]] = {}
@@ -564,7 +571,9 @@ class HypothesisTree:
             distance2 = dx * dx + dy * dy
             dyaw = (tyaw - yaw + math.pi) % (2.0 * math.pi) - math.pi
             spread = u_bound + math.sqrt(distance2 * v)
-            if distance2 + dyaw * dyaw <= gate * (spread * spread + v + fixed_trace):
+            if dyaw * dyaw <= gate * (v + fixed_heading) and distance2 <= gate * (
+                spread * spread + fixed_position
+            ):
                 candidates.append(state)
             cost = cost_of[state]
             c, s = math.cos(yaw), math.sin(yaw)
