@@ -551,8 +551,13 @@ class HypothesisTree:
         limit = self.config.search_max_states
         bound = self._search_bound
         empty: dict[int, tuple[Rel, float]] = {}
+        # Local names: this loop is most of a SLAM step.
+        cos, sin, sqrt, hypot, inf = math.cos, math.sin, math.sqrt, math.hypot, math.inf
+        pi, two_pi = math.pi, 2.0 * math.pi
+        push, pop, cost_so_far = heapq.heappush, heapq.heappop, cost_of.get
+        shared_links, suffix_links = shared.get, overlay.get
         while heap and expanded < limit:
-            _, state = heapq.heappop(heap)
+            state = pop(heap)[1]
             if state in reached:
                 continue
             if state == start:
@@ -560,33 +565,32 @@ class HypothesisTree:
             else:
                 previous, edge = via[state]
                 px, py, pyaw, pu, pv = reached[previous]
-                c, s = math.cos(pyaw), math.sin(pyaw)
+                c, s = cos(pyaw), sin(pyaw)
                 x, y, yaw = px + c * edge[0] - s * edge[1], py + s * edge[0] + c * edge[1], pyaw + edge[2]
-                grown = pu + math.hypot(edge[0], edge[1]) * math.sqrt(pv)
-                u_bound = math.sqrt(grown * grown + edge[3] + edge[6])
+                grown = pu + hypot(edge[0], edge[1]) * sqrt(pv)
+                u_bound = sqrt(grown * grown + edge[3] + edge[6])
                 v = pv + edge[8]
             reached[state] = (x, y, yaw, u_bound, v)
             expanded += 1
             dx, dy = tx - x, ty - y
             distance2 = dx * dx + dy * dy
-            dyaw = (tyaw - yaw + math.pi) % (2.0 * math.pi) - math.pi
-            spread = u_bound + math.sqrt(distance2 * v)
-            if dyaw * dyaw <= gate * (v + fixed_heading) and distance2 <= gate * (
-                spread * spread + fixed_position
-            ):
-                candidates.append(state)
+            dyaw = (tyaw - yaw + pi) % two_pi - pi
+            if dyaw * dyaw <= gate * (v + fixed_heading):
+                spread = u_bound + sqrt(distance2 * v)
+                if distance2 <= gate * (spread * spread + fixed_position):
+                    candidates.append(state)
             cost = cost_of[state]
-            c, s = math.cos(yaw), math.sin(yaw)
-            for edges in (shared.get(state, empty).items(), overlay.get(state, ())):
+            c, s = cos(yaw), sin(yaw)
+            for edges in (shared_links(state, empty).items(), suffix_links(state, ())):
                 for neighbour, (edge, weight) in edges:
                     total = cost + weight
-                    if total > bound or neighbour in reached or total >= cost_of.get(neighbour, math.inf):
+                    if total > bound or neighbour in reached or total >= cost_so_far(neighbour, inf):
                         continue
                     cost_of[neighbour] = total
                     via[neighbour] = (state, edge)
                     ex = x + c * edge[0] - s * edge[1] - tx
                     ey = y + s * edge[0] + c * edge[1] - ty
-                    heapq.heappush(heap, (total + nearness * (ex * ex + ey * ey), neighbour))
+                    push(heap, (total + nearness * (ex * ex + ey * ey), neighbour))
         self._searched_sum += expanded
         rels: dict[int, Rel] = {start: IDENTITY_REL}
 
