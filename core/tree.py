@@ -543,8 +543,8 @@ class HypothesisTree:
         fixed_heading = float(action_cov[2, 2]) + self._place_heading_variance
         nearness = self.config.search_nearness
         cost_of: dict[int, float] = {start: 0.0}
-        via: dict[int, tuple[int, Rel]] = {}
-        reached: dict[int, tuple[float, float, float, float, float]] = {}  # x, y, yaw, U, V
+        via: dict[int, tuple[int, Rel, float, float]] = {}  # from, link, x, y
+        reached: dict[int, tuple[float, float, float]] = {}  # yaw, U, V
         heap = [(nearness * (tx * tx + ty * ty), start)]
         expanded = 0
         candidates: list[int] = []
@@ -563,14 +563,13 @@ class HypothesisTree:
             if state == start:
                 x = y = yaw = u_bound = v = 0.0
             else:
-                previous, edge = via[state]
-                px, py, pyaw, pu, pv = reached[previous]
-                c, s = cos(pyaw), sin(pyaw)
-                x, y, yaw = px + c * edge[0] - s * edge[1], py + s * edge[0] + c * edge[1], pyaw + edge[2]
+                previous, edge, x, y = via[state]  # the position was composed when it was queued
+                pyaw, pu, pv = reached[previous]
+                yaw = pyaw + edge[2]
                 grown = pu + hypot(edge[0], edge[1]) * sqrt(pv)
                 u_bound = sqrt(grown * grown + edge[3] + edge[6])
                 v = pv + edge[8]
-            reached[state] = (x, y, yaw, u_bound, v)
+            reached[state] = (yaw, u_bound, v)
             expanded += 1
             dx, dy = tx - x, ty - y
             distance2 = dx * dx + dy * dy
@@ -587,9 +586,10 @@ class HypothesisTree:
                     if total > bound or neighbour in reached or total >= cost_so_far(neighbour, inf):
                         continue
                     cost_of[neighbour] = total
-                    via[neighbour] = (state, edge)
-                    ex = x + c * edge[0] - s * edge[1] - tx
-                    ey = y + s * edge[0] + c * edge[1] - ty
+                    nx = x + c * edge[0] - s * edge[1]
+                    ny = y + s * edge[0] + c * edge[1]
+                    via[neighbour] = (state, edge, nx, ny)
+                    ex, ey = nx - tx, ny - ty
                     push(heap, (total + nearness * (ex * ex + ey * ey), neighbour))
         self._searched_sum += expanded
         rels: dict[int, Rel] = {start: IDENTITY_REL}
