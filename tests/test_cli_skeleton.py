@@ -35,3 +35,17 @@ def test_help_does_not_import_heavy_modules():
         "assert not heavy, heavy\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True, capture_output=True)
+
+
+def test_the_console_script_flushes_everything_before_it_skips_teardown():
+    """`aslam` ends with os._exit: what it printed into a pipe must all be there, with its exit code."""
+    from pathlib import Path
+
+    aslam = Path(sys.executable).with_name("aslam")
+    help_text = subprocess.run([str(aslam), "estimate", "--help"], capture_output=True, text=True, timeout=60)
+    assert help_text.returncode == 0
+    assert "--search-max-states" in help_text.stdout and help_text.stdout.rstrip().endswith("╯")
+    usage = subprocess.run(
+        [str(aslam), "record", "--no-such-option"], capture_output=True, text=True, timeout=60
+    )
+    assert usage.returncode == 2 and usage.stderr.count("\n") == 1
