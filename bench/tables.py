@@ -220,7 +220,9 @@ def scaling_rows(speed: dict[str, Any]) -> list[list[str]]:
                 d["world"],
                 f"{d['keyframes']:,}",
                 f"{d['states']:,}",
-                f"{d['first_ms']:.3f}",
+                f"{d['first_ms']:.3f} ({d['first_ms_at_start']:.3f})"
+                if "first_ms_at_start" in d
+                else f"{d['first_ms']:.3f}",
                 f"{d['last_ms']:.3f}",
                 ratio,
                 met(d["ratio_last_over_first"] <= SCALING_TARGET),
