@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aslam.app.metric_view import embed_run, estimator_config, metric_scene, preload_optimiser
+from aslam.app.metric_view import embed_run, estimator_config, metric_scene, preload
 from aslam.app.pipeline import DEFAULT_WORKERS, PipelineCounts, run_estimate
 from aslam.core.config import EstimatorConfig
 from aslam.core.errors import InputError
@@ -163,7 +163,7 @@ def estimate(
                     counts=counts,
                     workers=workers,
                     reader_process=reader_process,
-                    meanwhile=preload_optimiser,
+                    meanwhile=preload,
                 )
             ) as steps,
         ):

@@ -155,9 +155,14 @@ def check_assignment(assignment: np.ndarray) -> list[str]:
     return problems
 
 
-def preload_optimiser() -> None:
-    """Import GTSAM (0.15 s) now: ``aslam estimate`` does it while its reader process starts."""
+def preload() -> None:
+    """Import what the metric view needs, GTSAM and Foxglove's schemas (0.15 s), ahead of it:
+    ``aslam estimate`` does it while its reader process starts."""
     import gtsam  # noqa: F401
+
+    from aslam.data_formats.foxglove import preload_schemas
+
+    preload_schemas()
 
 
 def embed(
