@@ -530,7 +530,7 @@ class HypothesisTree:
         ``(U + D√V)² + tr Σ_u,pos + tr Σ_place,pos`` and a heading variance of exactly
         ``V + σ²_u,yaw + σ²_place,yaw``; its Mahalanobis distance is at least each block's own, so
         ``m² ≥ D² / position trace`` and ``m² ≥ Δyaw² / heading variance``. Both tests together
-        leave about one candidate in ten that their sum did (the sum let a state facing the other
+        leave about one candidate in four that their sum did (the sum let a state facing the other
         way through wherever the position was uncertain), and never one that can pass the gate.
         """
         overlay = self._suffix_overlay(leaf)
