@@ -25,9 +25,9 @@ INDEX_LENGTH = 32
 EXACT_LIMIT = 8192
 """Places up to which the index is searched exactly. Measured (32 dimensions, one query): the scan
 costs 0.026 ms at 2,048 places, 0.086 ms at 8,192 and 0.15 ms at 12,288; the graph 0.04 ms a
-query at 10,000 places and 0.065 ms at 100,000 (call overhead, then cache misses), plus 0.055 ms
-to insert each new place. So the scan stays below the graph up to about here; moving into the
-graph costs once 0.45 s."""
+query at 10,000 places and 0.065 ms at 100,000 in a loop of queries (0.16 ms in a run, the graph
+cold in the caches after the rest of a step), plus 0.055 ms to insert each new place. So the scan
+stays below the graph up to about here; moving into the graph costs once 0.45 s."""
 NEIGHBOURS_PER_NODE = 16
 """HNSW's M: links per place in the graph (2 × M × 4 bytes per place on top of its view)."""
 SEARCH_BREADTH = 64
