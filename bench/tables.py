@@ -185,7 +185,16 @@ def met(ok: bool) -> str:
 
 
 ESTIMATES = (("estimate_320x240", "grid route, 320×240"), ("estimate_640x480", "grid route, 640×480"))
-STAGES = ("read_and_sync_s", "decode_s", "describe_s", "slam_s", "write_s", "sha256_s")
+STAGES = (
+    "read_and_sync_s",
+    "decode_s",
+    "describe_s",
+    "slam_s",
+    "metric_view_imports_s",
+    "metric_view_s",
+    "write_s",
+    "sha256_s",
+)
 
 
 def estimate_rows(speed: dict[str, Any]) -> list[list[str]]:
@@ -205,7 +214,13 @@ def estimate_rows(speed: dict[str, Any]) -> list[list[str]]:
 
 def stage_rows(speed: dict[str, Any]) -> list[list[str]]:
     """Each stage of an estimate alone, in-process, one thread: where the time goes."""
-    return [[label, *(f"{speed[key]['stages'][stage]:.3f}" for stage in STAGES)] for key, label in ESTIMATES]
+    return [
+        [label, *(_seconds(speed[key]["stages"].get(stage)) for stage in STAGES)] for key, label in ESTIMATES
+    ]
+
+
+def _seconds(value: float | None) -> str:
+    return "–" if value is None else f"{value:.3f}"
 
 
 def scaling_rows(speed: dict[str, Any]) -> list[list[str]]:

@@ -103,6 +103,8 @@ def speed() -> dict[str, Any]:
             "decode_s": 0.05,
             "describe_s": 0.08,
             "slam_s": 0.045,
+            "metric_view_imports_s": 0.13,
+            "metric_view_s": 0.02,
             "write_s": 0.002,
             "sha256_s": 0.021,
             "keyframes": 145,
