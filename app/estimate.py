@@ -163,7 +163,7 @@ def estimate(
                     counts=counts,
                     workers=workers,
                     reader_process=reader_process,
-                    meanwhile=preload,
+                    meanwhile=None if total is not None and total < 2 else preload,  # a view: 2 keyframes
                 )
             ) as steps,
         ):
