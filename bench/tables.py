@@ -214,13 +214,7 @@ def estimate_rows(speed: dict[str, Any]) -> list[list[str]]:
 
 def stage_rows(speed: dict[str, Any]) -> list[list[str]]:
     """Each stage of an estimate alone, in-process, one thread: where the time goes."""
-    return [
-        [label, *(_seconds(speed[key]["stages"].get(stage)) for stage in STAGES)] for key, label in ESTIMATES
-    ]
-
-
-def _seconds(value: float | None) -> str:
-    return "–" if value is None else f"{value:.3f}"
+    return [[label, *(f"{speed[key]['stages'][stage]:.3f}" for stage in STAGES)] for key, label in ESTIMATES]
 
 
 def scaling_rows(speed: dict[str, Any]) -> list[list[str]]:
@@ -235,9 +229,7 @@ def scaling_rows(speed: dict[str, Any]) -> list[list[str]]:
                 d["world"],
                 f"{d['keyframes']:,}",
                 f"{d['states']:,}",
-                f"{d['first_ms']:.3f} ({d['first_ms_at_start']:.3f})"
-                if "first_ms_at_start" in d
-                else f"{d['first_ms']:.3f}",
+                f"{d['first_ms']:.3f} ({d['first_ms_at_start']:.3f})",
                 f"{d['last_ms']:.3f}",
                 ratio,
                 met(d["ratio_last_over_first"] <= SCALING_TARGET),
