@@ -225,9 +225,21 @@ class EstimatorConfig:
     map_reference_scale: float = _param(
         0.0,
         "With --map, for maps of another season or light: a map place is judged against this × the view's"
-        " median distance to a fixed sample of the map's places, where that is above the run's own new-place"
-        " reference (e.g. 0.95). Relative, so in ground the map does not cover it makes look-alikes"
+        " mean distance to the map's places around it (within map_contrast_window; SeqSLAM's local contrast"
+        " enhancement), where that is above the run's own new-place reference (e.g. 0.95), and its evidence"
+        " weighs map_evidence_weight. Relative, so in ground the map does not cover it makes look-alikes"
         " (docs/real-data.md); 0 = the run's own reference.",
+    )
+    map_contrast_window: int = _param(
+        5,
+        "With --map-reference-scale: half-width, in the map's places (in the order they were made), of the"
+        " neighbourhood a map place is judged against.",
+    )
+    map_evidence_weight: float = _param(
+        0.5,
+        "With --map-reference-scale: what one view's likeness to a map place weighs against the run's own"
+        " (log-likelihood ratio to a new place × this): across seasons one view is weak evidence, the"
+        " sequence of views decides.",
     )
 
     # --- hypothesis tree ------------------------------------------------------------------------
@@ -339,6 +351,8 @@ RANGES: dict[str, Bounds] = {
     "map_relocalisation_prior": Bounds(0, 1, high_open=True),
     "map_relocalisation_candidates": Bounds(1, 10_000, integer=True),
     "map_reference_scale": Bounds(0, 10),
+    "map_contrast_window": Bounds(1, 10_000, integer=True),
+    "map_evidence_weight": Bounds(0, 1, low_open=True),
 }
 #: Length of one observation vector (bins × cells); bounds the memory per keyframe.
 MAX_OBSERVATION_LENGTH = 16_384

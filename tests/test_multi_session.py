@@ -13,11 +13,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from conftest import one_error_line, square_route, write_square_recording
 
 from aslam.cli.app import main
 from aslam.core.config import EstimatorConfig
 from aslam.core.estimator import Estimator, MapLink, MapState, prior_map
+from aslam.core.tree import HypothesisTree
 from aslam.data_formats.estimate import iter_keyframes, read_estimate, read_place_views
 
 FIRST_LAP = 16  # poses per lap of the square (4 sides × (3 steps + a turn))
@@ -325,3 +328,63 @@ def test_an_estimate_given_as_a_recording_is_one_line(sessions, tmp_path, capsys
     assert main(args) == 2
     line = one_error_line(capsys.readouterr().err)
     assert "an aslam estimate file, not a recording" in line and str(sessions["first.est"].name) in line
+
+
+def _season_change(views: list[np.ndarray], seed: int) -> list[np.ndarray]:
+    """The same places in another season: every view faded under one strong seasonal pattern, so the
+    season's views are nearer each other than any is to its summer view, yet each is nearer its own
+    summer view than the places around it."""
+    rng = np.random.default_rng(seed)
+    season = rng.normal(0, 1.0, views[0].shape)
+    return [(0.5 * v + season + rng.normal(0, 0.3, v.shape)).astype(np.float32) for v in views]
+
+
+def test_a_map_of_another_season_is_followed_by_local_contrast():
+    """``--map-reference-scale``: the second session's views are all further from the map than the
+    run's own new-place reference, so judged on that reference no map place is ever claimed; judged
+    against each place's neighbourhood the session follows the map, and names no wrong place."""
+    first = Estimator(odometry_known=False)
+    rng = np.random.default_rng(3)
+    summer = [rng.normal(0, 1, first.observation_model.length).astype(np.float32) for _ in range(60)]
+    for k, view in enumerate(summer):
+        first.add_keyframe(k, np.array([1.0, 0, 0]) if k else np.zeros(3), view)
+    done = first.result()
+    the_map = prior_map(len(done.keyframe_stamps_ns), done.states, done.links, first.place_views(done.states))
+    winter = _season_change(summer, seed=4)
+
+    def claims(scale: float) -> list[tuple[int, int]]:
+        second = Estimator(EstimatorConfig(map_reference_scale=scale), the_map, odometry_known=False)
+        steps = [
+            second.add_keyframe(60 + k, np.array([1.0, 0, 0]) if k else np.zeros(3), view)
+            for k, view in enumerate(winter)
+        ]
+        return [(s.keyframe - 60, s.best.state) for s in steps if not s.best.is_new_state]
+
+    assert claims(0.0) == []
+    across = claims(0.95)
+    assert len(across) >= 40
+    assert all(abs(state - k) <= 1 for k, state in across)
+
+
+@given(
+    weight=st.floats(0.05, 1.0),
+    distances=st.lists(st.floats(0.01, 3.0), min_size=1, max_size=8),
+)
+@settings(max_examples=40, deadline=None)
+def test_the_evidence_weight_scales_the_log_likelihood_ratio_to_a_new_place(weight, distances):
+    """A map place's log-likelihood ratio to a new place is ``map_evidence_weight`` × its full-weight one."""
+    rng = np.random.default_rng(0)
+    views = rng.normal(0, 1, (12, 192)).astype(np.float32)
+    states = tuple(MapState(k, (k,)) for k in range(12))
+    the_map = prior_map(12, states, (), views)
+    observation = rng.normal(0, 1, 192).astype(np.float32)
+    picked = np.arange(len(distances), dtype=np.int64)
+    raw = np.array(distances)
+
+    def judged(w: float) -> np.ndarray:
+        tree = HypothesisTree(EstimatorConfig(map_reference_scale=0.95, map_evidence_weight=w), prior=the_map)
+        return tree._across_sessions(observation, picked, raw), tree.reference.value
+
+    full, reference = judged(1.0)
+    weighted, _ = judged(weight)
+    np.testing.assert_allclose(np.log(weighted / reference), weight * np.log(full / reference), atol=1e-9)
