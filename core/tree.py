@@ -429,8 +429,10 @@ class HypothesisTree:
         """Distances of ``observation`` to ``states``' views; a prior map's judged across sessions
         when ``map_reference_scale`` is set (:meth:`_across_sessions`)."""
         distances = self.model.distances(observation, self.observations.view[states])
+        if not len(self._map_states):
+            return distances
         in_map = states < self._first_keyframe
-        if len(self._map_states) and in_map.any():
+        if in_map.any():
             distances = distances.copy()
             distances[in_map] = self._across_sessions(observation, states[in_map], distances[in_map])
         return distances
