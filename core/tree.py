@@ -437,7 +437,9 @@ class HypothesisTree:
             distances[in_map] = self._across_sessions(observation, states[in_map], distances[in_map])
         return distances
 
-    def _across_sessions(self, observation: np.ndarray, states: np.ndarray, distances: np.ndarray) -> np.ndarray:
+    def _across_sessions(
+        self, observation: np.ndarray, states: np.ndarray, distances: np.ndarray
+    ) -> np.ndarray:
         """Distances to a prior map's places put on this run's scale, for a map of another season or light.
 
         Another season moves every distance to the map's views, those of the right place too, so
@@ -463,7 +465,9 @@ class HypothesisTree:
         near = self.model.distances(observation, self.observations.view[self._map_states[around]])
         levels = near[inverse.reshape(slots.shape)].mean(axis=1)
         reference = self.reference.value
-        scaled = distances * np.minimum(1.0, reference / np.maximum(self.config.map_reference_scale * levels, 1e-12))
+        scaled = distances * np.minimum(
+            1.0, reference / np.maximum(self.config.map_reference_scale * levels, 1e-12)
+        )
         weight = self.config.map_evidence_weight
         return np.maximum(scaled, 1e-12) ** weight * reference ** (1.0 - weight)
 

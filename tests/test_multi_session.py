@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import one_error_line, square_route, write_square_recording
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from conftest import one_error_line, square_route, write_square_recording
 
 from aslam.cli.app import main
 from aslam.core.config import EstimatorConfig
