@@ -4,7 +4,8 @@ The floor of an estimate is reading the recording, decoding the keyframe images 
 their histograms. The pipeline keeps the SLAM step off that critical path:
 
 * a producer iterates the samples (MCAP read, CDR decode) and runs the keyframe test, which
-  needs odometry only, so non-keyframe images are never decoded;
+  needs odometry only, so non-keyframe images are never decoded (on a dense stream, the frames
+  within ``keyframe_window_m`` of a keyframe are, and the estimator picks one: ``run_estimate``);
 * keyframe images go to a small thread pool that decodes them and computes the histogram
   (OpenCV and numpy release the GIL);
 * the futures wait in a bounded FIFO, so memory stays bounded and order is kept;
@@ -15,6 +16,7 @@ their histograms. The pipeline keeps the SLAM step off that critical path:
 
 from __future__ import annotations
 
+import math
 import multiprocessing
 import os
 import signal
@@ -27,6 +29,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from aslam.core import se2
 from aslam.core.estimator import Estimator, StepResult
 from aslam.core.observation import ObservationModel
 from aslam.data_formats.images import LazyImage
@@ -36,11 +39,23 @@ DEFAULT_WORKERS = 2
 DEFAULT_DEPTH = 8
 
 
+class Alternative(NamedTuple):
+    """Another frame of a dense stream near a keyframe, which may be taken in its place."""
+
+    stamp_ns: int
+    odometry_pose: np.ndarray
+    histogram: np.ndarray
+
+
 class Keyframe(NamedTuple):
     stamp_ns: int
     action: np.ndarray
+    """Odometry since the previous keyframe the odometry chose."""
     histogram: np.ndarray
     ground_truth_pose: np.ndarray | None
+    odometry_pose: np.ndarray
+    alternatives: tuple[Alternative, ...] = ()
+    """The other frames within ``keyframe_window_m`` of it, in time order (none unless enabled)."""
 
 
 @dataclass
@@ -52,8 +67,57 @@ class PipelineCounts:
     slam_s: float = 0.0
 
 
+WINDOW_HEADING_DEG = 20.0
+"""A frame is near a keyframe when within ``keyframe_window_m`` and this much heading of it."""
+MAX_WINDOW_SAMPLES = 64
+"""Samples held back while waiting for the next keyframe (bounds memory when the robot stands)."""
+
+
+def _near(sample: Sample, keyframe: Sample, window_m: float) -> bool:
+    a, b = sample.odometry_pose, keyframe.odometry_pose
+    turn = (float(a[2]) - float(b[2]) + math.pi) % (2.0 * math.pi) - math.pi
+    return math.hypot(float(a[0] - b[0]), float(a[1] - b[1])) <= window_m and abs(turn) <= math.radians(
+        WINDOW_HEADING_DEG
+    )
+
+
+def keyframe_windows(
+    samples: Iterable[Sample],
+    keyframe_action: Callable[[np.ndarray], np.ndarray | None],
+    window_m: float,
+    counts: PipelineCounts,
+) -> Iterator[tuple[Sample, np.ndarray, tuple[Sample, ...]]]:
+    """Each keyframe's sample and action, with the other samples within ``window_m`` of it (those
+    just before and just after, in time order). ``window_m`` 0: no others, nothing held back."""
+    recent: deque[Sample] = deque(maxlen=MAX_WINDOW_SAMPLES)
+    held: tuple[Sample, np.ndarray, list[Sample]] | None = None
+    for sample in samples:
+        counts.samples += 1
+        action = keyframe_action(sample.odometry_pose)
+        if held is not None:
+            if action is None and _near(sample, held[0], window_m):
+                held[2].append(sample)
+                continue
+            yield held[0], held[1], tuple(held[2])
+            held = None
+        if action is None:
+            if window_m > 0:
+                recent.append(sample)
+        elif window_m > 0:
+            held = (sample, action, [s for s in recent if _near(s, sample, window_m)])
+            recent.clear()
+        else:
+            yield sample, action, ()
+    if held is not None:
+        yield held[0], held[1], tuple(held[2])
+
+
 def _histogram(image: LazyImage, model: ObservationModel) -> np.ndarray:
     return model.describe(image.decode_gray())
+
+
+_Pending = tuple[Sample, np.ndarray, tuple[Sample, ...], list[Future[np.ndarray]]]
+"""A keyframe waiting for its histograms: its sample, action, alternatives, and one future each."""
 
 
 def keyframe_histograms(
@@ -61,44 +125,46 @@ def keyframe_histograms(
     keyframe_action: Callable[[np.ndarray], np.ndarray | None],
     histogram: ObservationModel,
     *,
+    window_m: float = 0.0,
     counts: PipelineCounts | None = None,
     workers: int = DEFAULT_WORKERS,
     depth: int = DEFAULT_DEPTH,
 ) -> Iterator[Keyframe]:
     """The keyframes of ``samples`` with their histograms, in order, computed ``workers`` at a time.
 
-    ``keyframe_action(odometry_pose)`` is the keyframe test (the action, or None). At most ``depth``
-    images are decoded or waiting at once. Stopping early (an exception, KeyboardInterrupt, the
-    consumer closing the generator) cancels the queued work and joins the pool. ``workers=0``
-    computes each histogram in the calling thread: a sweep runs one task per core, and a second
-    thread per task there only adds hand-offs.
+    ``keyframe_action(odometry_pose)`` is the keyframe test (the action, or None); with ``window_m``
+    each keyframe also carries the frames near it (:func:`keyframe_windows`), decoded too. At most
+    ``depth`` images are decoded or waiting at once. Stopping early (an exception,
+    KeyboardInterrupt, the consumer closing the generator) cancels the queued work and joins the
+    pool. ``workers=0`` computes each histogram in the calling thread: a sweep runs one task per
+    core, and a second thread per task there only adds hand-offs.
     """
     counts = counts if counts is not None else PipelineCounts()
-    pending: deque[tuple[int, np.ndarray, np.ndarray | None, Future[np.ndarray]]] = deque()
+    pending: deque[_Pending] = deque()
+    images = 0
     pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="aslam-histogram") if workers else None
+
+    def describe(image: LazyImage) -> Future[np.ndarray]:
+        if pool is not None:
+            return pool.submit(_histogram, image, histogram)
+        return _computed(_histogram, image, histogram)
+
     try:
-        for sample in samples:
-            counts.samples += 1
-            action = keyframe_action(sample.odometry_pose)
-            if action is not None:
-                future = (
-                    pool.submit(_histogram, sample.image, histogram)
-                    if pool is not None
-                    else _computed(_histogram, sample.image, histogram)
-                )
-                pending.append((sample.stamp_ns, action, sample.ground_truth_pose, future))
-                if len(pending) >= depth:
-                    yield _take(pending)
-                    counts.keyframes += 1
-                while pending and pending[0][3].done():
-                    yield _take(pending)
-                    counts.keyframes += 1
+        for sample, action, alternatives in keyframe_windows(samples, keyframe_action, window_m, counts):
+            futures = [describe(s.image) for s in (sample, *alternatives)]
+            pending.append((sample, action, alternatives, futures))
+            images += len(futures)
+            while pending and (images >= depth or all(f.done() for f in pending[0][3])):
+                images -= len(pending[0][3])
+                yield _take(pending)
+                counts.keyframes += 1
         while pending:
             yield _take(pending)
             counts.keyframes += 1
     finally:
-        for *_, future in pending:
-            future.cancel()
+        for *_, futures in pending:
+            for future in futures:
+                future.cancel()
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
 
@@ -113,9 +179,14 @@ def _computed(function: Callable[..., np.ndarray], *args: Any) -> Future[np.ndar
     return future
 
 
-def _take(pending: deque[tuple[int, np.ndarray, np.ndarray | None, Future[np.ndarray]]]) -> Keyframe:
-    stamp_ns, action, truth, future = pending.popleft()
-    return Keyframe(stamp_ns, action, future.result(), truth)
+def _take(pending: deque[_Pending]) -> Keyframe:
+    sample, action, alternatives, futures = pending.popleft()
+    others = tuple(
+        Alternative(other.stamp_ns, np.asarray(other.odometry_pose, dtype=float), future.result())
+        for other, future in zip(alternatives, futures[1:], strict=True)
+    )
+    pose = np.asarray(sample.odometry_pose, dtype=float)
+    return Keyframe(sample.stamp_ns, action, futures[0].result(), sample.ground_truth_pose, pose, others)
 
 
 SEND_BATCH = 4
@@ -127,6 +198,7 @@ def keyframes_from_child_process(
     histogram: ObservationModel,
     *,
     counts: PipelineCounts,
+    window_m: float = 0.0,
     workers: int = DEFAULT_WORKERS,
     depth: int = DEFAULT_DEPTH,
     meanwhile: Callable[[], None] | None = None,
@@ -149,7 +221,13 @@ def keyframes_from_child_process(
         try:
             batch: list[Keyframe] = []
             for keyframe in keyframe_histograms(
-                samples, keyframe_action, histogram, counts=child_counts, workers=workers, depth=depth
+                samples,
+                keyframe_action,
+                histogram,
+                window_m=window_m,
+                counts=child_counts,
+                workers=workers,
+                depth=depth,
             ):
                 batch.append(keyframe)
                 if len(batch) >= SEND_BATCH:
@@ -218,12 +296,14 @@ def run_estimate(
     """
     counts = counts if counts is not None else PipelineCounts()
     describe = estimator.observation_model
+    window_m = estimator.config.keyframe_window_m
     if reader_process and can_fork():
         keyframes = keyframes_from_child_process(
             samples,
             estimator.keyframe_action,
             describe,
             counts=counts,
+            window_m=window_m,
             workers=workers,
             depth=depth,
             meanwhile=meanwhile,
@@ -232,13 +312,40 @@ def run_estimate(
         if meanwhile is not None:
             meanwhile()
         keyframes = keyframe_histograms(
-            samples, estimator.keyframe_action, describe, counts=counts, workers=workers, depth=depth
+            samples,
+            estimator.keyframe_action,
+            describe,
+            window_m=window_m,
+            counts=counts,
+            workers=workers,
+            depth=depth,
         )
+    previous: Keyframe | Alternative | None = None
     try:
         for keyframe in keyframes:
             start = time.perf_counter()
-            step = estimator.add_keyframe(keyframe.stamp_ns, keyframe.action, keyframe.histogram)
+            taken, action = _take_keyframe(estimator, keyframe, previous)
+            step = estimator.add_keyframe(taken.stamp_ns, action, taken.histogram)
             counts.slam_s += time.perf_counter() - start
+            previous = taken
             yield step
     finally:
         keyframes.close()
+
+
+def _take_keyframe(
+    estimator: Estimator, keyframe: Keyframe, previous: Keyframe | Alternative | None
+) -> tuple[Keyframe | Alternative, np.ndarray]:
+    """The frame to take for ``keyframe`` (it, or one of its alternatives the estimator prefers)
+    and its action since the previous frame taken."""
+    if previous is None:
+        return keyframe, keyframe.action
+    options = [a for a in keyframe.alternatives if a.stamp_ns > previous.stamp_ns]
+    taken: Keyframe | Alternative = keyframe
+    if options:
+        choice = estimator.choose_keyframe(
+            se2.between(previous.odometry_pose, keyframe.odometry_pose),
+            [keyframe.histogram, *(a.histogram for a in options)],
+        )
+        taken = options[choice - 1] if choice else keyframe
+    return taken, se2.between(previous.odometry_pose, taken.odometry_pose)

@@ -105,6 +105,12 @@ class EstimatorConfig:
         "'on': on a dense stream (several poses per step) take the pose nearest the full step or turn"
         " instead of the first within the slack; 'off': the paper's rule.",
     )
+    keyframe_window_m: float = _param(
+        0.35,
+        "On a dense stream, each keyframe is taken among the frames within this distance (and 20°) of the"
+        " odometry's choice: the one that looks most like the place the best hypothesis predicts, so a"
+        " second lap's keyframes land on the first lap's places, not between them (0: odometry's choice).",
+    )
 
     # --- observations -------------------------------------------------------------------------
     observation_model: str = _param(
@@ -287,6 +293,7 @@ class EstimatorConfig:
             "candidate_search": "path",
             "relocalisation_prior": 0.0,
             "keyframe_adaptive": "off",
+            "keyframe_window_m": 0.0,
             "place_radius_m": 0.2,
             "place_heading_deg": 10.0,
             "new_state_coverage": 0.0,
@@ -322,6 +329,7 @@ RANGES: dict[str, Bounds] = {
     "step_m": Bounds(1e-3, 100),
     "turn_deg": Bounds(1e-3, 360),
     "keyframe_slack": Bounds(0, 1, high_open=True),
+    "keyframe_window_m": Bounds(0, 10),
     "histogram_bins": Bounds(2, 360, integer=True),
     "cells_x": Bounds(1, 32, integer=True),
     "cells_y": Bounds(1, 32, integer=True),

@@ -488,6 +488,18 @@ class HypothesisTree:
         ]
 
     # ------------------------------------------------------------------ prediction
+    def predicted_place(self, action: np.ndarray) -> int | None:
+        """The mapped place the best hypothesis most expects the robot at after ``action`` (by the
+        motion model alone), or None: in new ground, before the first keyframe, at a session's start."""
+        if not self.leaves or self.leaves[0].state == SESSION_START:
+            return None
+        action = np.asarray(action, dtype=float)
+        searched = self._searched_sum  # a look ahead, not a step: the statistics stay the steps'
+        covariance = action_covariance(action, self._noise)
+        states, log_transition = self._propose(self.leaves[:1], action, covariance)[0]
+        self._searched_sum = searched
+        return int(states[np.argmax(log_transition)]) if len(states) else None
+
     def _propose(
         self, leaves: list[Node], action: np.ndarray, action_cov: np.ndarray
     ) -> list[tuple[np.ndarray, np.ndarray]]:
