@@ -69,8 +69,9 @@ class PipelineCounts:
 
 WINDOW_HEADING_DEG = 20.0
 """A frame is near a keyframe when within ``keyframe_window_m`` and this much heading of it."""
-MAX_WINDOW_SAMPLES = 64
-"""Samples held back while waiting for the next keyframe (bounds memory when the robot stands)."""
+MAX_WINDOW_SAMPLES = 32
+"""At most this many frames before a keyframe, and as many after it, are its alternatives: a robot
+standing still keeps every frame near the keyframe, and memory must not grow with the wait."""
 
 
 def _near(sample: Sample, keyframe: Sample, window_m: float) -> bool:
@@ -96,7 +97,8 @@ def keyframe_windows(
         action = keyframe_action(sample.odometry_pose)
         if held is not None:
             if action is None and _near(sample, held[0], window_m):
-                held[2].append(sample)
+                if len(held[2]) < 2 * MAX_WINDOW_SAMPLES:
+                    held[2].append(sample)
                 continue
             yield held[0], held[1], tuple(held[2])
             held = None

@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from test_core_tree import SyntheticWorld, rectangle_actions, run, synthetic_config
 
 from aslam.app.pipeline import (
+    MAX_WINDOW_SAMPLES,
     WINDOW_HEADING_DEG,
     Alternative,
     Keyframe,
@@ -108,3 +109,12 @@ def test_a_taken_alternative_moves_the_next_action_with_it():
     taken, action = _take_keyframe(estimator, after, near)
     assert taken is after
     np.testing.assert_allclose(action, [0.8, 0.0, 0.0])
+
+
+def test_a_robot_standing_still_holds_a_bounded_window():
+    """Thousands of frames at one pose after a keyframe: the window keeps a bounded number, and the
+    keyframe still comes out once the robot moves on."""
+    samples = _stream([(1.0, 0.0)] + [(0.0, 0.0)] * 5000 + [(1.0, 0.0)])
+    windows = list(keyframe_windows(samples, _keyframer().action_if_keyframe, 0.35, PipelineCounts()))
+    assert [key.stamp_ns for key, _, _ in windows] == [0, 1, 5002]
+    assert max(len(others) for _, _, others in windows) <= 2 * MAX_WINDOW_SAMPLES
