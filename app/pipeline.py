@@ -76,7 +76,7 @@ standing still keeps every frame near the keyframe, and memory must not grow wit
 
 def _near(sample: Sample, keyframe: Sample, window_m: float) -> bool:
     a, b = sample.odometry_pose, keyframe.odometry_pose
-    turn = (float(a[2]) - float(b[2]) + math.pi) % (2.0 * math.pi) - math.pi
+    turn = float(se2.wrap_angle(float(a[2]) - float(b[2])))
     return math.hypot(float(a[0] - b[0]), float(a[1] - b[1])) <= window_m and abs(turn) <= math.radians(
         WINDOW_HEADING_DEG
     )
