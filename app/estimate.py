@@ -9,7 +9,6 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
-from contextlib import closing
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -145,7 +144,6 @@ def estimate(
     total = source.image_count()
     estimator = Estimator(config, start_map, odometry_known=source.odometry_known)
     counts = PipelineCounts()
-    hasher = FileHasher(recording)
     start = time.perf_counter()
 
     def progress(keyframes: int, hypotheses: int) -> None:
@@ -153,20 +151,16 @@ def estimate(
             elapsed = time.perf_counter() - start
             on_progress(EstimateProgress(counts.samples, total, keyframes, hypotheses, elapsed))
 
+    # The reader starts first (a child process): the rest of the set-up overlaps its reading.
+    steps = run_estimate(
+        source.samples(), estimator, counts=counts, workers=workers, reader_process=reader_process
+    )
+    hasher: FileHasher | None = None
     try:
-        with (
-            EstimateWriter(output, tool_version=tool_version(), force=force) as writer,
-            closing(
-                run_estimate(
-                    source.samples(),
-                    estimator,
-                    counts=counts,
-                    workers=workers,
-                    reader_process=reader_process,
-                    meanwhile=None if total is not None and total < 2 else preload,  # a view: 2 keyframes
-                )
-            ) as steps,
-        ):
+        hasher = FileHasher(recording)
+        with EstimateWriter(output, tool_version=tool_version(), force=force) as writer:
+            if total is None or total >= 2:  # a metric view needs 2 keyframes: its imports, meanwhile
+                preload()
             last_update = 0.0
             actions = []
             for step in steps:
@@ -209,7 +203,9 @@ def estimate(
             writer.finish(result, metadata, run_timing, scene, views)
             embed_s = time.perf_counter() - embed_start
     finally:
-        hasher.cancel()
+        steps.close()
+        if hasher is not None:
+            hasher.cancel()
     if not result.keyframe_stamps_ns:
         warn(f"{recording}: no keyframes (no images with odometry)")
     return EstimateSummary(

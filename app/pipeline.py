@@ -22,7 +22,7 @@ import os
 import signal
 import time
 from collections import deque
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Generator, Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -194,87 +194,116 @@ def _take(pending: deque[_Pending]) -> Keyframe:
 SEND_BATCH = 4
 
 
-def keyframes_from_child_process(
-    samples: Iterable[Sample],
-    keyframe_action: Callable[[np.ndarray], np.ndarray | None],
-    histogram: ObservationModel,
-    *,
-    counts: PipelineCounts,
-    window_m: float = 0.0,
-    workers: int = DEFAULT_WORKERS,
-    depth: int = DEFAULT_DEPTH,
-    meanwhile: Callable[[], None] | None = None,
-) -> Iterator[Keyframe]:
-    """:func:`keyframe_histograms` run in a forked child; the keyframes arrive here in order.
+class ReaderProcess:
+    """:func:`keyframe_histograms` run in a forked child, started at construction; iterating
+    yields its keyframes here, in order.
 
-    ``meanwhile`` runs here once the child has started, while it reads its first keyframes.
-
-    ``samples`` must not have been started: the child opens and reads the recording. Errors
-    raised in the child (a bad recording) are raised here; closing this generator, or an
-    interrupt, stops the child.
+    Started at once, so whatever the caller prepares next (opening the output, the imports the
+    end of the run needs) overlaps the child's reading instead of delaying it. ``samples`` must not
+    have been started: the child opens and reads the recording. Errors raised in the child (a bad
+    recording) are raised here; ``close()``, or an interrupt, stops the child.
     """
-    context = multiprocessing.get_context("fork")
-    receiver, sender = context.Pipe(duplex=False)
 
-    def produce() -> None:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops us
-        receiver.close()
-        child_counts = PipelineCounts()
-        try:
-            batch: list[Keyframe] = []
-            for keyframe in keyframe_histograms(
-                samples,
-                keyframe_action,
-                histogram,
-                window_m=window_m,
-                counts=child_counts,
-                workers=workers,
-                depth=depth,
-            ):
-                batch.append(keyframe)
-                if len(batch) >= SEND_BATCH:
-                    sender.send(("keyframes", batch, child_counts.samples))
-                    batch = []
-            sender.send(("keyframes", batch, child_counts.samples))
-            sender.send(("done", None, child_counts.samples))
-        except BaseException as err:  # handed to the parent, which raises it
+    def __init__(
+        self,
+        samples: Iterable[Sample],
+        keyframe_action: Callable[[np.ndarray], np.ndarray | None],
+        histogram: ObservationModel,
+        *,
+        counts: PipelineCounts,
+        window_m: float = 0.0,
+        workers: int = DEFAULT_WORKERS,
+        depth: int = DEFAULT_DEPTH,
+    ) -> None:
+        context = multiprocessing.get_context("fork")
+        self._receiver, sender = context.Pipe(duplex=False)
+        self._counts = counts
+
+        def produce() -> None:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops us
+            self._receiver.close()
+            child_counts = PipelineCounts()
             try:
-                sender.send(("error", err, child_counts.samples))
-            except Exception:  # the error itself does not pickle: keep its words
-                sender.send(("error", RuntimeError(f"{type(err).__name__}: {err}"), child_counts.samples))
-        finally:
-            sender.close()
-            os._exit(0)
+                batch: list[Keyframe] = []
+                for keyframe in keyframe_histograms(
+                    samples,
+                    keyframe_action,
+                    histogram,
+                    window_m=window_m,
+                    counts=child_counts,
+                    workers=workers,
+                    depth=depth,
+                ):
+                    batch.append(keyframe)
+                    if len(batch) >= SEND_BATCH:
+                        sender.send(("keyframes", batch, child_counts.samples))
+                        batch = []
+                sender.send(("keyframes", batch, child_counts.samples))
+                sender.send(("done", None, child_counts.samples))
+            except BaseException as err:  # handed to the parent, which raises it
+                try:
+                    sender.send(("error", err, child_counts.samples))
+                except Exception:  # the error itself does not pickle: keep its words
+                    sender.send(("error", RuntimeError(f"{type(err).__name__}: {err}"), child_counts.samples))
+            finally:
+                sender.close()
+                os._exit(0)
 
-    process = context.Process(target=produce, name="aslam-reader", daemon=True)
-    process.start()
-    sender.close()
-    try:
-        if meanwhile is not None:
-            meanwhile()
+        self._process = context.Process(target=produce, name="aslam-reader", daemon=True)
+        self._process.start()
+        sender.close()
+
+    def __iter__(self) -> Iterator[Keyframe]:
         while True:
             try:
-                kind, payload, samples_read = receiver.recv()
+                kind, payload, samples_read = self._receiver.recv()
             except EOFError:
                 raise RuntimeError("the recording reader process stopped unexpectedly") from None
-            counts.samples = samples_read
+            self._counts.samples = samples_read
             if kind == "keyframes":
                 for keyframe in payload:
-                    counts.keyframes += 1
+                    self._counts.keyframes += 1
                     yield keyframe
             elif kind == "error":
                 raise payload
             else:
                 return
-    finally:
-        receiver.close()
-        if process.is_alive():
-            process.terminate()
-        process.join()
+
+    def close(self) -> None:
+        self._receiver.close()
+        if self._process.is_alive():
+            self._process.terminate()
+        self._process.join()
 
 
 def can_fork() -> bool:
     return "fork" in multiprocessing.get_all_start_methods()
+
+
+class EstimateSteps:
+    """The estimator fed keyframe by keyframe from a reader: iterate for one ``StepResult`` per
+    keyframe, in order; ``close()`` stops the reader (also when never iterated)."""
+
+    def __init__(
+        self, keyframes: ReaderProcess | Generator[Keyframe], estimator: Estimator, counts: PipelineCounts
+    ) -> None:
+        self._keyframes = keyframes
+        self._estimator = estimator
+        self._counts = counts
+
+    def __iter__(self) -> Iterator[StepResult]:
+        estimator, counts = self._estimator, self._counts
+        previous: Keyframe | Alternative | None = None
+        for keyframe in self._keyframes:
+            start = time.perf_counter()
+            taken, action = _take_keyframe(estimator, keyframe, previous)
+            step = estimator.add_keyframe(taken.stamp_ns, action, taken.histogram)
+            counts.slam_s += time.perf_counter() - start
+            previous = taken
+            yield step
+
+    def close(self) -> None:
+        self._keyframes.close()
 
 
 def run_estimate(
@@ -285,54 +314,42 @@ def run_estimate(
     workers: int = DEFAULT_WORKERS,
     depth: int = DEFAULT_DEPTH,
     reader_process: bool = True,
-    meanwhile: Callable[[], None] | None = None,
-) -> Iterator[StepResult]:
-    """Feed ``samples`` through ``estimator``; one ``StepResult`` per keyframe, in order.
+) -> EstimateSteps:
+    """Feed ``samples`` through ``estimator``: iterate the result for one ``StepResult`` per keyframe.
 
-    ``meanwhile`` is work for this process while the reader starts (e.g. a slow import the end of
-    the run needs); it runs before the first keyframe, whether or not the reader is a child.
-
-    ``reader_process=False`` keeps the reader in this process: needed where this process may not
-    have children (a daemonic process, such as a Dask worker), and right where one core per run
-    is wanted (a sweep running one task per core).
+    With a reader process it starts reading at once (:class:`ReaderProcess`): what the caller does
+    before iterating runs alongside. ``reader_process=False`` keeps the reader in this process,
+    started on the first step: needed where this process may not have children (a daemonic
+    process, such as a Dask worker), and right where one core per run is wanted (a sweep running
+    one task per core).
     """
     counts = counts if counts is not None else PipelineCounts()
     describe = estimator.observation_model
     window_m = estimator.config.keyframe_window_m
     if reader_process and can_fork():
-        keyframes = keyframes_from_child_process(
-            samples,
-            estimator.keyframe_action,
-            describe,
-            counts=counts,
-            window_m=window_m,
-            workers=workers,
-            depth=depth,
-            meanwhile=meanwhile,
+        return EstimateSteps(
+            ReaderProcess(
+                samples,
+                estimator.keyframe_action,
+                describe,
+                counts=counts,
+                window_m=window_m,
+                workers=workers,
+                depth=depth,
+            ),
+            estimator,
+            counts,
         )
-    else:
-        if meanwhile is not None:
-            meanwhile()
-        keyframes = keyframe_histograms(
-            samples,
-            estimator.keyframe_action,
-            describe,
-            window_m=window_m,
-            counts=counts,
-            workers=workers,
-            depth=depth,
-        )
-    previous: Keyframe | Alternative | None = None
-    try:
-        for keyframe in keyframes:
-            start = time.perf_counter()
-            taken, action = _take_keyframe(estimator, keyframe, previous)
-            step = estimator.add_keyframe(taken.stamp_ns, action, taken.histogram)
-            counts.slam_s += time.perf_counter() - start
-            previous = taken
-            yield step
-    finally:
-        keyframes.close()
+    keyframes = keyframe_histograms(
+        samples,
+        estimator.keyframe_action,
+        describe,
+        window_m=window_m,
+        counts=counts,
+        workers=workers,
+        depth=depth,
+    )
+    return EstimateSteps(keyframes, estimator, counts)
 
 
 def _take_keyframe(

@@ -184,7 +184,11 @@ def met(ok: bool) -> str:
     return "met" if ok else "**not met**"
 
 
-ESTIMATES = (("estimate_320x240", "grid route, 320×240"), ("estimate_640x480", "grid route, 640×480"))
+ESTIMATES = (
+    ("estimate_320x240", "grid route, 320×240, 2 laps"),
+    ("estimate_320x240_long", "grid route, 320×240, 8 laps"),
+    ("estimate_640x480", "grid route, 640×480, 2 laps"),
+)
 STAGES = (
     "read_and_sync_s",
     "decode_s",

@@ -12,6 +12,7 @@ miss a candidate but never make a claim.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import deque
 from typing import Any
@@ -44,10 +45,10 @@ class PlaceIndex:
     """
 
     def __init__(self, observation_length: int, skip: int, *, exact_limit: int = EXACT_LIMIT) -> None:
-        self._projection = _projection(observation_length)
+        self._observation_length = observation_length
         self._skip = skip
         self._exact_limit = exact_limit
-        self._vectors = GrowableArray((len(self._projection),), np.float32)
+        self._vectors = GrowableArray((min(observation_length, INDEX_LENGTH),), np.float32)
         self._states = GrowableArray((), np.int64)
         self._waiting: deque[tuple[int, np.ndarray]] = deque()
         self._hnsw: Any = None
@@ -94,7 +95,7 @@ class PlaceIndex:
         return self._states.view[found[found >= 0]]
 
     def _project(self, observation: np.ndarray) -> np.ndarray:
-        vector = self._projection @ np.asarray(observation, dtype=np.float32)
+        vector = _projection(self._observation_length) @ np.asarray(observation, dtype=np.float32)
         norm = float(np.linalg.norm(vector))
         return (vector / norm if norm > 0 else vector).astype(np.float32)
 
@@ -109,13 +110,20 @@ def _hnsw_of(vectors: np.ndarray) -> Any:
     return graph
 
 
+@functools.cache
 def _projection(length: int) -> np.ndarray:
     """A fixed random projection (Johnson–Lindenstrauss) to ``INDEX_LENGTH`` dimensions, or the identity.
+
+    Made on first use (``numpy.random``'s import is 10 ms of an estimate's start-up), once per length.
 
     Angles between vectors are nearly kept, so the most similar places by the index are, with
     few exceptions, the most similar by the model; the model then compares the shortlist exactly.
     """
     if length <= INDEX_LENGTH:
-        return np.eye(length, dtype=np.float32)
+        identity = np.eye(length, dtype=np.float32)
+        identity.flags.writeable = False
+        return identity
     rng = np.random.default_rng(20261129)
-    return (rng.standard_normal((INDEX_LENGTH, length)) / math.sqrt(INDEX_LENGTH)).astype(np.float32)
+    projection = (rng.standard_normal((INDEX_LENGTH, length)) / math.sqrt(INDEX_LENGTH)).astype(np.float32)
+    projection.flags.writeable = False  # shared by every index of that length
+    return projection

@@ -24,7 +24,6 @@ Topics (all in frame ``map``, the embedding's frame: keyframe 0 at the origin, R
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -100,69 +99,88 @@ def _color(target: Any, rgba: tuple[float, float, float, float]) -> None:
     target.r, target.g, target.b, target.a = rgba
 
 
-def _lines(entity: Any, segments: Sequence[tuple[np.ndarray, np.ndarray]], rgba: tuple[float, ...]) -> None:
-    from foxglove_schemas_protobuf.LinePrimitive_pb2 import LinePrimitive
+class _GrowingScene:
+    """The map as one ``foxglove.SceneUpdate``, extended keyframe by keyframe.
 
-    if not segments:
-        return
-    line = entity.lines.add()
-    line.type = LinePrimitive.LINE_LIST
-    line.pose.CopyFrom(_pose(0.0, 0.0, 0.0))
-    line.thickness = LINE_THICKNESS_M
-    line.scale_invariant = False
-    _color(line.color, rgba)  # type: ignore[arg-type]
-    for a, b in segments:
-        for p in (a, b):
-            point = line.points.add()
-            point.x, point.y, point.z = float(p[0]), float(p[1]), 0.0
-
-
-def scene_update(scene: MetricScene, stamp_ns: int, upto: int | None = None) -> Any:
-    """One ``foxglove.SceneUpdate`` holding the map as of keyframe ``upto - 1`` (default: all of it).
-
-    It replaces the previous update entity by entity (same ids), so a viewer shows the latest one.
-    Outvoted closures are drawn in the complete map only.
+    Each growth scene is the one before plus what is new, so it is extended in place and
+    serialised, instead of rebuilt: rebuilding made O(64 × places) protobuf objects in Python, most
+    of writing an estimate file. Entities keep their ids from scene to scene, so a viewer replaces
+    each with the latest one.
     """
-    from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
-    n = len(scene.assignment)
-    upto = n if upto is None else upto
-    poses, assignment = np.asarray(scene.poses, float), np.asarray(scene.assignment[:upto], np.int64)
-    update = SceneUpdate()
-    places = np.flatnonzero(assignment == np.arange(len(assignment)))
+    def __init__(self, scene: MetricScene) -> None:
+        from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
-    def entity(name: str) -> Any:
-        e = update.entities.add()
-        e.timestamp.CopyFrom(_time(stamp_ns))
-        e.frame_id = MAP_FRAME
-        e.id = name
-        e.frame_locked = False
-        return e
+        self._scene = scene
+        self._poses = np.asarray(scene.poses, float)
+        self._assignment = np.asarray(scene.assignment, np.int64).tolist()
+        self._update = SceneUpdate()
+        self._places = self._entity("places")
+        self._place_count = self._places.metadata.add()
+        self._place_count.key = "places"
+        self._links = self._entity("links")
+        self._loops = self._entity("loop_closures")
+        self._outvoted = self._entity("outvoted_closures")
+        self._upto = 0
+        self._drawn_places = 0
+        self._seen: set[tuple[int, int]] = set()
 
-    spheres = entity("places")
-    for place in places.tolist():
-        sphere = spheres.spheres.add()
-        sphere.pose.CopyFrom(_pose(*poses[place]))
-        sphere.size.x = sphere.size.y = sphere.size.z = PLACE_DIAMETER_M
-        _color(sphere.color, PLACE_RGBA)
-    metadata = spheres.metadata.add()
-    metadata.key, metadata.value = "places", str(len(places))
+    def _entity(self, name: str) -> Any:
+        entity = self._update.entities.add()
+        entity.frame_id = MAP_FRAME
+        entity.id = name
+        entity.frame_locked = False
+        return entity
 
-    seen: set[tuple[int, int]] = set()
-    exploration, loops = [], []
-    for a, b in zip(assignment[:-1].tolist(), assignment[1:].tolist(), strict=True):
-        if a == b or (a, b) in seen or (b, a) in seen:
-            continue
-        seen.add((a, b))
-        (exploration if abs(a - b) == 1 else loops).append((poses[a], poses[b]))
-    _lines(entity("links"), exploration, LINK_RGBA)
-    _lines(entity("loop_closures"), loops, LOOP_RGBA)
-    outvoted = []
-    if scene.outvoted is not None and upto == n:
-        for k in np.flatnonzero(np.asarray(scene.outvoted, bool)).tolist():
-            outvoted.append((poses[k], poses[assignment[k]]))
-    _lines(entity("outvoted_closures"), outvoted, OUTVOTED_RGBA)
-    return update
+    def extend(self, upto: int) -> None:
+        """Draw keyframes ``[0, upto)``: their new places, and the links between consecutive ones."""
+        assignment, poses = self._assignment, self._poses
+        for k in range(self._upto, upto):
+            if assignment[k] == k:
+                sphere = self._places.spheres.add()
+                sphere.pose.CopyFrom(_pose(*poses[k]))
+                sphere.size.x = sphere.size.y = sphere.size.z = PLACE_DIAMETER_M
+                _color(sphere.color, PLACE_RGBA)
+                self._drawn_places += 1
+        for k in range(max(self._upto - 1, 0), upto - 1):
+            a, b = assignment[k], assignment[k + 1]
+            if a == b or (a, b) in self._seen or (b, a) in self._seen:
+                continue
+            self._seen.add((a, b))
+            if abs(a - b) == 1:
+                _segment(self._links, poses[a], poses[b], LINK_RGBA)
+            else:
+                _segment(self._loops, poses[a], poses[b], LOOP_RGBA)
+        self._upto = max(self._upto, upto)
+
+    def message(self, stamp_ns: int, *, complete: bool = False) -> Any:
+        """The scene as drawn so far, stamped ``stamp_ns``; ``complete`` adds the outvoted closures
+        (drawn in the complete map only). Valid until the next ``extend``."""
+        stamp = _time(stamp_ns)
+        for entity in self._update.entities:
+            entity.timestamp.CopyFrom(stamp)
+        self._place_count.value = str(self._drawn_places)
+        if complete and self._scene.outvoted is not None:
+            for k in np.flatnonzero(np.asarray(self._scene.outvoted, bool)).tolist():
+                _segment(self._outvoted, self._poses[k], self._poses[self._assignment[k]], OUTVOTED_RGBA)
+        return self._update
+
+
+def _segment(entity: Any, a: np.ndarray, b: np.ndarray, rgba: tuple[float, float, float, float]) -> None:
+    """One more segment in the entity's one line list (made with its first segment)."""
+    if not entity.lines:
+        from foxglove_schemas_protobuf.LinePrimitive_pb2 import LinePrimitive
+
+        line = entity.lines.add()
+        line.type = LinePrimitive.LINE_LIST
+        line.pose.CopyFrom(_pose(0.0, 0.0, 0.0))
+        line.thickness = LINE_THICKNESS_M
+        line.scale_invariant = False
+        _color(line.color, rgba)
+    points = entity.lines[0].points
+    for p in (a, b):
+        point = points.add()
+        point.x, point.y, point.z = float(p[0]), float(p[1]), 0.0
 
 
 def poses_in_frame(poses: np.ndarray, stamp_ns: int) -> Any:
@@ -251,6 +269,7 @@ class SceneChannels:
         seen: set[tuple[int, int]] = set()
         assignment = np.asarray(scene.assignment, np.int64).tolist()
         stamps = scene.stamps_ns.tolist()
+        growing = _GrowingScene(scene)
         drawn = drawn_at_last_scene = 0  # places and links in the map so far, and at the last scene
         for k, (stamp_ns, pose) in enumerate(zip(stamps, scene.poses, strict=True)):
             self._add(TF_TOPIC, stamp_ns, frame_transform(pose, stamp_ns))
@@ -264,11 +283,14 @@ class SceneChannels:
                     drawn += 1
             if drawn > drawn_at_last_scene and (drawn - drawn_at_last_scene) * GROWTH_STEPS >= drawn:
                 drawn_at_last_scene = drawn
-                self._add(SCENE_TOPIC, stamp_ns, scene_update(scene, stamp_ns, upto=k + 1))
+                growing.extend(k + 1)
+                self._add(SCENE_TOPIC, stamp_ns, growing.message(stamp_ns))
 
     def write_map(self, scene: MetricScene, stamp_ns: int) -> None:
         """The whole scene and the trajectories as they stand at ``stamp_ns``."""
-        self._add(SCENE_TOPIC, stamp_ns, scene_update(scene, stamp_ns))
+        complete = _GrowingScene(scene)
+        complete.extend(len(scene.assignment))
+        self._add(SCENE_TOPIC, stamp_ns, complete.message(stamp_ns, complete=True))
         self._add(TRAJECTORY_TOPIC, stamp_ns, poses_in_frame(scene.poses, stamp_ns))
         if scene.odometry is not None:
             self._add(ODOMETRY_TOPIC, stamp_ns, poses_in_frame(scene.odometry, stamp_ns))

@@ -1,0 +1,69 @@
+"""The estimate's reader process: started when ``run_estimate`` is called, so the caller's set-up
+overlaps the reading; the same steps as reading in-process; stopped by ``close()`` whenever it comes."""
+
+from __future__ import annotations
+
+import multiprocessing
+from pathlib import Path
+
+import pytest
+from conftest import write_square_recording, write_with_corrupt_image
+
+from aslam.app.pipeline import can_fork, run_estimate
+from aslam.core.config import EstimatorConfig
+from aslam.core.estimator import Estimator
+from aslam.data_formats.errors import RecordingError
+from aslam.data_formats.images import ImageFormat
+from aslam.data_formats.recording import Recording
+
+
+def readers() -> list[str]:
+    return [p.name for p in multiprocessing.active_children() if p.name == "aslam-reader"]
+
+
+pytestmark = pytest.mark.skipif(not can_fork(), reason="the reader process needs fork")
+
+
+def steps_of(path: Path, *, reader_process: bool) -> list[tuple[int, tuple[int, ...]]]:
+    steps = run_estimate(
+        Recording(path).samples(), Estimator(EstimatorConfig()), reader_process=reader_process
+    )
+    try:
+        return [(step.keyframe, tuple(h.state for h in step.hypotheses)) for step in steps]
+    finally:
+        steps.close()
+
+
+@pytest.fixture(scope="module")
+def square(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("reader") / "square.mcap"
+    write_square_recording(path)
+    return path
+
+
+def test_the_reader_process_gives_the_steps_of_reading_in_process(square):
+    in_child = steps_of(square, reader_process=True)
+    assert in_child == steps_of(square, reader_process=False)
+    assert len(in_child) > 10
+
+
+def test_the_reader_starts_at_once_and_close_stops_it_unread(square):
+    steps = run_estimate(Recording(square).samples(), Estimator(EstimatorConfig()))
+    assert readers() == ["aslam-reader"]
+    steps.close()
+    assert readers() == []
+
+
+def test_close_after_some_steps_stops_the_reader(square):
+    steps = run_estimate(Recording(square).samples(), Estimator(EstimatorConfig()))
+    first = next(iter(steps))
+    assert first.keyframe == 0
+    steps.close()
+    assert readers() == []
+
+
+def test_an_error_in_the_reader_is_raised_in_the_parent(tmp_path):
+    path = write_with_corrupt_image(tmp_path / "bad.mcap", ImageFormat.PNG)
+    with pytest.raises(RecordingError, match="corrupt PNG"):
+        steps_of(path, reader_process=True)
+    assert readers() == []
