@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from aslam.app.metric_view import embed_run, estimator_config, metric_scene, preload
-from aslam.app.pipeline import DEFAULT_WORKERS, PipelineCounts, run_estimate
+from aslam.app.pipeline import DEFAULT_WORKERS, EstimateSteps, PipelineCounts, run_estimate
 from aslam.core.config import EstimatorConfig
 from aslam.core.errors import InputError
 from aslam.core.estimator import Estimator, prior_map
@@ -151,12 +151,13 @@ def estimate(
             elapsed = time.perf_counter() - start
             on_progress(EstimateProgress(counts.samples, total, keyframes, hypotheses, elapsed))
 
-    # The reader starts first (a child process): the rest of the set-up overlaps its reading.
-    steps = run_estimate(
-        source.samples(), estimator, counts=counts, workers=workers, reader_process=reader_process
-    )
+    steps: EstimateSteps | None = None
     hasher: FileHasher | None = None
     try:
+        # The reader starts first (a child process): the rest of the set-up overlaps its reading.
+        steps = run_estimate(
+            source.samples(), estimator, counts=counts, workers=workers, reader_process=reader_process
+        )
         hasher = FileHasher(recording)
         with EstimateWriter(output, tool_version=tool_version(), force=force) as writer:
             if total is None or total >= 2:  # a metric view needs 2 keyframes: its imports, meanwhile
@@ -203,7 +204,8 @@ def estimate(
             writer.finish(result, metadata, run_timing, scene, views)
             embed_s = time.perf_counter() - embed_start
     finally:
-        steps.close()
+        if steps is not None:
+            steps.close()
         if hasher is not None:
             hasher.cancel()
     if not result.keyframe_stamps_ns:
