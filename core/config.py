@@ -199,7 +199,7 @@ class EstimatorConfig:
         " puts the robot)², so its budget is spent where revisits can be.",
     )
     search_max_states: int = _param(
-        200,
+        150,
         "The graph search also stops after this many states: the cost per keyframe is bounded.",
     )
 
