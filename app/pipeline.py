@@ -4,13 +4,14 @@ The floor of an estimate is reading the recording, decoding the keyframe images 
 their histograms. The pipeline keeps the SLAM step off that critical path:
 
 * a producer iterates the samples (MCAP read, CDR decode) and runs the keyframe test, which
-  needs odometry only, so non-keyframe images are never decoded (on a dense stream, the frames
-  within ``keyframe_window_m`` of a keyframe are, and the estimator picks one: ``run_estimate``);
-* keyframe images go to a small thread pool that decodes them and computes the histogram
+  needs odometry only, so non-keyframe images are never decoded — except on a dense stream
+  (``keyframe_window_m`` > 0), where every frame a few centimetres from the last is described
+  and the keyframes are taken next to the map (:func:`keyframes_taken`);
+* those images go to a small thread pool that decodes them and computes the histogram
   (OpenCV and numpy release the GIL);
 * the futures wait in a bounded FIFO, so memory stays bounded and order is kept;
-* where the platform can fork, the producer runs in a child process and sends the keyframes
-  (stamp, action, histogram: a few hundred bytes each) through a pipe, so the SLAM step, which
+* where the platform can fork, the producer runs in a child process and sends the keyframes or
+  frames (stamp, pose or action, histogram: a few hundred bytes each) through a pipe, so the SLAM step, which
   holds the GIL, runs on the other core instead of stalling the decoders.
 """
 
@@ -22,7 +23,7 @@ import os
 import signal
 import time
 from collections import deque
-from collections.abc import Callable, Generator, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -39,8 +40,8 @@ DEFAULT_WORKERS = 2
 DEFAULT_DEPTH = 8
 
 
-class Alternative(NamedTuple):
-    """Another frame of a dense stream near a keyframe, which may be taken in its place."""
+class Frame(NamedTuple):
+    """One described frame of a dense stream: enough to take it as a keyframe."""
 
     stamp_ns: int
     odometry_pose: np.ndarray
@@ -50,12 +51,10 @@ class Alternative(NamedTuple):
 class Keyframe(NamedTuple):
     stamp_ns: int
     action: np.ndarray
-    """Odometry since the previous keyframe the odometry chose."""
+    """Odometry since the previous keyframe."""
     histogram: np.ndarray
     ground_truth_pose: np.ndarray | None
     odometry_pose: np.ndarray
-    alternatives: tuple[Alternative, ...] = ()
-    """The other frames within ``keyframe_window_m`` of it, in time order (none unless enabled)."""
 
 
 @dataclass
@@ -69,57 +68,125 @@ class PipelineCounts:
 
 WINDOW_HEADING_DEG = 20.0
 """A frame is near a keyframe when within ``keyframe_window_m`` and this much heading of it."""
-MAX_WINDOW_SAMPLES = 32
-"""At most this many frames before a keyframe, and as many after it, are its alternatives: a robot
-standing still keeps every frame near the keyframe, and memory must not grow with the wait."""
+FRAME_SPACING = 1.0 / 16.0
+"""On a dense stream a frame is described only once the robot moved this fraction of the window
+(or of its heading) since the last frame described: a robot standing still or creeping costs
+nothing, and a window never holds more than about 2 / FRAME_SPACING frames."""
+MAX_WINDOW_FRAMES = 64
+"""At most this many frames before a keyframe, and as many after it, are its alternatives."""
 
 
-def _near(sample: Sample, keyframe: Sample, window_m: float) -> bool:
-    a, b = sample.odometry_pose, keyframe.odometry_pose
+def _near(a: np.ndarray, b: np.ndarray, window_m: float, heading_rad: float) -> bool:
     turn = float(se2.wrap_angle(float(a[2]) - float(b[2])))
-    return math.hypot(float(a[0] - b[0]), float(a[1] - b[1])) <= window_m and abs(turn) <= math.radians(
-        WINDOW_HEADING_DEG
-    )
+    return math.hypot(float(a[0] - b[0]), float(a[1] - b[1])) <= window_m and abs(turn) <= heading_rad
 
 
-def keyframe_windows(
-    samples: Iterable[Sample],
-    keyframe_action: Callable[[np.ndarray], np.ndarray | None],
-    window_m: float,
-    counts: PipelineCounts,
-) -> Iterator[tuple[Sample, np.ndarray, tuple[Sample, ...]]]:
-    """Each keyframe's sample and action, with the other samples within ``window_m`` of it (those
-    just before and just after, in time order). ``window_m`` 0: no others, nothing held back."""
-    recent: deque[Sample] = deque(maxlen=MAX_WINDOW_SAMPLES)
-    held: tuple[Sample, np.ndarray, list[Sample]] | None = None
+def dense_samples(samples: Iterable[Sample], window_m: float, counts: PipelineCounts) -> Iterator[Sample]:
+    """The samples worth describing on a dense stream: each one at least ``FRAME_SPACING`` of the
+    window away from the last one kept (in distance or heading)."""
+    spacing_m = FRAME_SPACING * window_m
+    spacing_rad = FRAME_SPACING * math.radians(WINDOW_HEADING_DEG)
+    last: np.ndarray | None = None
     for sample in samples:
         counts.samples += 1
-        action = keyframe_action(sample.odometry_pose)
-        if held is not None:
-            if action is None and _near(sample, held[0], window_m):
-                if len(held[2]) < 2 * MAX_WINDOW_SAMPLES:
-                    held[2].append(sample)
-                continue
-            yield held[0], held[1], tuple(held[2])
-            held = None
+        pose = np.asarray(sample.odometry_pose, dtype=float)
+        if last is not None and _near(pose, last, spacing_m, spacing_rad):
+            continue
+        last = pose
+        yield sample
+
+
+def keyframes_taken(
+    frames: Iterable[Frame], estimator: Estimator, window_m: float
+) -> Iterator[tuple[Frame, np.ndarray]]:
+    """The keyframes of a dense stream, each taken among the frames near the one odometry chose,
+    with its action since the frame taken before.
+
+    The odometry decides when a keyframe is due — a step from the frame *taken* before, so the
+    windows follow the places the map holds rather than the odometry's own schedule (which drifts
+    against a first lap's places by up to half a step). Of the frames within ``window_m`` and
+    ``WINDOW_HEADING_DEG`` of the odometry's keyframe the estimator takes the one most like the place
+    it predicts (:meth:`Estimator.choose_keyframe`); the frames after it are tested again from
+    there. Runs interleaved with the estimator's steps: each choice sees the map of every keyframe
+    before it.
+    """
+    heading = math.radians(WINDOW_HEADING_DEG)
+    source = iter(frames)
+    replay: deque[Frame] = deque()
+    recent: deque[Frame] = deque(maxlen=MAX_WINDOW_FRAMES)
+    previous: Frame | None = None
+
+    def pull() -> Frame | None:
+        return replay.popleft() if replay else next(source, None)
+
+    while (frame := pull()) is not None:
+        action = estimator.keyframe_action(frame.odometry_pose)
         if action is None:
-            if window_m > 0:
-                recent.append(sample)
-        elif window_m > 0:
-            held = (sample, action, [s for s in recent if _near(s, sample, window_m)])
+            recent.append(frame)
+            continue
+        if previous is None:  # the first keyframe: nothing to choose from, nothing to predict
+            previous = frame
             recent.clear()
-        else:
-            yield sample, action, ()
-    if held is not None:
-        yield held[0], held[1], tuple(held[2])
+            yield frame, action
+            continue
+        before = [f for f in recent if _near(f.odometry_pose, frame.odometry_pose, window_m, heading)]
+        after: list[Frame] = []
+        while (following := pull()) is not None:
+            if len(after) >= MAX_WINDOW_FRAMES or not _near(
+                following.odometry_pose, frame.odometry_pose, window_m, heading
+            ):
+                replay.appendleft(following)
+                break
+            after.append(following)
+        options = [frame, *before, *after]
+        taken = frame
+        if len(options) > 1:
+            actions = [se2.between(previous.odometry_pose, o.odometry_pose) for o in options]
+            taken = options[estimator.choose_keyframe(actions, [o.histogram for o in options])]
+        if taken is not frame:
+            estimator.keyframe_taken_at(taken.odometry_pose)
+        later = [f for f in (*before, frame, *after) if f.stamp_ns > taken.stamp_ns]
+        replay.extendleft(reversed(later))
+        recent.clear()
+        yield taken, se2.between(previous.odometry_pose, taken.odometry_pose)
+        previous = taken
 
 
 def _histogram(image: LazyImage, model: ObservationModel) -> np.ndarray:
     return model.describe(image.decode_gray())
 
 
-_Pending = tuple[Sample, np.ndarray, tuple[Sample, ...], list[Future[np.ndarray]]]
-"""A keyframe waiting for its histograms: its sample, action, alternatives, and one future each."""
+def _described(
+    items: Iterable[tuple[Sample, Any]],
+    model: ObservationModel,
+    workers: int,
+    depth: int,
+) -> Iterator[tuple[Sample, Any, np.ndarray]]:
+    """``(sample, tag, histogram)`` for each ``(sample, tag)``, in order, computed ``workers`` at a
+    time with at most ``depth`` waiting. Stopping early (an exception, KeyboardInterrupt, the
+    consumer closing the generator) cancels the queued work and joins the pool. ``workers=0``
+    computes each histogram in the calling thread: a sweep runs one task per core, and a second
+    thread per task there only adds hand-offs."""
+    pending: deque[tuple[Sample, Any, Future[np.ndarray]]] = deque()
+    pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="aslam-histogram") if workers else None
+    try:
+        for sample, tag in items:
+            if pool is not None:
+                future = pool.submit(_histogram, sample.image, model)
+            else:
+                future = _computed(_histogram, sample.image, model)
+            pending.append((sample, tag, future))
+            while pending and (len(pending) >= depth or pending[0][2].done()):
+                first, first_tag, done = pending.popleft()
+                yield first, first_tag, done.result()
+        while pending:
+            first, first_tag, done = pending.popleft()
+            yield first, first_tag, done.result()
+    finally:
+        for *_, future in pending:
+            future.cancel()
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
 
 
 def keyframe_histograms(
@@ -127,48 +194,42 @@ def keyframe_histograms(
     keyframe_action: Callable[[np.ndarray], np.ndarray | None],
     histogram: ObservationModel,
     *,
-    window_m: float = 0.0,
     counts: PipelineCounts | None = None,
     workers: int = DEFAULT_WORKERS,
     depth: int = DEFAULT_DEPTH,
 ) -> Iterator[Keyframe]:
-    """The keyframes of ``samples`` with their histograms, in order, computed ``workers`` at a time.
+    """The keyframes of ``samples`` with their histograms, in order (only keyframes are decoded).
 
-    ``keyframe_action(odometry_pose)`` is the keyframe test (the action, or None); with ``window_m``
-    each keyframe also carries the frames near it (:func:`keyframe_windows`), decoded too. At most
-    ``depth`` images are decoded or waiting at once. Stopping early (an exception,
-    KeyboardInterrupt, the consumer closing the generator) cancels the queued work and joins the
-    pool. ``workers=0`` computes each histogram in the calling thread: a sweep runs one task per
-    core, and a second thread per task there only adds hand-offs.
+    ``keyframe_action(odometry_pose)`` is the keyframe test (the action, or None).
     """
     counts = counts if counts is not None else PipelineCounts()
-    pending: deque[_Pending] = deque()
-    images = 0
-    pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="aslam-histogram") if workers else None
 
-    def describe(image: LazyImage) -> Future[np.ndarray]:
-        if pool is not None:
-            return pool.submit(_histogram, image, histogram)
-        return _computed(_histogram, image, histogram)
+    def keyframes() -> Iterator[tuple[Sample, np.ndarray]]:
+        for sample in samples:
+            counts.samples += 1
+            action = keyframe_action(sample.odometry_pose)
+            if action is not None:
+                yield sample, action
 
-    try:
-        for sample, action, alternatives in keyframe_windows(samples, keyframe_action, window_m, counts):
-            futures = [describe(s.image) for s in (sample, *alternatives)]
-            pending.append((sample, action, alternatives, futures))
-            images += len(futures)
-            while pending and (images >= depth or all(f.done() for f in pending[0][3])):
-                images -= len(pending[0][3])
-                yield _take(pending)
-                counts.keyframes += 1
-        while pending:
-            yield _take(pending)
-            counts.keyframes += 1
-    finally:
-        for *_, futures in pending:
-            for future in futures:
-                future.cancel()
-        if pool is not None:
-            pool.shutdown(wait=True, cancel_futures=True)
+    for sample, action, vector in _described(keyframes(), histogram, workers, depth):
+        pose = np.asarray(sample.odometry_pose, dtype=float)
+        yield Keyframe(sample.stamp_ns, action, vector, sample.ground_truth_pose, pose)
+
+
+def frame_histograms(
+    samples: Iterable[Sample],
+    histogram: ObservationModel,
+    window_m: float,
+    *,
+    counts: PipelineCounts | None = None,
+    workers: int = DEFAULT_WORKERS,
+    depth: int = DEFAULT_DEPTH,
+) -> Iterator[Frame]:
+    """Every frame of a dense stream worth describing (:func:`dense_samples`), with its histogram."""
+    counts = counts if counts is not None else PipelineCounts()
+    items = ((sample, None) for sample in dense_samples(samples, window_m, counts))
+    for sample, _, vector in _described(items, histogram, workers, depth):
+        yield Frame(sample.stamp_ns, np.asarray(sample.odometry_pose, dtype=float), vector)
 
 
 def _computed(function: Callable[..., np.ndarray], *args: Any) -> Future[np.ndarray]:
@@ -181,45 +242,25 @@ def _computed(function: Callable[..., np.ndarray], *args: Any) -> Future[np.ndar
     return future
 
 
-def _take(pending: deque[_Pending]) -> Keyframe:
-    sample, action, alternatives, futures = pending.popleft()
-    others = tuple(
-        Alternative(other.stamp_ns, np.asarray(other.odometry_pose, dtype=float), future.result())
-        for other, future in zip(alternatives, futures[1:], strict=True)
-    )
-    pose = np.asarray(sample.odometry_pose, dtype=float)
-    return Keyframe(sample.stamp_ns, action, futures[0].result(), sample.ground_truth_pose, pose, others)
-
-
 SEND_BATCH = 4
 
 
 class ReaderProcess:
-    """:func:`keyframe_histograms` run in a forked child, started at construction; iterating
-    yields its keyframes here, in order.
+    """A reader (``produce(counts)``: an iterator of picklable items, here keyframes or frames) run
+    in a forked child, started at construction; iterating yields its items here, in order.
 
     Started at once, so whatever the caller prepares next (opening the output, the imports the
-    end of the run needs) overlaps the child's reading instead of delaying it. ``samples`` must not
-    have been started: the child opens and reads the recording. Errors raised in the child (a bad
-    recording) are raised here; ``close()``, or an interrupt, stops the child.
+    end of the run needs) overlaps the child's reading instead of delaying it. The samples it reads
+    must not have been started: the child opens and reads the recording. Errors raised in the child
+    (a bad recording) are raised here; ``close()``, or an interrupt, stops the child.
     """
 
-    def __init__(
-        self,
-        samples: Iterable[Sample],
-        keyframe_action: Callable[[np.ndarray], np.ndarray | None],
-        histogram: ObservationModel,
-        *,
-        counts: PipelineCounts,
-        window_m: float = 0.0,
-        workers: int = DEFAULT_WORKERS,
-        depth: int = DEFAULT_DEPTH,
-    ) -> None:
+    def __init__(self, produce: Callable[[PipelineCounts], Iterator[Any]], *, counts: PipelineCounts) -> None:
         context = multiprocessing.get_context("fork")
         self._receiver, sender = context.Pipe(duplex=False)
         self._counts = counts
 
-        def produce() -> None:
+        def child() -> None:
             signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops us
             # Below the parent: at equal priority the SLAM step fell behind the decoding threads and
             # caught up alone on one core after the last image (12–49 ms of a 0.6 s estimate).
@@ -227,21 +268,13 @@ class ReaderProcess:
             self._receiver.close()
             child_counts = PipelineCounts()
             try:
-                batch: list[Keyframe] = []
-                for keyframe in keyframe_histograms(
-                    samples,
-                    keyframe_action,
-                    histogram,
-                    window_m=window_m,
-                    counts=child_counts,
-                    workers=workers,
-                    depth=depth,
-                ):
-                    batch.append(keyframe)
+                batch: list[Any] = []
+                for item in produce(child_counts):
+                    batch.append(item)
                     if len(batch) >= SEND_BATCH:
-                        sender.send(("keyframes", batch, child_counts.samples))
+                        sender.send(("items", batch, child_counts.samples))
                         batch = []
-                sender.send(("keyframes", batch, child_counts.samples))
+                sender.send(("items", batch, child_counts.samples))
                 sender.send(("done", None, child_counts.samples))
             except BaseException as err:  # handed to the parent, which raises it
                 try:
@@ -252,21 +285,19 @@ class ReaderProcess:
                 sender.close()
                 os._exit(0)
 
-        self._process = context.Process(target=produce, name="aslam-reader", daemon=True)
+        self._process = context.Process(target=child, name="aslam-reader", daemon=True)
         self._process.start()
         sender.close()
 
-    def __iter__(self) -> Iterator[Keyframe]:
+    def __iter__(self) -> Iterator[Any]:
         while True:
             try:
                 kind, payload, samples_read = self._receiver.recv()
             except EOFError:
                 raise RuntimeError("the recording reader process stopped unexpectedly") from None
             self._counts.samples = samples_read
-            if kind == "keyframes":
-                for keyframe in payload:
-                    self._counts.keyframes += 1
-                    yield keyframe
+            if kind == "items":
+                yield from payload
             elif kind == "error":
                 raise payload
             else:
@@ -285,28 +316,43 @@ def can_fork() -> bool:
 
 class EstimateSteps:
     """The estimator fed keyframe by keyframe from a reader: iterate for one ``StepResult`` per
-    keyframe, in order; ``close()`` stops the reader (also when never iterated)."""
+    keyframe, in order; ``close()`` stops the reader (also when never iterated).
+
+    The reader gives keyframes, or on a dense stream (``window_m`` > 0) every frame worth
+    describing, of which :func:`keyframes_taken` takes the keyframes here, next to the map.
+    """
 
     def __init__(
-        self, keyframes: ReaderProcess | Generator[Keyframe], estimator: Estimator, counts: PipelineCounts
+        self,
+        reader: ReaderProcess | Iterator[Keyframe] | Iterator[Frame],
+        estimator: Estimator,
+        counts: PipelineCounts,
+        window_m: float,
     ) -> None:
-        self._keyframes = keyframes
+        self._reader = reader
         self._estimator = estimator
         self._counts = counts
+        self._window_m = window_m
 
     def __iter__(self) -> Iterator[StepResult]:
         estimator, counts = self._estimator, self._counts
-        previous: Keyframe | Alternative | None = None
-        for keyframe in self._keyframes:
+        if self._window_m > 0:
+            taken: Iterator[tuple[Frame | Keyframe, np.ndarray]] = keyframes_taken(
+                self._reader, estimator, self._window_m
+            )
+        else:
+            taken = ((keyframe, keyframe.action) for keyframe in self._reader)
+        for frame, action in taken:
             start = time.perf_counter()
-            taken, action = _take_keyframe(estimator, keyframe, previous)
-            step = estimator.add_keyframe(taken.stamp_ns, action, taken.histogram)
+            step = estimator.add_keyframe(frame.stamp_ns, action, frame.histogram)
             counts.slam_s += time.perf_counter() - start
-            previous = taken
+            counts.keyframes += 1
             yield step
 
     def close(self) -> None:
-        self._keyframes.close()
+        close = getattr(self._reader, "close", None)
+        if close is not None:
+            close()
 
 
 def run_estimate(
@@ -329,45 +375,16 @@ def run_estimate(
     counts = counts if counts is not None else PipelineCounts()
     describe = estimator.observation_model
     window_m = estimator.config.keyframe_window_m
+
+    def produce(reader_counts: PipelineCounts) -> Iterator[Keyframe] | Iterator[Frame]:
+        if window_m > 0:
+            return frame_histograms(
+                samples, describe, window_m, counts=reader_counts, workers=workers, depth=depth
+            )
+        return keyframe_histograms(
+            samples, estimator.keyframe_action, describe, counts=reader_counts, workers=workers, depth=depth
+        )
+
     if reader_process and can_fork():
-        return EstimateSteps(
-            ReaderProcess(
-                samples,
-                estimator.keyframe_action,
-                describe,
-                counts=counts,
-                window_m=window_m,
-                workers=workers,
-                depth=depth,
-            ),
-            estimator,
-            counts,
-        )
-    keyframes = keyframe_histograms(
-        samples,
-        estimator.keyframe_action,
-        describe,
-        window_m=window_m,
-        counts=counts,
-        workers=workers,
-        depth=depth,
-    )
-    return EstimateSteps(keyframes, estimator, counts)
-
-
-def _take_keyframe(
-    estimator: Estimator, keyframe: Keyframe, previous: Keyframe | Alternative | None
-) -> tuple[Keyframe | Alternative, np.ndarray]:
-    """The frame to take for ``keyframe`` (it, or one of its alternatives the estimator prefers)
-    and its action since the previous frame taken."""
-    if previous is None:
-        return keyframe, keyframe.action
-    options = [a for a in keyframe.alternatives if a.stamp_ns > previous.stamp_ns]
-    taken: Keyframe | Alternative = keyframe
-    if options:
-        choice = estimator.choose_keyframe(
-            se2.between(previous.odometry_pose, keyframe.odometry_pose),
-            [keyframe.histogram, *(a.histogram for a in options)],
-        )
-        taken = options[choice - 1] if choice else keyframe
-    return taken, se2.between(previous.odometry_pose, taken.odometry_pose)
+        return EstimateSteps(ReaderProcess(produce, counts=counts), estimator, counts, window_m)
+    return EstimateSteps(produce(counts), estimator, counts, window_m)

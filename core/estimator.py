@@ -56,6 +56,13 @@ class Keyframer:
             return action
         return None
 
+    def anchor(self, odometry_pose: np.ndarray) -> None:
+        """The keyframe was taken at ``odometry_pose`` (a frame near the one this test chose): the
+        next one is due a step from there, and the poses after it are tested again from there."""
+        pose = np.asarray(odometry_pose, dtype=float)
+        self._last = pose
+        self._previous = pose
+
 
 def keyframer(config: EstimatorConfig) -> Keyframer:
     """The keyframe test ``config`` describes."""
@@ -166,21 +173,32 @@ class Estimator:
         """Keyframe test without the image (so callers decode only keyframes): the action or None."""
         return self._keyframer.action_if_keyframe(odometry_pose)
 
-    def choose_keyframe(self, action: np.ndarray, observations: list[np.ndarray]) -> int:
-        """Which of a dense stream's frames near the odometry's keyframe to take (``action``: the
-        odometry's keyframe's, ``observations``: the frames' vectors): the one most like the place
-        the best hypothesis predicts, or the first (the odometry's) when none is predicted.
+    def keyframe_taken_at(self, odometry_pose: np.ndarray) -> None:
+        """A dense stream's keyframe was taken at ``odometry_pose`` (see :meth:`choose_keyframe`):
+        the next keyframe is due a step from the frame taken, not from the odometry's choice."""
+        self._keyframer.anchor(odometry_pose)
+
+    def choose_keyframe(self, actions: list[np.ndarray], observations: list[np.ndarray]) -> int:
+        """Which of a dense stream's frames near the odometry's keyframe to take (``actions``: each
+        frame's odometry since the keyframe taken before, the odometry's keyframe first;
+        ``observations``: their vectors): the one the best hypothesis most believes is at the place
+        it predicts — by appearance and by where odometry puts the frame — or the first (the
+        odometry's) when no place is predicted.
 
         Without it a second lap keyframed by distance alone falls anywhere between the first lap's
         places, up to half a step from the nearest: on video-rate recordings that was where the wrong
-        claims were (0.50–0.56 m from the place named).
+        claims were (0.50–0.56 m from the place named). Appearance alone is not enough near a wall,
+        where a view 0.6 m from the place can look more like it than one at the place.
         """
-        place = self._tree.predicted_place(action)
-        if place is None or len(observations) < 2:
+        if len(observations) < 2:
             return 0
-        view = self._tree.observations.view[place]
-        distances = [float(self.observation_model.distances(o, view[None, :])[0]) for o in observations]
-        return int(np.argmin(distances))
+        predicted = self._tree.predicted_revisit(actions)
+        if predicted is None:
+            return 0
+        place, log_transition = predicted
+        view = self._tree.observations.view[place][None, :]
+        distances = np.array([float(self.observation_model.distances(o, view)[0]) for o in observations])
+        return int(np.argmax(log_transition + self.observation_model.log_likelihood(distances)))
 
     def add_keyframe(self, stamp_ns: int, action: np.ndarray, observation: np.ndarray) -> StepResult:
         """The SLAM step proper, on an observation vector (``observation_model.describe`` of the image)."""

@@ -490,17 +490,58 @@ class HypothesisTree:
         ]
 
     # ------------------------------------------------------------------ prediction
-    def predicted_place(self, action: np.ndarray) -> int | None:
-        """The mapped place the best hypothesis most expects the robot at after ``action`` (by the
-        motion model alone), or None: in new ground, before the first keyframe, at a session's start."""
+    def predicted_revisit(self, actions: list[np.ndarray]) -> tuple[int, np.ndarray] | None:
+        """The mapped place the best hypothesis most expects the robot at after ``actions[0]`` (by
+        the motion model alone), and ``log P(x = that place | x', u)`` under each of ``actions`` (the
+        frames near a keyframe); None in new ground, before the first keyframe, at a session's start."""
         if not self.leaves or self.leaves[0].state == SESSION_START:
             return None
-        action = np.asarray(action, dtype=float)
+        leaf = self.leaves[0]
+        first = np.asarray(actions[0], dtype=float)
+        first_cov = action_covariance(first, self._noise)
         searched = self._searched_sum  # a look ahead, not a step: the statistics stay the steps'
-        covariance = action_covariance(action, self._noise)
-        states, log_transition = self._propose(self.leaves[:1], action, covariance)[0]
+        if self.config.candidate_search == "path":
+            states, rels = self._search_path(leaf)
+        else:
+            states, rels = self._search(leaf, first, first_cov)
         self._searched_sum = searched
-        return int(states[np.argmax(log_transition)]) if len(states) else None
+        if not states:
+            return None
+        table = np.array(rels)
+        poses = table[:, :3]
+        covs = table[:, [3, 4, 5, 4, 6, 7, 5, 7, 8]].reshape(-1, 3, 3)
+        log_transition, mahalanobis2 = self._transition(poses, covs, first, first_cov)
+        keep = mahalanobis2 <= self._gate
+        if self._moved(first):
+            keep &= np.asarray(states, np.int64) != leaf.state
+        if not keep.any():
+            return None
+        best = int(np.argmax(np.where(keep, log_transition, -np.inf)))
+        scores = np.empty(len(actions))
+        for i, action in enumerate(actions):
+            action = np.asarray(action, dtype=float)
+            cov = action_covariance(action, self._noise)
+            scores[i] = self._transition(poses[best : best + 1], covs[best : best + 1], action, cov)[0][0]
+        return int(states[best]), scores
+
+    def _transition(
+        self, poses: np.ndarray, covariances: np.ndarray, action: np.ndarray, action_cov: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``log P(x = k | x', u)`` of candidates at ``poses`` (with ``covariances``) seen from the
+        previous state, and their squared Mahalanobis distances (which the gate tests)."""
+        residual, covariance = revisit_residuals(poses, covariances, action, action_cov)
+        covariance += self._place_cov
+        inverse = np.linalg.inv(covariance)
+        mahalanobis2 = np.einsum("ni,nij,nj->n", residual, inverse, residual)
+        logdet = np.linalg.slogdet(covariance)[1]
+        # Normalised so a perfectly predicted revisit with no chain uncertainty scores log 1.
+        return 0.5 * (self._place_logdet - logdet) - 0.5 * mahalanobis2, mahalanobis2
+
+    def _moved(self, action: np.ndarray) -> bool:
+        """A keyframe is taken because the robot moved a step or turned: it is not where it was."""
+        return math.hypot(action[0], action[1]) >= 0.5 * self.config.step_m or abs(action[2]) >= 0.5 * (
+            math.radians(self.config.turn_deg)
+        )
 
     def _propose(
         self, leaves: list[Node], action: np.ndarray, action_cov: np.ndarray
@@ -520,18 +561,9 @@ class HypothesisTree:
         table = np.array([rel for _, found in searches for rel in found])
         poses = table[:, :3]
         covs = table[:, [3, 4, 5, 4, 6, 7, 5, 7, 8]].reshape(-1, 3, 3)
-        residual, covariance = revisit_residuals(poses, covs, action, action_cov)
-        covariance += self._place_cov
-        inverse = np.linalg.inv(covariance)
-        mahalanobis2 = np.einsum("ni,nij,nj->n", residual, inverse, residual)
-        logdet = np.linalg.slogdet(covariance)[1]
-        # Normalised so a perfectly predicted revisit with no chain uncertainty scores log 1.
-        log_transition = 0.5 * (self._place_logdet - logdet) - 0.5 * mahalanobis2
+        log_transition, mahalanobis2 = self._transition(poses, covs, action, action_cov)
         reachable = mahalanobis2 <= self._gate
-        # A keyframe is taken because the robot moved a step or turned: it is not where it was.
-        moved = math.hypot(action[0], action[1]) >= 0.5 * self.config.step_m or abs(action[2]) >= 0.5 * (
-            math.radians(self.config.turn_deg)
-        )
+        moved = self._moved(action)
         proposals = []
         start = 0
         for leaf, (states, _), size in zip(leaves, searches, sizes, strict=True):

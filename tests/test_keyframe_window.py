@@ -1,8 +1,10 @@
-"""Keyframes on a dense stream: the frames near each odometry keyframe (``keyframe_windows``) and
-the estimator's choice among them (``Estimator.choose_keyframe``)."""
+"""Keyframes on a dense stream: the frames worth describing (``dense_samples``), the keyframes
+taken among them next to the map (``keyframes_taken``) and the estimator's choice
+(``Estimator.choose_keyframe``)."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -11,31 +13,53 @@ from hypothesis import strategies as st
 from test_core_tree import SyntheticWorld, rectangle_actions, run, synthetic_config
 
 from aslam.app.pipeline import (
-    MAX_WINDOW_SAMPLES,
+    FRAME_SPACING,
+    MAX_WINDOW_FRAMES,
     WINDOW_HEADING_DEG,
-    Alternative,
-    Keyframe,
+    Frame,
     PipelineCounts,
-    _take_keyframe,
-    keyframe_windows,
+    dense_samples,
+    keyframes_taken,
 )
 from aslam.core import se2
 from aslam.core.estimator import Keyframer
 from aslam.data_formats.pose_sync import Sample
 
 
-def _stream(increments: list[tuple[float, float]]) -> list[Sample]:
-    """Samples along a path of (forward metres, turn degrees) increments; no images needed."""
+def _poses(increments: list[tuple[float, float]]) -> list[np.ndarray]:
+    """Poses along a path of (forward metres, turn degrees) increments."""
     pose = np.zeros(3)
-    samples = [Sample(0, None, pose.copy(), None)]  # type: ignore[arg-type]
-    for i, (forward, turn) in enumerate(increments, start=1):
+    poses = [pose.copy()]
+    for forward, turn in increments:
         pose = se2.compose(pose, np.array([forward, 0.0, math.radians(turn)]))
-        samples.append(Sample(i, None, pose.copy(), None))  # type: ignore[arg-type]
-    return samples
+        poses.append(pose.copy())
+    return poses
 
 
-def _keyframer() -> Keyframer:
-    return Keyframer(1.0, 90.0, 0.3, adaptive=True)
+def _frames(increments: list[tuple[float, float]]) -> list[Frame]:
+    """Frames whose "view" is their own stamp: a chooser can tell them apart without images."""
+    return [Frame(i, pose, np.array([i], np.float32)) for i, pose in enumerate(_poses(increments))]
+
+
+class _Chooser:
+    """The three calls ``keyframes_taken`` makes of an estimator, with a real keyframe test and a
+    choice that takes the ``pick``-th option (clipped), recording what it was offered."""
+
+    def __init__(self, pick: int = 0) -> None:
+        self._keyframer = Keyframer(1.0, 90.0, 0.3, adaptive=True)
+        self.pick = pick
+        self.offered: list[list[int]] = []
+
+    def keyframe_action(self, pose: np.ndarray) -> np.ndarray | None:
+        return self._keyframer.action_if_keyframe(pose)
+
+    def keyframe_taken_at(self, pose: np.ndarray) -> None:
+        self._keyframer.anchor(pose)
+
+    def choose_keyframe(self, actions: list[np.ndarray], observations: list[np.ndarray]) -> int:
+        assert len(actions) == len(observations)
+        self.offered.append([int(o[0]) for o in observations])
+        return min(self.pick, len(observations) - 1)
 
 
 increments = st.lists(
@@ -49,26 +73,79 @@ increments = st.lists(
 
 
 @settings(max_examples=60, deadline=None)
-@given(steps=increments, window_m=st.sampled_from([0.0, 0.2, 0.35, 0.5]))
-def test_windows_keep_the_odometry_keyframes_and_add_only_frames_near_them(steps, window_m):
-    samples = _stream(steps)
-    keyframer = _keyframer()
-    plain = [s.stamp_ns for s in samples if keyframer.action_if_keyframe(s.odometry_pose) is not None]
-    counts = PipelineCounts()
-    windows = list(keyframe_windows(samples, _keyframer().action_if_keyframe, window_m, counts))
-    assert [key.stamp_ns for key, _, _ in windows] == plain  # the odometry still chooses which keyframes
-    assert counts.samples == len(samples)
-    seen: set[int] = set()
-    for key, _, others in windows:
-        stamps = [o.stamp_ns for o in others]
-        assert stamps == sorted(stamps) and not (set(stamps) & set(plain)) and not (set(stamps) & seen)
-        seen |= set(stamps)
-        for other in others:
-            offset = se2.between(key.odometry_pose, other.odometry_pose)
+@given(steps=increments, window_m=st.sampled_from([0.2, 0.35, 0.5]), pick=st.integers(0, 4))
+def test_keyframes_are_taken_near_the_odometrys_choice_and_due_a_step_from_the_frame_taken(
+    steps, window_m, pick
+):
+    frames = _frames(steps)
+    chooser = _Chooser(pick)
+    taken = list(keyframes_taken(frames, chooser, window_m))  # type: ignore[arg-type]
+    stamps = [frame.stamp_ns for frame, _ in taken]
+    assert stamps and stamps[0] == 0 and stamps == sorted(set(stamps))  # in time order, never twice
+    for (before, _), (frame, action) in itertools.pairwise(taken):
+        np.testing.assert_allclose(action, se2.between(before.odometry_pose, frame.odometry_pose), atol=1e-12)
+    for options in chooser.offered:  # each option near the odometry's choice (the first one)
+        key = frames[options[0]].odometry_pose
+        for stamp in options[1:]:
+            offset = se2.between(key, frames[stamp].odometry_pose)
             assert math.hypot(offset[0], offset[1]) <= window_m + 1e-12
             assert abs(math.degrees(offset[2])) <= WINDOW_HEADING_DEG + 1e-9
-        if window_m == 0:
-            assert others == ()
+        assert len(options) <= 1 + 2 * MAX_WINDOW_FRAMES
+    # The keyframe test runs again from each frame taken: between two keyframes taken, no frame
+    # was due a keyframe from the first (so the windows follow the frames taken, not a schedule).
+    for (first, _), (second, _) in itertools.pairwise(taken):
+        test = Keyframer(1.0, 90.0, 0.3, adaptive=True)
+        test.anchor(first.odometry_pose)
+        due = [
+            f.stamp_ns
+            for f in frames[first.stamp_ns + 1 :]
+            if test.action_if_keyframe(f.odometry_pose) is not None
+        ]
+        assert due
+        offset = se2.between(frames[due[0]].odometry_pose, second.odometry_pose)
+        assert math.hypot(offset[0], offset[1]) <= window_m + 1e-12
+
+
+@settings(max_examples=40, deadline=None)
+@given(steps=increments)
+def test_taking_the_odometrys_choice_gives_the_odometrys_keyframes(steps):
+    frames = _frames(steps)
+    plain = Keyframer(1.0, 90.0, 0.3, adaptive=True)
+    expected = [f.stamp_ns for f in frames if plain.action_if_keyframe(f.odometry_pose) is not None]
+    taken = keyframes_taken(frames, _Chooser(0), 0.35)  # type: ignore[arg-type]
+    assert [frame.stamp_ns for frame, _ in taken] == expected
+
+
+def test_a_taken_frame_moves_the_next_keyframe_and_its_action_with_it():
+    """Frames every 0.1 m: the odometry's keyframe is at 1.0 m; taking the frame 0.3 m later puts
+    the next keyframe a step from there (2.3 m, not 2.0 m), its action measured from the frame taken."""
+    frames = _frames([(0.1, 0.0)] * 30)
+    chooser = _Chooser(pick=0)
+    stream = keyframes_taken(frames, chooser, 0.35)  # type: ignore[arg-type]
+    first, _ = next(stream)
+    assert first.stamp_ns == 0
+    chooser.pick = 1 + 3 + 3  # options: the keyframe, the 3 frames before it, then the 3 after
+    second, action = next(stream)
+    assert chooser.offered[-1] == [10, 7, 8, 9, 11, 12, 13]
+    assert second.stamp_ns == 13
+    np.testing.assert_allclose(action, [1.3, 0.0, 0.0], atol=1e-9)
+    chooser.pick = 0
+    third, action = next(stream)
+    assert third.stamp_ns == 23
+    np.testing.assert_allclose(action, [1.0, 0.0, 0.0], atol=1e-9)
+
+
+def test_a_robot_standing_still_or_creeping_is_described_a_few_centimetres_apart():
+    """Thousands of frames at one pose, then a creep of 1 mm a frame: only frames at least
+    ``FRAME_SPACING`` of the window apart are described, so a window stays small."""
+    poses = _poses([(1.0, 0.0)] + [(0.0, 0.0)] * 5000 + [(0.001, 0.0)] * 1000)
+    samples = [Sample(i, None, pose, None) for i, pose in enumerate(poses)]  # type: ignore[arg-type]
+    counts = PipelineCounts()
+    kept = list(dense_samples(samples, 0.35, counts))
+    assert counts.samples == len(samples)
+    assert [s.stamp_ns for s in kept[:2]] == [0, 1]
+    gaps = np.diff([float(s.odometry_pose[0]) for s in kept])
+    assert gaps.min() >= FRAME_SPACING * 0.35 - 1e-9 and len(kept) == 2 + 1.0 // (FRAME_SPACING * 0.35)
 
 
 def test_a_second_lap_keyframe_is_taken_where_the_first_lap_looked_most_alike():
@@ -81,40 +158,19 @@ def test_a_second_lap_keyframe_is_taken_where_the_first_lap_looked_most_alike():
     rng = np.random.default_rng(0)
     stranger = [rng.dirichlet(np.ones(16)).astype(np.float32) for _ in range(2)]
     place = world.observe(np.array([4.0, 0.0, 0.0]))  # lap 1's place 4, the next one
-    step = np.array([1.0, 0.0, 0.0])
-    assert estimator.choose_keyframe(step, [stranger[0], place, stranger[1]]) == 1
-    assert estimator.choose_keyframe(step, [place, stranger[0]]) == 0
-    assert run([], world, synthetic_config())[0].choose_keyframe(step, [stranger[0], place]) == 0
+    steps = [np.array([x, 0.0, 0.0]) for x in (1.0, 0.9, 1.1)]
+    assert estimator.choose_keyframe(steps, [stranger[0], place, stranger[1]]) == 1
+    assert estimator.choose_keyframe(steps[:2], [place, stranger[0]]) == 0
+    assert run([], world, synthetic_config())[0].choose_keyframe(steps[:2], [stranger[0], place]) == 0
 
 
-def test_a_taken_alternative_moves_the_next_action_with_it():
-    """The action of a keyframe is odometry since the frame actually taken before it."""
+def test_where_odometry_puts_a_frame_weighs_with_how_alike_it_looks():
+    """Of two frames that look equally like the predicted place (lap 1's place 4, a step ahead),
+    the one odometry puts at the place is taken, not the one half a step short of it."""
     world = SyntheticWorld(5)
     estimator, _ = run(rectangle_actions()[:37], world, synthetic_config())
-
-    def odometry(x: float) -> np.ndarray:  # any origin: only differences count
-        return np.array([37.0 + x, 0.0, 0.0])
-
-    def view(x: float) -> np.ndarray:
-        return world.observe(np.array([x, 0.0, 0.0]))
-
-    step = np.array([1.0, 0.0, 0.0])
-    previous = Keyframe(37, np.zeros(3), view(3.0), None, odometry(0.0))
-    near = Alternative(39, odometry(1.2), view(4.0))
-    keyframe = Keyframe(38, step, np.zeros(16, np.float32), None, odometry(1.0), (near,))
-    taken, action = _take_keyframe(estimator, keyframe, previous)
-    assert taken is near
-    np.testing.assert_allclose(action, [1.2, 0.0, 0.0])
-    after = Keyframe(40, step, view(5.0), None, odometry(2.0))
-    taken, action = _take_keyframe(estimator, after, near)
-    assert taken is after
-    np.testing.assert_allclose(action, [0.8, 0.0, 0.0])
-
-
-def test_a_robot_standing_still_holds_a_bounded_window():
-    """Thousands of frames at one pose after a keyframe: the window keeps a bounded number, and the
-    keyframe still comes out once the robot moves on."""
-    samples = _stream([(1.0, 0.0)] + [(0.0, 0.0)] * 5000 + [(1.0, 0.0)])
-    windows = list(keyframe_windows(samples, _keyframer().action_if_keyframe, 0.35, PipelineCounts()))
-    assert [key.stamp_ns for key, _, _ in windows] == [0, 1, 5002]
-    assert max(len(others) for _, _, others in windows) <= 2 * MAX_WINDOW_SAMPLES
+    stranger = np.random.default_rng(0).dirichlet(np.ones(16)).astype(np.float32)
+    place = world.observe(np.array([4.0, 0.0, 0.0]))
+    keyframe, short, at_place = (np.array([x, 0.0, 0.0]) for x in (0.8, 0.5, 1.1))
+    assert estimator.choose_keyframe([keyframe, short, at_place], [stranger, place, place]) == 2
+    assert estimator.choose_keyframe([keyframe, at_place, short], [stranger, place, place]) == 1
