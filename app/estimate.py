@@ -11,30 +11,21 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from aslam.app.metric_view import embed_run, estimator_config, metric_scene, preload
 from aslam.app.pipeline import DEFAULT_WORKERS, EstimateSteps, PipelineCounts, run_estimate
 from aslam.core.config import EstimatorConfig
 from aslam.core.errors import InputError
-from aslam.core.estimator import Estimator, prior_map
-from aslam.core.mapgraph import PriorMap
-from aslam.core.observation import descriptor_key
+from aslam.core.estimator import Estimator
 from aslam.data_formats.errors import EstimateError
-from aslam.data_formats.estimate import (
-    EstimateMetadata,
-    EstimateWriter,
-    MapIdentity,
-    PlaceViews,
-    RecordingIdentity,
-    Timing,
-    read_estimate,
-    read_place_views,
-)
 from aslam.data_formats.files import check_output_path, source_files, source_sha256
-from aslam.data_formats.provenance import tool_version
 from aslam.data_formats.sources import TopicChoice, open_input
+
+if TYPE_CHECKING:
+    from aslam.core.mapgraph import PriorMap
+    from aslam.data_formats.estimate import MapIdentity
 
 PROGRESS_INTERVAL_S = 0.1
 
@@ -158,6 +149,17 @@ def estimate(
         steps = run_estimate(
             source.samples(), estimator, counts=counts, workers=workers, reader_process=reader_process
         )
+        # What only the output and the end of the run need is imported while the reader reads.
+        from aslam.app.metric_view import embed_run, metric_scene, preload
+        from aslam.data_formats.estimate import (
+            EstimateMetadata,
+            EstimateWriter,
+            PlaceViews,
+            RecordingIdentity,
+            Timing,
+        )
+        from aslam.data_formats.provenance import tool_version
+
         hasher = FileHasher(recording)
         with EstimateWriter(output, tool_version=tool_version(), force=force) as writer:
             if total is None or total >= 2:  # a metric view needs 2 keyframes: its imports, meanwhile
@@ -226,6 +228,11 @@ def estimate(
 def load_prior_map(path: Path, config: EstimatorConfig) -> tuple[PriorMap, MapIdentity]:
     """The map of the estimate file ``path``, to start a run in; EstimateError when it cannot be:
     not an estimate, no stored views, views another observation model made."""
+    from aslam.app.metric_view import estimator_config
+    from aslam.core.estimator import prior_map
+    from aslam.core.observation import descriptor_key
+    from aslam.data_formats.estimate import MapIdentity, read_estimate, read_place_views
+
     if not path.exists():
         raise InputError("no such map (an estimate file from `aslam estimate`)", path=path)
     info = read_estimate(path)

@@ -108,8 +108,9 @@ class EstimatorConfig:
     keyframe_window_m: float = _param(
         0.35,
         "On a dense stream, each keyframe is taken among the frames within this distance (and 20°) of the"
-        " odometry's choice: the one that looks most like the place the best hypothesis predicts, so a"
-        " second lap's keyframes land on the first lap's places, not between them (0: odometry's choice).",
+        " odometry's choice: the one the best hypothesis most believes is at the place it predicts (by"
+        " appearance and odometry), the next due a step from it, so a second lap's keyframes land on the"
+        " first lap's places, not between them (0: odometry's choice, only keyframes decoded).",
     )
 
     # --- observations -------------------------------------------------------------------------
