@@ -20,6 +20,11 @@ def compose(a: Pose2, b: Pose2) -> Pose2:
     """``a ⊕ b``: pose ``b`` (expressed in frame ``a``) expressed in ``a``'s parent frame."""
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
+    if a.ndim == 1 and b.ndim == 1:  # one pose: the same float64 arithmetic, without np.stack
+        ax, ay, ayaw = a
+        bx, by, byaw = b
+        c, s = np.cos(ayaw), np.sin(ayaw)
+        return np.array([ax + c * bx - s * by, ay + s * bx + c * by, wrap_angle(ayaw + byaw)])
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
     return np.stack(
         [
@@ -34,6 +39,10 @@ def compose(a: Pose2, b: Pose2) -> Pose2:
 def inverse(a: Pose2) -> Pose2:
     """``⊖a``: the parent frame seen from frame ``a``."""
     a = np.asarray(a, dtype=float)
+    if a.ndim == 1:  # one pose: the same float64 arithmetic, without np.stack
+        x, y, yaw = a
+        c, s = np.cos(yaw), np.sin(yaw)
+        return np.array([-c * x - s * y, s * x - c * y, wrap_angle(-yaw)])
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
     return np.stack(
         [

@@ -37,6 +37,20 @@ def test_help_does_not_import_heavy_modules():
     subprocess.run([sys.executable, "-c", code], check=True, capture_output=True)
 
 
+def test_a_command_builds_only_its_own_options():
+    """typer builds every registered command's options on each start: a command registers alone."""
+    code = (
+        "import sys\n"
+        "from aslam.cli.app import COMMAND_MODULES, main\n"
+        "main(['info', '--help'])\n"
+        "others = [m for m in COMMAND_MODULES.values() if m != 'info' and f'aslam.cli.{m}' in sys.modules]\n"
+        "assert not others, others\n"
+        "main(['--help'])\n"
+        "assert all(f'aslam.cli.{m}' in sys.modules for m in COMMAND_MODULES.values())\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, capture_output=True)
+
+
 def test_the_console_script_flushes_everything_before_it_skips_teardown():
     """`aslam` ends with os._exit: what it printed into a pipe must all be there, with its exit code."""
     from pathlib import Path
