@@ -66,6 +66,16 @@ def test_compose_broadcasts_over_stacks(stack):
         assert close_poses(composed[i], se2.compose(stack[i], stack[::-1][i]), 1e-9)
 
 
+@given(st.lists(poses, min_size=2, max_size=6))
+def test_one_pose_is_composed_and_inverted_bit_for_bit_as_in_a_stack(stack):
+    """The single-pose path skips np.stack; its float64 arithmetic is the stack's, to the bit."""
+    stack = np.array(stack)
+    composed, inverted = se2.compose(stack, stack[::-1]), se2.inverse(stack)
+    for i in range(len(stack)):
+        assert np.array_equal(se2.compose(stack[i], stack[::-1][i]), composed[i])
+        assert np.array_equal(se2.inverse(stack[i]), inverted[i])
+
+
 def _numeric_jacobians(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     eps = 1e-6
     ja, jb = np.zeros((3, 3)), np.zeros((3, 3))

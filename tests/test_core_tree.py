@@ -14,7 +14,7 @@ from aslam.core.config import EstimatorConfig
 from aslam.core.errors import ConfigError
 from aslam.core.estimator import Estimator, Keyframer
 from aslam.core.motion import compose_rel, inverse_rel, link_weight, rel_covariance, revisit_residuals, to_rel
-from aslam.core.tree import HypothesisTree
+from aslam.core.tree import HypothesisTree, WindowMedian
 
 BINS = 16
 
@@ -347,3 +347,17 @@ def test_long_steps_throughout_are_no_jump():
         view = rng.dirichlet(np.ones(BINS)).astype(np.float32)
         estimator.add_keyframe(k, np.array([5.0, 0.0, 0.0]) if k else np.zeros(3), view)
     assert all(link.covariance[0][0] < 1.0 for link in estimator.result().links)
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    values=st.lists(st.floats(0.0, 10.0, allow_nan=False), min_size=1, max_size=300),
+    window=st.integers(1, 60),
+)
+def test_the_running_median_is_numpys_median_of_the_window(values, window):
+    running = WindowMedian(window)
+    for i, value in enumerate(values):
+        running.append(value)
+        recent = values[max(0, i + 1 - window) : i + 1]
+        assert len(running) == len(recent)
+        assert running.median == float(np.median(recent))  # the same bits, not just close
