@@ -318,7 +318,7 @@ class EstimateSteps:
     """The estimator fed keyframe by keyframe from a reader: iterate for one ``StepResult`` per
     keyframe, in order; ``close()`` stops the reader (also when never iterated).
 
-    The reader gives keyframes, or on a dense stream (``window_m`` > 0) every frame worth
+    The reader gives keyframes, or on a dense stream (``keyframe_window_m`` > 0) every frame worth
     describing, of which :func:`keyframes_taken` takes the keyframes here, next to the map.
     """
 
@@ -327,12 +327,11 @@ class EstimateSteps:
         reader: ReaderProcess | Iterator[Keyframe] | Iterator[Frame],
         estimator: Estimator,
         counts: PipelineCounts,
-        window_m: float,
     ) -> None:
         self._reader = reader
         self._estimator = estimator
         self._counts = counts
-        self._window_m = window_m
+        self._window_m = estimator.config.keyframe_window_m
 
     def __iter__(self) -> Iterator[StepResult]:
         estimator, counts = self._estimator, self._counts
@@ -386,5 +385,5 @@ def run_estimate(
         )
 
     if reader_process and can_fork():
-        return EstimateSteps(ReaderProcess(produce, counts=counts), estimator, counts, window_m)
-    return EstimateSteps(produce(counts), estimator, counts, window_m)
+        return EstimateSteps(ReaderProcess(produce, counts=counts), estimator, counts)
+    return EstimateSteps(produce(counts), estimator, counts)
