@@ -191,7 +191,9 @@ def long_recording(path: Path, frames: int = 600) -> None:
 @pytest.mark.parametrize("signum, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
 def test_signal_during_estimate_cleans_up(tmp_path: Path, signum: int, code: int):
     recording = tmp_path / "long.mcap"
-    long_recording(recording)
+    # Long enough (about 3 s) that the signal lands mid-run even when this process is descheduled
+    # for a while after seeing the partial file (a loaded CI machine: 600 frames once finished first).
+    long_recording(recording, frames=1500)
     output = tmp_path / "e.mcap"
     process = subprocess.Popen(
         [str(ASLAM), "estimate", str(recording), "-o", str(output)], stderr=subprocess.PIPE, text=True
@@ -200,6 +202,7 @@ def test_signal_during_estimate_cleans_up(tmp_path: Path, signum: int, code: int
     while not list(tmp_path.glob(".e.mcap.partial-*")) and process.poll() is None:
         assert time.monotonic() < deadline
         time.sleep(0.01)
+    assert process.poll() is None, "the estimate ended before it could be signalled"
     process.send_signal(signum)
     _, err = process.communicate(timeout=120)
     assert process.returncode == code, err

@@ -1,0 +1,80 @@
+"""The PNG fast path (libspng) gives OpenCV's ``IMREAD_GRAYSCALE`` pixels, or steps aside."""
+
+from __future__ import annotations
+
+import zlib
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from aslam.data_formats.errors import RecordingError
+from aslam.data_formats.images import LazyImage, libpng_gray, png_gray
+
+
+def opencv_gray(data: bytes) -> np.ndarray:
+    return cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
+
+
+def png_of(pixels: np.ndarray, compression: int = 3) -> bytes:
+    bgr = cv2.cvtColor(pixels, cv2.COLOR_RGB2BGR) if pixels.ndim == 3 else pixels
+    ok, buf = cv2.imencode(".png", bgr, [cv2.IMWRITE_PNG_COMPRESSION, compression])
+    assert ok
+    return buf.tobytes()
+
+
+def chunk(kind: bytes, payload: bytes) -> bytes:
+    crc = zlib.crc32(kind + payload).to_bytes(4, "big")
+    return len(payload).to_bytes(4, "big") + kind + payload + crc
+
+
+def with_chunk_after_ihdr(data: bytes, extra: bytes) -> bytes:
+    ihdr_end = 8 + 12 + 13
+    return data[:ihdr_end] + extra + data[ihdr_end:]
+
+
+def test_every_rgb_colour_greys_as_opencv_does():
+    """All 2^24 colours in one 4096 × 4096 PNG: the conversion is libpng's, not an approximation."""
+    cube = np.arange(1 << 24, dtype=np.uint32)
+    rgb = np.stack([(cube >> 16) & 255, (cube >> 8) & 255, cube & 255], axis=-1).astype(np.uint8)
+    rgb = rgb.reshape(4096, 4096, 3)
+    assert np.array_equal(libpng_gray(rgb), opencv_gray(png_of(rgb, compression=1)))
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    pixels=st.one_of(
+        arrays(np.uint8, st.tuples(st.integers(1, 40), st.integers(1, 40), st.just(3))),
+        arrays(np.uint8, st.tuples(st.integers(1, 40), st.integers(1, 40))),
+    ),
+    compression=st.integers(0, 9),
+)
+def test_fast_path_matches_opencv(pixels: np.ndarray, compression: int):
+    data = png_of(pixels, compression)
+    fast = png_gray(data)
+    assert fast is not None
+    assert fast.dtype == np.uint8
+    assert np.array_equal(fast, opencv_gray(data))
+
+
+def test_pngs_that_are_not_plain_take_opencvs_path():
+    rgb = np.random.default_rng(0).integers(0, 256, (24, 32, 3), dtype=np.uint8)
+    plain = png_of(rgb)
+    gamma = with_chunk_after_ihdr(plain, chunk(b"gAMA", (45455).to_bytes(4, "big")))
+    sixteen_bit = png_of(rgb.astype(np.uint16) * 257)
+    rgba = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGRA))[1].tobytes()
+    for data in (gamma, sixteen_bit, rgba, plain[:-12], plain + b"trailing", plain[: len(plain) // 2], b""):
+        assert png_gray(data) is None
+
+
+def test_corrupt_pixel_data_is_still_refused_with_the_file_named(tmp_path):
+    rgb = np.random.default_rng(1).integers(0, 256, (24, 32, 3), dtype=np.uint8)
+    data = bytearray(png_of(rgb))
+    data[60] ^= 0xFF  # inside the IDAT stream: its CRC no longer matches
+    image = LazyImage(bytes(data), "png", path=tmp_path / "r.mcap", stamp_ns=5)
+    assert png_gray(bytes(data)) is None
+    with pytest.raises(RecordingError, match=r"r\.mcap.*stamp 5 ns: corrupt PNG data"):
+        image.decode_gray()
