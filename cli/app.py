@@ -106,6 +106,8 @@ class _Signals:
     """
 
     HANDLED = (signal.SIGINT, signal.SIGTERM)
+    active: _Signals | None = None
+    """The command's, while it runs: whether an error was the interrupt's doing."""
 
     def __init__(self) -> None:
         self.received: int | None = None
@@ -125,9 +127,11 @@ class _Signals:
                 if signal.getsignal(signum) is signal.SIG_IGN:
                     continue  # ignored by whoever started us (nohup, a shell's background job): keep it so
                 self._saved[signum] = signal.signal(signum, self._handle)
+        _Signals.active = self
         return self
 
     def __exit__(self, *_exc: object) -> None:
+        _Signals.active = None
         for signum, handler in self._saved.items():
             signal.signal(signum, handler)  # type: ignore[arg-type]
 
@@ -295,7 +299,29 @@ def _dispatch(argv: list[str] | None, files: CommandFiles | None) -> int:
         raise
     except KeyboardInterrupt:
         raise
-    except OSError as err:
+    except Exception as err:
+        interrupt = _interrupt_behind(err)
+        if interrupt is not None:
+            raise interrupt from err
+        _failure(err)
+    if code == EXIT_INTERRUPTED:
+        raise Interrupted("SIGINT")
+    return code if isinstance(code, int) else EXIT_OK
+
+
+def _interrupt_behind(err: Exception) -> Interrupted | None:
+    """The interrupt an error stands for, if a signal arrived: raised inside a native module's
+    initialisation (GTSAM's pybind11, protobuf), Ctrl-C comes out as ``ImportError:
+    initialization failed``, which is no internal error."""
+    signals = _Signals.active
+    if signals is None or signals.received is None:
+        return None
+    return Interrupted(signal.Signals(signals.received).name)
+
+
+def _failure(err: Exception) -> NoReturn:
+    """Raise ``_Failed`` with the exit code an error that escaped a command stands for."""
+    if isinstance(err, OSError):
         if _is_closed_pipe(err):
             raise _Failed(EXIT_CLOSED_PIPE) from err
         if err.errno in _ENVIRONMENT_ERRNOS:  # a full disk, a read-only folder: not a bug
@@ -303,16 +329,12 @@ def _dispatch(argv: list[str] | None, files: CommandFiles | None) -> int:
             error_line(f"{where}{err.strerror or err}")
             raise _Failed(EXIT_BAD_INPUT) from err
         _internal_error(err)
-    except Exception as err:
-        usage = _usage_error_line(err)
-        if usage is not None:  # click's usage and parameter errors, made one line
-            if usage:  # empty when the help was shown instead (no arguments)
-                error_line(usage)
-            raise _Failed(EXIT_BAD_INPUT) from err
-        _internal_error(err)
-    if code == EXIT_INTERRUPTED:
-        raise Interrupted("SIGINT")
-    return code if isinstance(code, int) else EXIT_OK
+    usage = _usage_error_line(err)
+    if usage is not None:  # click's usage and parameter errors, made one line
+        if usage:  # empty when the help was shown instead (no arguments)
+            error_line(usage)
+        raise _Failed(EXIT_BAD_INPUT) from err
+    _internal_error(err)
 
 
 #: File-system refusals that reach the edge unwrapped (e.g. creating a --plots folder): exit 2, not 70.

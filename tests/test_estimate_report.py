@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import json
 import os
+import signal
+import time
 from pathlib import Path
 
 import pytest
@@ -136,6 +138,28 @@ def test_interrupted_estimate_leaves_no_file(recording: Path, tmp_path: Path, mo
     assert os.listdir(tmp_path) == []  # no partial file either
     err = capsys.readouterr().err
     assert "Traceback" not in err
+    assert err.strip().endswith("aslam: error: interrupted")
+
+
+def test_ctrl_c_inside_a_native_import_is_an_interrupt(recording: Path, tmp_path: Path, monkeypatch, capsys):
+    """pybind11 (GTSAM) turns an exception raised while it initialises into ``ImportError:
+    initialization failed``: a Ctrl-C then must still end as interrupted (130), not as a bug (70)."""
+    import aslam.app.metric_view
+
+    def native_import() -> None:
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1.0)  # the handler raises here, inside the "module's initialisation"
+        except KeyboardInterrupt as err:
+            raise ImportError("initialization failed") from err
+        raise AssertionError("the signal never arrived")
+
+    monkeypatch.setattr(aslam.app.metric_view, "preload", native_import)
+    out = tmp_path / "e.mcap"
+    assert main(["estimate", str(recording), "-o", str(out)]) == 130
+    assert os.listdir(tmp_path) == []
+    err = capsys.readouterr().err
+    assert "internal error" not in err
     assert err.strip().endswith("aslam: error: interrupted")
 
 
