@@ -1,4 +1,4 @@
-"""The PNG fast path (libspng) gives OpenCV's ``IMREAD_GRAYSCALE`` pixels, or steps aside."""
+"""The PNG fast path (imagecodecs) gives OpenCV's ``IMREAD_GRAYSCALE`` pixels, or steps aside."""
 
 from __future__ import annotations
 
