@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+import logging
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -144,13 +146,45 @@ def png_gray(data: bytes) -> np.ndarray | None:
         return None
     import imagecodecs
 
+    warnings = _decoder_warnings()
+    warnings.heard = False
     try:
         pixels = imagecodecs.png_decode(data)
     except Exception:  # a refusal (a CRC, a truncated stream): OpenCV decodes it or names it
         return None
-    if pixels.dtype != np.uint8:
+    if warnings.heard or pixels.dtype != np.uint8:  # libpng had doubts: OpenCV's libpng decides
         return None
     return pixels if pixels.ndim == 2 else libpng_gray(pixels)
+
+
+class _HeardWarnings(logging.Handler):
+    """imagecodecs reports libpng's warnings through the ``imagecodecs`` logger: kept off the
+    terminal (the error contract: one line, and nothing on success) and noted per thread, so the
+    image a warning was about takes OpenCV's path."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.local = threading.local()
+
+    @property
+    def heard(self) -> bool:
+        return getattr(self.local, "heard", False)
+
+    @heard.setter
+    def heard(self, value: bool) -> None:
+        self.local.heard = value
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.local.heard = True
+
+
+@functools.cache
+def _decoder_warnings() -> _HeardWarnings:
+    handler = _HeardWarnings()
+    logger = logging.getLogger("imagecodecs")
+    logger.addHandler(handler)
+    logger.propagate = False
+    return handler
 
 
 def libpng_gray(rgb: np.ndarray) -> np.ndarray:

@@ -2,17 +2,31 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import zlib
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from conftest import CAMERA, one_error_line, random_frames
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from aslam.data_formats.errors import RecordingError
-from aslam.data_formats.images import LazyImage, libpng_gray, png_gray
+from aslam.data_formats.images import (
+    EncodedImage,
+    ImageFormat,
+    LazyImage,
+    encode_image,
+    libpng_gray,
+    png_gray,
+)
+from aslam.data_formats.recording_writer import RecordingWriter
+
+ASLAM = Path(sys.executable).with_name("aslam")
 
 
 def opencv_gray(data: bytes) -> np.ndarray:
@@ -78,3 +92,22 @@ def test_corrupt_pixel_data_is_still_refused_with_the_file_named(tmp_path):
     assert png_gray(bytes(data)) is None
     with pytest.raises(RecordingError, match=r"r\.mcap.*stamp 5 ns: corrupt PNG data"):
         image.decode_gray()
+
+
+def test_a_decoder_warning_stays_off_the_terminal(tmp_path):
+    """A damaged frame found by the fuzz (``tests/fuzz.py 1500 --seed 77``, case 716): imagecodecs'
+    libpng logs ``PNG warning: IDAT: incorrect data check`` through Python's logging before it
+    refuses the image; with no handler that line reached stderr above the error line."""
+    data = (Path(__file__).parent / "data" / "png" / "libpng-warns-then-fails.png").read_bytes()
+    assert png_gray(data) is None  # the image OpenCV's path then names
+    recording = tmp_path / "r.mcap"
+    frames = random_frames(2)
+    with RecordingWriter(recording, camera=CAMERA, metadata={}) as writer:
+        for i, (stamp_ns, rgb, odometry, truth) in enumerate(frames):
+            image = EncodedImage(ImageFormat.PNG, data) if i == 1 else encode_image(rgb)
+            writer.write(stamp_ns, image, odometry, truth)
+    done = subprocess.run(
+        [str(ASLAM), "info", str(recording), "-q", "--json", "-"], capture_output=True, text=True
+    )
+    assert done.returncode == 2
+    assert "corrupt PNG data" in one_error_line(done.stderr)
