@@ -139,20 +139,20 @@ def png_gray(data: bytes) -> np.ndarray | None:
     decoder refuses (OpenCV's path then decodes it or names the problem).
 
     The same pixels as OpenCV's ``IMREAD_GRAYSCALE`` (a property test compares them) at four fifths
-    of its cost: imagecodecs' libpng, built with a faster zlib and SIMD filters, then libpng's own
-    grey weights. It releases the GIL, so the reader's threads decode in parallel.
+    of its cost (``bench/decode_bench.py``): imagecodecs' own libpng build, then libpng's own grey
+    weights. It releases the GIL, so the reader's threads decode in parallel.
     """
     if not _plain_png(data):
         return None
     import imagecodecs
 
-    warnings = _decoder_warnings()
-    warnings.heard = False
+    decoder_log = _decoder_warnings()
+    decoder_log.heard = False
     try:
         pixels = imagecodecs.png_decode(data)
     except Exception:  # a refusal (a CRC, a truncated stream): OpenCV decodes it or names it
         return None
-    if warnings.heard or pixels.dtype != np.uint8:  # libpng had doubts: OpenCV's libpng decides
+    if decoder_log.heard or pixels.dtype != np.uint8:  # libpng had doubts: OpenCV's libpng decides
         return None
     return pixels if pixels.ndim == 2 else libpng_gray(pixels)
 
