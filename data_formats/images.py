@@ -114,13 +114,11 @@ def _plain_png(data: bytes) -> bool:
     """Whether ``data`` is an 8-bit, non-interlaced grey or RGB PNG with no chunk that alters its
     pixels, its chunks ending with IEND at the end of the data (imagecodecs' libpng does not read
     that far; OpenCV refuses a PNG without it). The CRCs are libpng's to check."""
-    if not data.startswith(_PNG_SIGNATURE) or len(data) < 45 or data[12:16] != b"IHDR":
+    size = header_size(data)
+    if size is None or not (all(size) and _within_limits(*size)) or len(data) < 45:
         return False
     bit_depth, colour_type, compression, filtering, interlace = data[24:29]
     if bit_depth != 8 or colour_type not in (0, 2) or compression or filtering or interlace:
-        return False
-    width, height = int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
-    if not (width and height and _within_limits(width, height)):
         return False
     offset, end = len(_PNG_SIGNATURE), len(data)
     while offset + 12 <= end:
@@ -146,45 +144,34 @@ def png_gray(data: bytes) -> np.ndarray | None:
         return None
     import imagecodecs
 
-    decoder_log = _decoder_warnings()
-    decoder_log.heard = False
+    _listen_to_decoder_warnings()
+    _decoder_warned.flag = False
     try:
         pixels = imagecodecs.png_decode(data)
     except Exception:  # a refusal (a CRC, a truncated stream): OpenCV decodes it or names it
         return None
-    if decoder_log.heard or pixels.dtype != np.uint8:  # libpng had doubts: OpenCV's libpng decides
+    if _decoder_warned.flag or pixels.dtype != np.uint8:  # libpng had doubts: OpenCV's libpng decides
         return None
     return pixels if pixels.ndim == 2 else libpng_gray(pixels)
 
 
-class _HeardWarnings(logging.Handler):
-    """imagecodecs reports libpng's warnings through the ``imagecodecs`` logger: kept off the
-    terminal (the error contract: one line, and nothing on success) and noted per thread, so the
-    image a warning was about takes OpenCV's path."""
+_decoder_warned = threading.local()
+"""Whether imagecodecs logged a warning during this thread's current decode."""
 
-    def __init__(self) -> None:
-        super().__init__()
-        self.local = threading.local()
 
-    @property
-    def heard(self) -> bool:
-        return getattr(self.local, "heard", False)
-
-    @heard.setter
-    def heard(self, value: bool) -> None:
-        self.local.heard = value
-
+class _NoteDecoderWarning(logging.Handler):
     def emit(self, record: logging.LogRecord) -> None:
-        self.local.heard = True
+        _decoder_warned.flag = True
 
 
 @functools.cache
-def _decoder_warnings() -> _HeardWarnings:
-    handler = _HeardWarnings()
+def _listen_to_decoder_warnings() -> None:
+    """imagecodecs reports libpng's warnings through the ``imagecodecs`` logger: kept off the
+    terminal (the error contract: one line, and nothing on success) and noted, so the image a
+    warning was about takes OpenCV's path."""
     logger = logging.getLogger("imagecodecs")
-    logger.addHandler(handler)
+    logger.addHandler(_NoteDecoderWarning())
     logger.propagate = False
-    return handler
 
 
 def libpng_gray(rgb: np.ndarray) -> np.ndarray:

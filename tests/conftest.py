@@ -7,6 +7,7 @@ folder on ``sys.path``.
 from __future__ import annotations
 
 import math
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +34,8 @@ def one_error_line(err: str) -> str:
 
 
 CAMERA = CameraIntrinsics(width_px=32, height_px=24, fov_deg=70.0)
+ASLAM = Path(sys.executable).with_name("aslam")
+"""The console script, for tests that need a real process."""
 T0_NS = 1_700_000_000_000_000_000
 FRAME_NS = 100_000_000
 

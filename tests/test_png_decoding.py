@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import subprocess
-import sys
 import zlib
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
-from conftest import CAMERA, one_error_line, random_frames
+from conftest import ASLAM, CAMERA, one_error_line, random_frames
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
@@ -25,8 +24,6 @@ from aslam.data_formats.images import (
     png_gray,
 )
 from aslam.data_formats.recording_writer import RecordingWriter
-
-ASLAM = Path(sys.executable).with_name("aslam")
 
 
 def opencv_gray(data: bytes) -> np.ndarray:

@@ -23,13 +23,12 @@ from typing import Any
 
 import numpy as np
 import pytest
-from conftest import FRAME_NS, T0_NS, ForeignRecording, write_with_corrupt_image
+from conftest import ASLAM, FRAME_NS, T0_NS, ForeignRecording, write_with_corrupt_image
 
 from aslam.cli.app import main
 from aslam.data_formats import ros_msgs
 from aslam.data_formats.images import ImageFormat, encode_image
 
-ASLAM = Path(sys.executable).with_name("aslam")
 PNG = encode_image(np.zeros((24, 32, 3), dtype=np.uint8)).data
 
 
