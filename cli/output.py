@@ -6,6 +6,7 @@ to stderr, so a pipeline can take stdout as it is.
 
 from __future__ import annotations
 
+import os
 import sys
 from typing import TYPE_CHECKING, Annotated
 
@@ -41,6 +42,17 @@ GroundTruthTopicOption = Annotated[
 ]
 
 
+def _surely_not_a_terminal() -> bool:
+    """stderr is a file or a pipe and no variable tells rich otherwise: decided without importing
+    rich's console (20 ms of an estimate's start-up, before its reader starts); rich decides the rest."""
+    if "TTY_COMPATIBLE" in os.environ or "FORCE_COLOR" in os.environ:
+        return False
+    try:
+        return not sys.stderr.isatty()
+    except (AttributeError, ValueError):  # no stderr, or a closed one
+        return False
+
+
 class Terminal:
     """The stderr side of a command, honouring --quiet and --verbose."""
 
@@ -64,7 +76,7 @@ class Terminal:
     @property
     def shows_progress(self) -> bool:
         """A live bar only on a terminal, and never with --quiet (logs and pipes get the summary line)."""
-        return not self.quiet and self.console.is_terminal
+        return not self.quiet and not _surely_not_a_terminal() and self.console.is_terminal
 
     def _line(self, text: str) -> None:
         if self._console is not None and self._console.is_terminal:
