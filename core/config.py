@@ -152,6 +152,12 @@ class EstimatorConfig:
         " the motion model says (0 = never): with the online reference, 1.25 is the median distance"
         " between consecutive keyframes.",
     )
+    contradiction_ratio: float = _param(
+        0.6,
+        "A revisit the motion model proposes is ruled out when a place found by appearance alone (a"
+        " relocalisation) is much more alike: its distance under this × the proposed place's (0 = never)."
+        " Where the robot was carried, the place odometry predicts can still look half alike.",
+    )
     new_state_coverage: float = _param(
         0.9,
         "How much a mapped place at the predicted pose lowers the prior of 'a new place': the prior is"
@@ -214,7 +220,7 @@ class EstimatorConfig:
         12, "Places most similar by the index (exact, or HNSW beyond 8,192 places) then compared exactly."
     )
     relocalisation_skip: int = _param(
-        10,
+        3,
         "The most recent committed keyframes are left out of the appearance search (the motion covers them).",
     )
 
@@ -299,6 +305,7 @@ class EstimatorConfig:
             "place_heading_deg": 10.0,
             "new_state_coverage": 0.0,
             "appearance_veto": 0.0,
+            "contradiction_ratio": 0.0,
         }
         return cls(**{**paper, **overrides})
 
@@ -353,6 +360,7 @@ RANGES: dict[str, Bounds] = {
     "merge_window": Bounds(1, 1000, integer=True),
     "thumbnail_beta": Bounds(1e-3, 50),
     "appearance_veto": Bounds(0, 100),
+    "contradiction_ratio": Bounds(0, 1),
     "new_state_coverage": Bounds(0, 1, high_open=True),
     "relocalisation_prior": Bounds(0, 1, high_open=True),
     "relocalisation_candidates": Bounds(1, 10_000, integer=True),

@@ -1,8 +1,9 @@
 """The relocalisation index: committed places, searchable by appearance at a cost that stays
 bounded as the map grows.
 
-Each place is kept as its first view, projected to ``INDEX_LENGTH`` dimensions and L2-normalised
-(so the inner product is the cosine similarity). Up to ``EXACT_LIMIT`` places a query is one exact
+Each place is kept as its first view's key (the observation model's ``index_key``: a short vector
+whose cosine similarity ranks views roughly as the model's distance does), L2-normalised (so the
+inner product is the cosine similarity). Up to ``EXACT_LIMIT`` places a query is one exact
 matrix–vector product. Beyond, a scan would grow with the map — at 40,000 places it took 1.1 of
 the 2.7 ms a SLAM step cost — so the index moves into an HNSW graph (Malkov & Yashunin; faiss's
 ``IndexHNSWFlat``), which answers in O(log places); faiss is imported only then. The index only
@@ -12,17 +13,14 @@ miss a candidate but never make a claim.
 
 from __future__ import annotations
 
-import functools
-import math
 from collections import deque
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from aslam.core.mapgraph import GrowableArray
 
-INDEX_LENGTH = 32
-"""Dimensions of the index: observations longer than this are projected."""
 EXACT_LIMIT = 8192
 """Places up to which the index is searched exactly. Measured (32 dimensions, one query): the scan
 costs 0.026 ms at 2,048 places, 0.086 ms at 8,192 and 0.15 ms at 12,288; the graph 0.04 ms a
@@ -44,11 +42,19 @@ class PlaceIndex:
     seeded generator.
     """
 
-    def __init__(self, observation_length: int, skip: int, *, exact_limit: int = EXACT_LIMIT) -> None:
-        self._observation_length = observation_length
+    def __init__(
+        self,
+        key_length: int,
+        skip: int,
+        *,
+        key: Callable[[np.ndarray], np.ndarray] | None = None,
+        exact_limit: int = EXACT_LIMIT,
+    ) -> None:
+        """``key`` makes an observation's index key of ``key_length`` (None: the observation is its key)."""
+        self._key = key
         self._skip = skip
         self._exact_limit = exact_limit
-        self._vectors = GrowableArray((min(observation_length, INDEX_LENGTH),), np.float32)
+        self._vectors = GrowableArray((key_length,), np.float32)
         self._states = GrowableArray((), np.int64)
         self._waiting: deque[tuple[int, np.ndarray]] = deque()
         self._hnsw: Any = None
@@ -64,10 +70,10 @@ class PlaceIndex:
         ``searchable`` skips the wait: a prior session's places are not recent in this one.
         """
         if searchable and not self._waiting and self._hnsw is None:
-            self._vectors.append(self._project(observation))
+            self._vectors.append(self._key_of(observation))
             self._states.append(state)
             return
-        self._waiting.append((state, self._project(observation)))
+        self._waiting.append((state, self._key_of(observation)))
 
     def search(self, observation: np.ndarray, keyframes: int, count: int) -> np.ndarray:
         """Up to ``count`` places most like ``observation`` (in no particular order) among those
@@ -82,7 +88,7 @@ class PlaceIndex:
         if not searchable:
             return np.zeros(0, np.int64)
         count = min(count, searchable)
-        query = self._project(observation)
+        query = self._key_of(observation)
         if searchable <= self._exact_limit:
             # einsum, not BLAS: single-threaded and summed in a fixed order (same bytes on every run).
             similarity = np.einsum("ij,j->i", self._vectors.view, query)
@@ -94,10 +100,10 @@ class PlaceIndex:
         found = found[0]
         return self._states.view[found[found >= 0]]
 
-    def _project(self, observation: np.ndarray) -> np.ndarray:
-        vector = _projection(self._observation_length) @ np.asarray(observation, dtype=np.float32)
-        norm = float(np.linalg.norm(vector))
-        return (vector / norm if norm > 0 else vector).astype(np.float32)
+    def _key_of(self, observation: np.ndarray) -> np.ndarray:
+        key = np.asarray(observation if self._key is None else self._key(observation), dtype=np.float32)
+        norm = float(np.linalg.norm(key))
+        return (key / norm if norm > 0 else key).astype(np.float32)
 
 
 def _hnsw_of(vectors: np.ndarray) -> Any:
@@ -111,22 +117,3 @@ def _hnsw_of(vectors: np.ndarray) -> Any:
     for vector in vectors:
         graph.add(vector[None, :])
     return graph
-
-
-@functools.cache
-def _projection(length: int) -> np.ndarray:
-    """A fixed random projection (Johnson–Lindenstrauss) to ``INDEX_LENGTH`` dimensions, or the identity.
-
-    Made on first use (``numpy.random``'s import is 10 ms of an estimate's start-up), once per length.
-
-    Angles between vectors are nearly kept, so the most similar places by the index are, with
-    few exceptions, the most similar by the model; the model then compares the shortlist exactly.
-    """
-    if length <= INDEX_LENGTH:
-        identity = np.eye(length, dtype=np.float32)
-        identity.flags.writeable = False
-        return identity
-    rng = np.random.default_rng(20261129)
-    projection = (rng.standard_normal((INDEX_LENGTH, length)) / math.sqrt(INDEX_LENGTH)).astype(np.float32)
-    projection.flags.writeable = False  # shared by every index of that length
-    return projection

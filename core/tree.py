@@ -203,7 +203,9 @@ class HypothesisTree:
         self._map_states = np.zeros(0, np.int64)
         """The prior map's places in the order they were made: each one's neighbourhood for
         ``map_reference_scale``."""
-        self._index = PlaceIndex(observation_length, config.relocalisation_skip)
+        self._index = PlaceIndex(
+            self.model.index_key_length, config.relocalisation_skip, key=self.model.index_key
+        )
         self._relocalised: set[int] = set()
         # statistics
         self._count_sum = 0
@@ -234,7 +236,8 @@ class HypothesisTree:
         self.committed_rel_of_keyframe.extend(np.tile(np.array(UNKNOWN_REL), (prior.keyframes, 1)))
         for state, view in zip(prior.states.tolist(), prior.views, strict=True):
             self.shared.add_state(state)
-            self._index.add(state, view, searchable=True)
+            if self.model.recognisable(view):
+                self._index.add(state, view, searchable=True)
         for from_state, to_state, rel, count in prior.links:
             self.shared.add_link(from_state, to_state, rel, count)
         if self.config.map_reference_scale > 0:
@@ -270,7 +273,7 @@ class HypothesisTree:
         else:
             proposals = self._propose(self.leaves, action, action_cov)
 
-        relocalisation, relocalisation_priors = self._relocalisation_candidates(
+        relocalisation, relocalisation_priors, distinctive = self._relocalisation_candidates(
             observation, keyframe, proposals[0][0], untested=jumped
         )
         # Sorted and unique, as np.unique would give (which imports numpy.ma on first use: 10 ms).
@@ -286,6 +289,14 @@ class HypothesisTree:
                 # A view as unlike the place as views a step apart are is no revisit, whatever
                 # odometry predicts (a kidnap, a reset, a wrong chain).
                 vetoed = distances >= self.config.appearance_veto * self.reference.value
+                log_obs = np.where(vetoed, -np.inf, log_obs)
+            if self.config.contradiction_ratio > 0 and distinctive is not None:
+                # Appearance singles out a place the motion model did not propose, and the places it
+                # did propose look far less alike: the robot was carried (the matrix's kidnaps: the
+                # predicted place still half alike, the true place found by the index).
+                found = distances[int(np.searchsorted(candidate_ids, distinctive))]
+                unlike = distances * self.config.contradiction_ratio >= found
+                vetoed = unlike & (candidate_ids != distinctive)
                 log_obs = np.where(vetoed, -np.inf, log_obs)
             log_obs_of = dict(zip(candidate_ids.tolist(), log_obs.tolist(), strict=True))
 
@@ -307,7 +318,7 @@ class HypothesisTree:
         # It is never the best at birth (at most half the best leaf's new-place child): the next
         # keyframe must confirm it through the motion model, as a revisit of the next place.
         best = self.leaves[0]
-        ceiling = best.log_belief + log_new + math.log(0.5)
+        ceiling = children[0][0] + math.log(0.5)  # the best leaf's new-place child, coverage included
         for state, log_prior in zip(relocalisation.tolist(), relocalisation_priors, strict=True):
             log_belief = best.log_belief + log_prior + log_obs_of[state]
             children.append((min(log_belief, ceiling), best, state, False))
@@ -386,9 +397,9 @@ class HypothesisTree:
         proposed: np.ndarray,
         *,
         untested: bool = False,
-    ) -> tuple[np.ndarray, list[float]]:
+    ) -> tuple[np.ndarray, list[float], int | None]:
         """Committed places that look like ``observation``, found over the whole map at bounded cost,
-        with the log prior of a jump to each.
+        with the log prior of a jump to each, and which of them appearance alone singled out (or None).
 
         The index (:class:`aslam.core.place_index.PlaceIndex`: an exact scan up to 8,192 places, an
         HNSW graph beyond) shortlists the ``relocalisation_candidates`` most similar committed
@@ -399,7 +410,7 @@ class HypothesisTree:
         After an odometry jump (``untested``) the robot may be anywhere: as at a session's start,
         the ``map_relocalisation_candidates`` most alike places are all returned, untested.
         """
-        none = (np.zeros(0, np.int64), [])
+        none = (np.zeros(0, np.int64), [], None)
         if not self.leaves or (self._log_relocalise == -math.inf and self._log_map_relocalise == -math.inf):
             return none
         top = self._index.search(
@@ -416,7 +427,7 @@ class HypothesisTree:
         order = np.lexsort((top, distances))
         if untested:
             found = top[order][: self.config.map_relocalisation_candidates].tolist()
-            return np.array(found, dtype=np.int64), [self._log_enter_map] * len(found)
+            return np.array(found, dtype=np.int64), [self._log_enter_map] * len(found), None
         from_map = top[order] < self._first_keyframe
         found: list[int] = []
         priors: list[float] = []
@@ -427,11 +438,13 @@ class HypothesisTree:
             in_map = self.leaves[0].state < self._first_keyframe
             priors = [self._log_map_relocalise if in_map else self._log_enter_map] * len(found)
             order = order[~from_map]
+        distinctive = None
         if self._log_relocalise > -math.inf:
             own = self._distinctive(observation, top, distances, order, proposed)
             found += own
             priors += [self._log_relocalise] * len(own)
-        return np.array(found, dtype=np.int64), priors
+            distinctive = own[0] if own else None
+        return np.array(found, dtype=np.int64), priors, distinctive
 
     def _distinctive(
         self,
@@ -501,8 +514,10 @@ class HypothesisTree:
         return np.maximum(scaled, 1e-12) ** weight * reference ** (1.0 - weight)
 
     def _index_place(self, state: int) -> None:
-        """Add a committed place (its first view) to the relocalisation index."""
-        self._index.add(state, self.observations.view[state])
+        """Add a committed place (its first view) to the relocalisation index, if it can be recognised."""
+        view = self.observations.view[state]
+        if self.model.recognisable(view):
+            self._index.add(state, view)
 
     def hypotheses(self) -> list[Hypothesis]:
         return [

@@ -7,6 +7,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from aslam.core.observation import ThumbnailModel
 from aslam.core.place_index import PlaceIndex
 
 
@@ -15,8 +16,8 @@ def _views(count: int, length: int, seed: int) -> np.ndarray:
 
 
 def _cosine_top(views: np.ndarray, query: np.ndarray, index: PlaceIndex, count: int) -> set[int]:
-    projected = np.array([index._project(v) for v in views])
-    similarity = projected @ index._project(query)
+    projected = np.array([index._key_of(v) for v in views])
+    similarity = projected @ index._key_of(query)
     return set(np.argsort(-similarity, kind="stable")[:count].tolist())
 
 
@@ -58,11 +59,13 @@ def test_a_place_is_searchable_only_skip_keyframes_after_it_is_seen():
 
 
 def test_a_large_map_moves_into_hnsw_and_answers_the_same_every_time():
-    views = _views(3000, 192, 7)
+    """With the default (thumbnail) model's keys."""
+    model = ThumbnailModel()
+    views = _views(3000, model.length, 7)
     queries = range(0, 3000, 97)
 
     def answers() -> tuple[list[list[int]], bool]:
-        index = PlaceIndex(192, skip=0, exact_limit=1000)
+        index = PlaceIndex(model.index_key_length, skip=0, key=model.index_key, exact_limit=1000)
         for state, view in enumerate(views):
             index.add(state, view)
         found = [index.search(views[i] + 0.05, 3001, 12).tolist() for i in queries]
@@ -71,12 +74,13 @@ def test_a_large_map_moves_into_hnsw_and_answers_the_same_every_time():
     first, approximate = answers()
     assert approximate
     assert (first, approximate) == answers()
-    exact = PlaceIndex(192, skip=0, exact_limit=10_000)
+    exact = PlaceIndex(model.index_key_length, skip=0, key=model.index_key, exact_limit=10_000)
     for state, view in enumerate(views):
         exact.add(state, view)
-    agree = [
-        set(row) == set(exact.search(views[i] + 0.05, 3001, 12).tolist())
+    overlap = [
+        len(set(row) & set(exact.search(views[i] + 0.05, 3001, 12).tolist())) / 12
         for row, i in zip(first, queries, strict=True)
     ]
-    assert sum(agree) >= 0.9 * len(agree)  # the approximate shortlist is almost always the exact one
+    print(f"HNSW shortlists share {np.mean(overlap):.3f} of the exact ones")
+    assert np.mean(overlap) >= 0.95  # the approximate shortlist is almost the exact one
     assert all(row[0] == i or i in row for row, i in zip(first, queries, strict=True))
