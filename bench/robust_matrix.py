@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 import sys
 import tempfile
 import time
@@ -51,7 +52,21 @@ FAMILIES: dict[str, dict[str, Any]] = {
     "kidnap": {},
     "reset": {},
 }
-DERIVED = {"kidnap", "reset"}
+
+
+def kidnap_window(family: str) -> tuple[float, float] | None:
+    """The shares of the run at which a kidnap family's robot is picked up and put down: ``kidnap``
+    60 % → 80 %, ``kidnapAA-BB`` AA % → BB % (``--kidnap-windows``); None for any other family."""
+    if family == "kidnap":
+        return (0.6, 0.8)
+    match = re.fullmatch(r"kidnap(\d+)-(\d+)", family)
+    return (int(match[1]) / 100, int(match[2]) / 100) if match else None
+
+
+def is_derived(family: str) -> bool:
+    """Made from the default render of its route and seed (a kidnap, an odometry reset)."""
+    return family == "reset" or kidnap_window(family) is not None
+
 
 ROUTES = ("paper", "figure8", "grid")
 
@@ -81,11 +96,11 @@ class Scenario:
     @property
     def base(self) -> Scenario:
         """The rendered scenario this one is made from (itself unless derived)."""
-        return Scenario("default", self.route, self.seed) if self.family in DERIVED else self
+        return Scenario("default", self.route, self.seed) if is_derived(self.family) else self
 
     @property
     def settings(self) -> dict[str, Any]:
-        return FAMILIES[self.family]
+        return FAMILIES.get(self.family, {}) if is_derived(self.family) else FAMILIES[self.family]
 
     def record_config(self):  # -> RecordConfig
         from aslam.recorder.config import NoiseParams, RecordConfig
@@ -96,7 +111,7 @@ class Scenario:
         return RecordConfig(route=self.route, seed=self.seed, noise=NoiseParams(**noise_fields), **settings)
 
     def command(self) -> str:
-        if self.family in DERIVED:
+        if is_derived(self.family):
             return f"{self.base.command()} then bench/robust_matrix.py derive {self.family}"
         flags = []
         for key, value in self.settings.items():
@@ -124,8 +139,10 @@ def recording(scenario: Scenario, cache: Path, log=print) -> Path:
     from aslam.recorder.record import record
 
     path = cache / f"{scenario.name}.mcap"
-    if scenario.family in DERIVED and not path.exists():
-        derive(recording(scenario.base, cache, log), scenario.family, path)
+    if is_derived(scenario.family) and not path.exists():
+        window = kidnap_window(scenario.family)
+        kind = "reset" if window is None else "kidnap"
+        derive(recording(scenario.base, cache, log), kind, path, window or (0.6, 0.8))
         log(f"  derived {path.name}")
     if not path.exists():
         cache.mkdir(parents=True, exist_ok=True)
@@ -135,13 +152,14 @@ def recording(scenario: Scenario, cache: Path, log=print) -> Path:
     return path
 
 
-def derive(source: Path, kind: str, output: Path) -> None:
+def derive(source: Path, kind: str, output: Path, window: tuple[float, float] = (0.6, 0.8)) -> None:
     """A kidnap or an odometry reset made from a rendered recording (images and truth untouched).
 
-    ``kidnap``: the frames from 60 % to 80 % of the run are dropped — the robot is carried from
-    one place of its second lap to another — and odometry sees nothing (it continues from where
-    it was, then integrates the motion after the jump). ``reset``: at 70 % of the run odometry
-    restarts from zero (x = y = yaw = 0). Written with the project's recording writer.
+    ``kidnap``: the frames from ``window[0]`` to ``window[1]`` of the run (60 % to 80 %: from one
+    place of the second lap to another) are dropped — the robot is carried — and odometry sees
+    nothing (it continues from where it was, then integrates the motion after the jump).
+    ``reset``: at 70 % of the run odometry restarts from zero (x = y = yaw = 0). Written with the
+    project's recording writer.
     """
     from contextlib import closing
 
@@ -155,7 +173,7 @@ def derive(source: Path, kind: str, output: Path) -> None:
     source_recording = Recording(source)
     total = source_recording.image_count()
     assert total is not None
-    jump_from, jump_to, reset_at = int(0.6 * total), int(0.8 * total), int(0.7 * total)
+    jump_from, jump_to, reset_at = int(window[0] * total), int(window[1] * total), int(0.7 * total)
     metadata = dict(source_recording.metadata())
     camera = source_recording.camera()
     anchor = None  # odometry pose the later poses are re-expressed from
@@ -223,7 +241,7 @@ def run_one(
     distance = np.hypot(evaluation.best_error[:, 0], evaluation.best_error[:, 1])
     near = int((wrong & (distance < 1.0)).sum()) if evaluation.has_ground_truth else None
     row = Row(scenario, estimator, report.summary, wall, near)
-    if scenario.family in DERIVED and report.true_poses is not None:
+    if is_derived(scenario.family) and report.true_poses is not None:
         event = _event_keyframe(report.actions, report.true_poses)
         if event is not None:
             hits = np.flatnonzero(evaluation.correct[event:])
@@ -436,7 +454,7 @@ def family_table(rows: list[Row], estimators: list[str]) -> str:
                 f"{wrong:.0f} ({sum(near)})" if near else f"{wrong:.0f}",
             ]
         lines.append(f"| {family} | {runs} | " + " | ".join(cells) + " |")
-    events = [r for r in rows if r.scenario.family in DERIVED and r.estimator == "default"]
+    events = [r for r in rows if is_derived(r.scenario.family) and r.estimator == "default"]
     if events:
         lines += [
             "",
@@ -489,7 +507,17 @@ def main(argv: list[str] | None = None) -> int:
         "--table-from", type=Path, metavar="JSON", help="the --markdown table of a --json run"
     )
     parser.add_argument("--cached-only", action="store_true", help="skip scenarios not rendered yet")
+    parser.add_argument(
+        "--kidnap-windows",
+        nargs="+",
+        default=[],
+        metavar="FROM:TO",
+        help="also kidnaps at these shares of the run (e.g. 0.4:0.75), made from the default renders",
+    )
     args = parser.parse_args(argv)
+    for window in args.kidnap_windows:
+        start, _, stop = window.partition(":")
+        args.families.append(f"kidnap{round(float(start) * 100)}-{round(float(stop) * 100)}")
     overrides = {}
     for item in args.set:
         name, _, value = item.partition("=")

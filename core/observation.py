@@ -64,13 +64,14 @@ class ObservationModel(Protocol):
         ...
 
     @property
-    def index_key_length(self) -> int:
-        """Length of every vector ``index_key`` returns."""
+    def index_key_parts(self) -> tuple[int, ...]:
+        """Lengths of the parts of every key ``index_key`` returns, one after the other."""
         ...
 
     def index_key(self, observation: np.ndarray) -> np.ndarray:
-        """A float32 vector whose cosine similarity ranks stored views roughly as ``distances``
-        does: what the relocalisation index (:mod:`aslam.core.place_index`) searches."""
+        """A float32 vector of parts, each of whose cosine similarity ranks stored views roughly as
+        ``distances`` does: what the relocalisation index (:mod:`aslam.core.place_index`) searches,
+        each part on its own."""
         ...
 
     def recognisable(self, observation: np.ndarray) -> bool:
@@ -109,8 +110,8 @@ class HistogramModel:
         return -self.beta * np.log(np.maximum(distances, self.floor))
 
     @property
-    def index_key_length(self) -> int:
-        return min(self.length, INDEX_PROJECTION)
+    def index_key_parts(self) -> tuple[int, ...]:
+        return (min(self.length, INDEX_PROJECTION),)
 
     def index_key(self, observation: np.ndarray) -> np.ndarray:
         """The histogram, randomly projected when longer than ``INDEX_PROJECTION``."""
@@ -189,28 +190,24 @@ class ThumbnailModel:
         return -self.beta * np.log(np.maximum(distances, self.floor))
 
     @property
-    def index_key_length(self) -> int:
-        return self.height_px * INDEX_FREQUENCIES + min(self.length, INDEX_PROJECTION)
+    def index_key_parts(self) -> tuple[int, ...]:
+        return (self.height_px * INDEX_FREQUENCIES, min(self.length, INDEX_PROJECTION))
 
     def index_key(self, observation: np.ndarray) -> np.ndarray:
-        """Two parts, each of unit length, weighed ``SHIFT_BLIND_WEIGHT`` : the rest in the cosine:
-        the magnitudes of each row's lowest horizontal frequencies, blind to a sideways shift of the
-        view as the comparison over shifts is, and the thumbnail randomly projected, which keeps
-        where things are.
+        """Two parts, each searched on its own: the magnitudes of each row's lowest horizontal
+        frequencies, blind to a sideways shift of the view as the comparison over shifts is, and
+        the thumbnail randomly projected, which keeps where things are.
 
-        Measured (12 places shortlisted; the share of revisits with a true place in the shortlist):
-        on eight matrix renders (497 revisits), where a revisit a few degrees off the first visit's
-        heading sees the scene shifted sideways, 0.96 (the projection alone 0.78, the frequencies
-        alone 0.97); on Nordland summer → winter (1,788 frames, a camera fixed to the train), 0.26
-        (the projection alone 0.19, the frequencies alone 0.12).
+        Measured (12 places shortlisted per part; the share of revisits with a true place in the
+        shortlist): on eight matrix renders (497 revisits), where a revisit a few degrees off the
+        first visit's heading sees the scene shifted sideways, the projection alone shortlisted 0.78
+        and the frequencies alone 0.97; on Nordland summer → winter (1,788 frames, a camera fixed to
+        the train) 0.19 and 0.12.
         """
         view = np.asarray(observation, dtype=np.float32)
         parts = view.reshape(self.height_px, self.width_px) @ _row_frequencies(self.width_px)
         blind = np.hypot(parts[:, :INDEX_FREQUENCIES], parts[:, INDEX_FREQUENCIES:]).ravel()
-        placed = random_projection(self.length) @ view
-        blind *= math.sqrt(SHIFT_BLIND_WEIGHT) / max(float(np.linalg.norm(blind)), 1e-30)
-        placed *= math.sqrt(1.0 - SHIFT_BLIND_WEIGHT) / max(float(np.linalg.norm(placed)), 1e-30)
-        return np.concatenate([blind, placed])
+        return np.concatenate([blind, random_projection(self.length) @ view])
 
     def recognisable(self, observation: np.ndarray) -> bool:
         """Some patches had contrast: a textured view's values average about 0.6 in magnitude (0.35
@@ -226,9 +223,6 @@ noise, averaged into the thumbnail's cells, stays under the 1-grey-level floor o
 normalisation: 0.05 for Nordland's black frames, 0.10 for a 320 × 240 camera with its lens capped."""
 INDEX_FREQUENCIES = 3
 """Horizontal frequencies per thumbnail row in its index key (0, 1 and 2 cycles per width)."""
-SHIFT_BLIND_WEIGHT = 0.8
-"""Weight of the shift-blind part of the thumbnail's key (0.5–0.8 measured: 0.8 keeps the renders'
-shortlists as the frequencies alone do, and Nordland's at 0.26)."""
 INDEX_PROJECTION = 32
 """Dimensions a longer vector is randomly projected to for the index."""
 

@@ -1,18 +1,20 @@
 """The relocalisation index: committed places, searchable by appearance at a cost that stays
 bounded as the map grows.
 
-Each place is kept as its first view's key (the observation model's ``index_key``: a short vector
-whose cosine similarity ranks views roughly as the model's distance does), L2-normalised (so the
-inner product is the cosine similarity). Up to ``EXACT_LIMIT`` places a query is one exact
-matrix–vector product. Beyond, a scan would grow with the map — at 40,000 places it took 1.1 of
-the 2.7 ms a SLAM step cost — so the index moves into an HNSW graph (Malkov & Yashunin; faiss's
-``IndexHNSWFlat``), which answers in O(log places); faiss is imported only then. The index only
-shortlists: the observation model compares the shortlist exactly, so an approximate answer can
-miss a candidate but never make a claim.
+Each place is kept as its first view's key (the observation model's ``index_key``: short vectors,
+its parts, whose cosine similarities rank views roughly as the model's distance does), each part
+L2-normalised (so the inner product is the cosine similarity) and searched on its own. Up to
+``EXACT_LIMIT`` places a query is one exact matrix–vector product per part. Beyond, a scan would
+grow with the map — at 40,000 places it took 1.1 of the 2.7 ms a SLAM step cost — so the index
+moves into an HNSW graph per part (Malkov & Yashunin; faiss's ``IndexHNSWFlat``), which answers in
+O(log places); faiss is imported only then. The index only shortlists: the observation model
+compares the shortlist exactly, so an approximate answer can miss a candidate but never make a
+claim.
 """
 
 from __future__ import annotations
 
+import itertools
 from collections import deque
 from collections.abc import Callable
 from typing import Any
@@ -44,24 +46,27 @@ class PlaceIndex:
 
     def __init__(
         self,
-        key_length: int,
+        key_parts: tuple[int, ...],
         skip: int,
         *,
         key: Callable[[np.ndarray], np.ndarray] | None = None,
         exact_limit: int = EXACT_LIMIT,
     ) -> None:
-        """``key`` makes an observation's index key of ``key_length`` (None: the observation is its key)."""
+        """``key`` makes an observation's index key: parts of ``key_parts`` lengths, one after the
+        other, each searched on its own (None: the observation is its key, one part)."""
         self._key = key
         self._skip = skip
         self._exact_limit = exact_limit
-        self._vectors = GrowableArray((key_length,), np.float32)
+        bounds = np.cumsum((0, *key_parts)).tolist()
+        self._parts = [slice(a, b) for a, b in itertools.pairwise(bounds)]
+        self._vectors = [GrowableArray((part,), np.float32) for part in key_parts]
         self._states = GrowableArray((), np.int64)
-        self._waiting: deque[tuple[int, np.ndarray]] = deque()
-        self._hnsw: Any = None
+        self._waiting: deque[tuple[int, list[np.ndarray]]] = deque()
+        self._hnsw: list[Any] | None = None
 
     @property
     def approximate(self) -> bool:
-        """Whether queries go to the HNSW graph (the map outgrew ``exact_limit``)."""
+        """Whether queries go to the HNSW graphs (the map outgrew ``exact_limit``)."""
         return self._hnsw is not None
 
     def add(self, state: int, observation: np.ndarray, *, searchable: bool = False) -> None:
@@ -70,40 +75,52 @@ class PlaceIndex:
         ``searchable`` skips the wait: a prior session's places are not recent in this one.
         """
         if searchable and not self._waiting and self._hnsw is None:
-            self._vectors.append(self._key_of(observation))
+            for vectors, part in zip(self._vectors, self._key_of(observation), strict=True):
+                vectors.append(part)
             self._states.append(state)
             return
         self._waiting.append((state, self._key_of(observation)))
 
     def search(self, observation: np.ndarray, keyframes: int, count: int) -> np.ndarray:
-        """Up to ``count`` places most like ``observation`` (in no particular order) among those
-        first seen at least ``skip`` keyframes before keyframe ``keyframes``."""
+        """Places most like ``observation`` by any part of the key, ``count`` per part (so up to
+        ``count`` × parts, in increasing order), among those first seen at least ``skip`` keyframes
+        before keyframe ``keyframes``."""
         while self._waiting and self._waiting[0][0] < keyframes - self._skip:
-            state, vector = self._waiting.popleft()
-            self._vectors.append(vector)
+            state, parts = self._waiting.popleft()
+            for index, (vectors, part) in enumerate(zip(self._vectors, parts, strict=True)):
+                vectors.append(part)
+                if self._hnsw is not None:
+                    self._hnsw[index].add(part[None, :])
             self._states.append(state)
-            if self._hnsw is not None:
-                self._hnsw.add(vector[None, :])
         searchable = len(self._states)
         if not searchable:
             return np.zeros(0, np.int64)
         count = min(count, searchable)
         query = self._key_of(observation)
+        found: set[int] = set()
         if searchable <= self._exact_limit:
-            # einsum, not BLAS: single-threaded and summed in a fixed order (same bytes on every run).
-            similarity = np.einsum("ij,j->i", self._vectors.view, query)
-            return self._states.view[np.argpartition(-similarity, count - 1)[:count]]
-        if self._hnsw is None:
-            self._hnsw = _hnsw_of(self._vectors.view)
-        self._hnsw.hnsw.efSearch = max(SEARCH_BREADTH, count)
-        _, found = self._hnsw.search(query[None, :], count)
-        found = found[0]
-        return self._states.view[found[found >= 0]]
+            for vectors, part in zip(self._vectors, query, strict=True):
+                # einsum, not BLAS: single-threaded and summed in a fixed order (same bytes every run).
+                similarity = np.einsum("ij,j->i", vectors.view, part)
+                found.update(self._states.view[np.argpartition(-similarity, count - 1)[:count]].tolist())
+        else:
+            if self._hnsw is None:
+                self._hnsw = [_hnsw_of(vectors.view) for vectors in self._vectors]
+            for graph, part in zip(self._hnsw, query, strict=True):
+                graph.hnsw.efSearch = max(SEARCH_BREADTH, count)
+                _, rows = graph.search(part[None, :], count)
+                found.update(self._states.view[rows[0][rows[0] >= 0]].tolist())
+        return np.array(sorted(found), dtype=np.int64)
 
-    def _key_of(self, observation: np.ndarray) -> np.ndarray:
+    def _key_of(self, observation: np.ndarray) -> list[np.ndarray]:
+        """The key's parts, each L2-normalised (its inner products are cosines)."""
         key = np.asarray(observation if self._key is None else self._key(observation), dtype=np.float32)
-        norm = float(np.linalg.norm(key))
-        return (key / norm if norm > 0 else key).astype(np.float32)
+        parts = []
+        for part in self._parts:
+            vector = key[part]
+            norm = float(np.linalg.norm(vector))
+            parts.append((vector / norm if norm > 0 else vector).astype(np.float32))
+        return parts
 
 
 def _hnsw_of(vectors: np.ndarray) -> Any:

@@ -204,7 +204,7 @@ class HypothesisTree:
         """The prior map's places in the order they were made: each one's neighbourhood for
         ``map_reference_scale``."""
         self._index = PlaceIndex(
-            self.model.index_key_length, config.relocalisation_skip, key=self.model.index_key
+            self.model.index_key_parts, config.relocalisation_skip, key=self.model.index_key
         )
         self._relocalised: set[int] = set()
         # statistics
