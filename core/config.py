@@ -153,9 +153,9 @@ class EstimatorConfig:
         " between consecutive keyframes.",
     )
     contradiction_ratio: float = _param(
-        0.6,
+        0.8,
         "A revisit the motion model proposes is ruled out when a place found by appearance alone (a"
-        " relocalisation) is much more alike: its distance under this × the proposed place's (0 = never)."
+        " relocalisation) is clearly more alike: its distance under this × the proposed place's (0 = never)."
         " Where the robot was carried, the place odometry predicts can still look half alike.",
     )
     new_state_coverage: float = _param(
