@@ -77,10 +77,9 @@ def test_a_large_map_moves_into_hnsw_and_answers_the_same_every_time():
     exact = PlaceIndex(model.index_key_parts, skip=0, key=model.index_key, exact_limit=10_000)
     for state, view in enumerate(views):
         exact.add(state, view)
-    overlap = []
-    for row, i in zip(first, queries, strict=True):
-        exact_row = set(exact.search(views[i] + 0.05, 3001, 12).tolist())
-        overlap.append(len(set(row) & exact_row) / len(exact_row))
-    print(f"HNSW shortlists share {np.mean(overlap):.3f} of the exact ones")
-    assert np.mean(overlap) >= 0.95  # the approximate shortlist is almost the exact one
+    agree = [
+        set(row) == set(exact.search(views[i] + 0.05, 3001, 12).tolist())
+        for row, i in zip(first, queries, strict=True)
+    ]
+    assert sum(agree) >= 0.9 * len(agree)  # the approximate shortlist is almost always the exact one
     assert all(row[0] == i or i in row for row, i in zip(first, queries, strict=True))
