@@ -217,7 +217,9 @@ class EstimatorConfig:
         " is proposed with this prior and must be confirmed by the next keyframe (0 = never).",
     )
     relocalisation_candidates: int = _param(
-        12, "Places most similar by the index (exact, or HNSW beyond 8,192 places) then compared exactly."
+        12,
+        "Places most similar by the index (exact, or an inverted file beyond 2,048 places) then compared"
+        " exactly.",
     )
     relocalisation_skip: int = _param(
         3,

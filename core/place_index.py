@@ -1,20 +1,29 @@
 """The relocalisation index: committed places, searchable by appearance at a cost that stays
-bounded as the map grows.
+small as the map grows.
 
 Each place is kept as its first view's key (the observation model's ``index_key``: short vectors,
 its parts, whose cosine similarities rank views roughly as the model's distance does), each part
 L2-normalised (so the inner product is the cosine similarity) and searched on its own. Up to
 ``EXACT_LIMIT`` places a query is one exact matrix–vector product per part. Beyond, a scan would
-grow with the map — at 40,000 places it took 1.1 of the 2.7 ms a SLAM step cost — so the index
-moves into an HNSW graph per part (Malkov & Yashunin; faiss's ``IndexHNSWFlat``), which answers in
-O(log places); faiss is imported only then. The index only shortlists: the observation model
-compares the shortlist exactly, so an approximate answer can miss a candidate but never make a
-claim.
+grow with the map, so each part moves into an inverted file (faiss's ``IndexIVFFlat``): the places
+are sorted into cells around k-means centroids, and a query scans the ``CELLS_SEARCHED`` nearest
+cells only. The cells are laid out again whenever the map has grown ``REFIT_GROWTH`` times since
+they were, with √(``CELLS_SEARCHED`` × places) cells (which makes the centroids and the searched
+cells equal work), so a query costs O(√places). faiss is imported only then. The index only
+shortlists: the observation model compares the shortlist exactly, so an approximate answer can
+miss a candidate but never make a claim.
+
+Why cells rather than a graph (HNSW, which this index was until 2026-12): a SLAM step leaves the
+index cold in the caches, and a graph's search hops through memory at random while a cell is one
+contiguous run. Measured at 100,000 keyframes (40,746 places, two key parts): the graph's queries
+and insertions cost 0.29 ms a step, the cells' 0.12; the true place of a revisit was shortlisted
+as often (docs/estimator.md, "Relocalisation").
 """
 
 from __future__ import annotations
 
 import itertools
+import math
 from collections import deque
 from collections.abc import Callable
 from typing import Any
@@ -23,16 +32,18 @@ import numpy as np
 
 from aslam.core.mapgraph import GrowableArray
 
-EXACT_LIMIT = 8192
-"""Places up to which the index is searched exactly. Measured (32 dimensions, one query): the scan
-costs 0.026 ms at 2,048 places, 0.086 ms at 8,192 and 0.15 ms at 12,288; the graph 0.04 ms a
-query at 10,000 places and 0.065 ms at 100,000 in a loop of queries (0.16 ms in a run, the graph
-cold in the caches after the rest of a step), plus 0.055 ms to insert each new place. So the scan
-stays below the graph up to about here; moving into the graph costs once 0.45 s."""
-NEIGHBOURS_PER_NODE = 16
-"""HNSW's M: links per place in the graph (2 × M × 4 bytes per place on top of its view)."""
-SEARCH_BREADTH = 64
-"""HNSW's efSearch floor: candidates kept while searching; well above the shortlist, near-exact."""
+EXACT_LIMIT = 2048
+"""Places up to which the index is searched exactly. Measured (a 36-dimension part, one query, in a
+loop): the scan with its partial sort costs 0.06 ms at 4,000 places and 0.49 ms at 40,000; the
+cells 0.03 ms at 15,750. Small maps stay exact (every rendered recording and Nordland's journey
+do); laying out the first cells costs 0.02 s."""
+CELLS_SEARCHED = 24
+"""Cells a query scans (faiss's ``nprobe``). On the keys of 270 rendered recordings (15,750
+places, 4,259 revisits) the true place was shortlisted for 0.828 of revisits with 24 cells, 0.820
+with 16, 0.831 with 32; 0.825 by the HNSW graph this index used before, 0.830 by the exact scan."""
+REFIT_GROWTH = 4
+"""The cells are laid out again (k-means, 10 rounds) once the map has grown this many times since
+they were: at 8,192 places 0.03 s a part, at 32,768 about 0.5 s."""
 
 
 class PlaceIndex:
@@ -40,8 +51,7 @@ class PlaceIndex:
     after it is first seen (until then the motion model covers it).
 
     Deterministic: the exact scan is single-threaded ``einsum`` (a fixed summation order); the
-    HNSW graph takes the places one at a time, in state order, and draws its levels from its own
-    seeded generator.
+    cells come from seeded k-means on one thread over the places in state order.
     """
 
     def __init__(
@@ -62,19 +72,20 @@ class PlaceIndex:
         self._vectors = [GrowableArray((part,), np.float32) for part in key_parts]
         self._states = GrowableArray((), np.int64)
         self._waiting: deque[tuple[int, list[np.ndarray]]] = deque()
-        self._hnsw: list[Any] | None = None
+        self._cells: list[Any] | None = None
+        self._fitted_at = 0
 
     @property
     def approximate(self) -> bool:
-        """Whether queries go to the HNSW graphs (the map outgrew ``exact_limit``)."""
-        return self._hnsw is not None
+        """Whether queries go to the cells (the map outgrew ``exact_limit``)."""
+        return self._cells is not None
 
     def add(self, state: int, observation: np.ndarray, *, searchable: bool = False) -> None:
         """A newly committed place (states arrive in increasing order: a state is its first keyframe).
 
         ``searchable`` skips the wait: a prior session's places are not recent in this one.
         """
-        if searchable and not self._waiting and self._hnsw is None:
+        if searchable and not self._waiting and self._cells is None:
             for vectors, part in zip(self._vectors, self._key_of(observation), strict=True):
                 vectors.append(part)
             self._states.append(state)
@@ -89,8 +100,8 @@ class PlaceIndex:
             state, parts = self._waiting.popleft()
             for index, (vectors, part) in enumerate(zip(self._vectors, parts, strict=True)):
                 vectors.append(part)
-                if self._hnsw is not None:
-                    self._hnsw[index].add(part[None, :])
+                if self._cells is not None:
+                    self._cells[index].add(part[None, :])
             self._states.append(state)
         searchable = len(self._states)
         if not searchable:
@@ -104,11 +115,11 @@ class PlaceIndex:
                 similarity = np.einsum("ij,j->i", vectors.view, part)
                 found.update(self._states.view[np.argpartition(-similarity, count - 1)[:count]].tolist())
         else:
-            if self._hnsw is None:
-                self._hnsw = [_hnsw_of(vectors.view) for vectors in self._vectors]
-            for graph, part in zip(self._hnsw, query, strict=True):
-                graph.hnsw.efSearch = max(SEARCH_BREADTH, count)
-                _, rows = graph.search(part[None, :], count)
+            if self._cells is None or searchable >= REFIT_GROWTH * self._fitted_at:
+                self._cells = [_cells_of(vectors.view) for vectors in self._vectors]
+                self._fitted_at = searchable
+            for cells, part in zip(self._cells, query, strict=True):
+                _, rows = cells.search(part[None, :], count)
                 found.update(self._states.view[rows[0][rows[0] >= 0]].tolist())
         return np.array(sorted(found), dtype=np.int64)
 
@@ -123,14 +134,23 @@ class PlaceIndex:
         return parts
 
 
-def _hnsw_of(vectors: np.ndarray) -> Any:
-    """An HNSW graph (inner product) holding ``vectors``, added one at a time in order."""
+def _cells_of(vectors: np.ndarray) -> Any:
+    """An inverted file (inner product) holding ``vectors`` in √(``CELLS_SEARCHED`` × places) cells."""
     import faiss
 
-    # One query and one insertion at a time: OpenMP's threads only add hand-offs (measured, a query
-    # and an insertion a step at 40,000 places: 0.32 ms with two threads, 0.24 ms with one).
+    # One query and one insertion at a time: OpenMP's threads only add hand-offs (measured with
+    # the earlier HNSW index, a query and an insertion a step at 40,000 places: 0.32 ms with two
+    # threads, 0.24 ms with one).
     faiss.omp_set_num_threads(1)
-    graph = faiss.IndexHNSWFlat(vectors.shape[1], NEIGHBOURS_PER_NODE, faiss.METRIC_INNER_PRODUCT)
-    for vector in vectors:
-        graph.add(vector[None, :])
-    return graph
+    dimensions = vectors.shape[1]
+    cells = max(1, min(len(vectors), round(math.sqrt(CELLS_SEARCHED * len(vectors)))))
+    quantiser = faiss.IndexFlatIP(dimensions)  # the inverted file keeps a reference to it
+    index = faiss.IndexIVFFlat(quantiser, dimensions, cells, faiss.METRIC_INNER_PRODUCT)
+    index.cp.seed = 1
+    index.cp.niter = 10
+    index.cp.spherical = True  # centroids on the unit sphere, as the keys are
+    index.cp.min_points_per_centroid = 1  # few places per cell is expected; faiss would warn
+    index.train(vectors)
+    index.add(vectors)
+    index.nprobe = CELLS_SEARCHED
+    return index

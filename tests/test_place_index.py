@@ -1,4 +1,4 @@
-"""The relocalisation index: exact on small maps, HNSW on large ones, only places old enough,
+"""The relocalisation index: exact on small maps, an inverted file on large ones, only places old enough,
 deterministic."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from aslam.core.observation import ThumbnailModel
-from aslam.core.place_index import PlaceIndex
+from aslam.core.place_index import CELLS_SEARCHED, PlaceIndex
 
 
 def _views(count: int, length: int, seed: int) -> np.ndarray:
@@ -33,7 +33,10 @@ def _cosine_top(views: np.ndarray, query: np.ndarray, index: PlaceIndex, count: 
 def test_small_maps_give_the_exact_most_similar_old_enough_places(
     places, length, skip, count, seed, exact_limit
 ):
-    """Exact by scan, and by HNSW too while the map is small (its search breadth covers it)."""
+    """Exact by scan, and by the inverted file too while it searches every cell (a map of at most
+    ``CELLS_SEARCHED`` places has no more cells than that)."""
+    if exact_limit < places:
+        places = min(places, CELLS_SEARCHED)
     views = _views(places, length, seed)
     index = PlaceIndex((length,), skip, exact_limit=exact_limit)
     for state, view in enumerate(views):
@@ -58,7 +61,7 @@ def test_a_place_is_searchable_only_skip_keyframes_after_it_is_seen():
     assert set(index.search(views[4], keyframes=15, count=5).tolist()) == {0, 1, 2, 3, 4}
 
 
-def test_a_large_map_moves_into_hnsw_and_answers_the_same_every_time():
+def test_a_large_map_moves_into_cells_and_answers_the_same_every_time():
     """With the default (thumbnail) model's keys."""
     model = ThumbnailModel()
     views = _views(3000, model.length, 7)
@@ -77,9 +80,11 @@ def test_a_large_map_moves_into_hnsw_and_answers_the_same_every_time():
     exact = PlaceIndex(model.index_key_parts, skip=0, key=model.index_key, exact_limit=10_000)
     for state, view in enumerate(views):
         exact.add(state, view)
-    agree = [
-        set(row) == set(exact.search(views[i] + 0.05, 3001, 12).tolist())
+    overlap = [
+        len(set(row) & set(exact.search(views[i] + 0.05, 3001, 12).tolist())) / len(row)
         for row, i in zip(first, queries, strict=True)
     ]
-    assert sum(agree) >= 0.9 * len(agree)  # the approximate shortlist is almost always the exact one
-    assert all(row[0] == i or i in row for row, i in zip(first, queries, strict=True))
+    # Unstructured random views are the cells' hardest case (a view's neighbours lie in any cell):
+    # most of the exact shortlist, and always the place itself.
+    assert np.mean(overlap) >= 0.75
+    assert all(i in row for row, i in zip(first, queries, strict=True))
