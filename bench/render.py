@@ -28,6 +28,8 @@ ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results" / "benchmarks.json"
 ROBUST_MATRIX = "robust_matrix.md"
 """The robust-revisit matrix's table (``bench/robust_matrix.py --markdown``), beside the results."""
+ROBUST_HELD_OUT = "robust_matrix_held_out.md"
+"""The same families on held-out routes and seeds (``--routes bench/routes/*.json --seeds 6 7 8``)."""
 TEMPLATES = Path(__file__).resolve().parent / "templates"
 DRIFT_PLOT = "long-run-drift.png"
 
@@ -124,9 +126,14 @@ def notes(speed: dict[str, Any], search_max_states: int) -> dict[str, Any]:
     }
 
 
-def context(results: dict[str, Any], rel_img: str, robust_matrix: str | None = None) -> dict[str, Any]:
+def context(
+    results: dict[str, Any],
+    rel_img: str,
+    robust_matrix: str | None = None,
+    robust_held_out: str | None = None,
+) -> dict[str, Any]:
     """Every value the template shows, from the results JSON (and the robust-revisit matrix's
-    table, made apart by ``bench/robust_matrix.py``, when there is one)."""
+    tables, made apart by ``bench/robust_matrix.py``, when there are)."""
     runs = results["runs"]
     by_name = {
         name: [runs[n] for n in names] for name, names in results["families"].items() if name != "noise"
@@ -147,6 +154,7 @@ def context(results: dict[str, Any], rel_img: str, robust_matrix: str | None = N
     return shown | {
         "results": results,
         "robust_matrix": robust_matrix,
+        "robust_held_out": robust_held_out,
         "started": f"{datetime.datetime.fromisoformat(results['started']):%Y-%m-%d %H:%M %Z}",
         "minutes": minutes,
         "seconds": seconds,
@@ -213,7 +221,12 @@ def drift_plot(run: Run, path: Path) -> None:
     plt.close(fig)
 
 
-def render_text(results: dict[str, Any], rel_img: str = "img", robust_matrix: str | None = None) -> str:
+def render_text(
+    results: dict[str, Any],
+    rel_img: str = "img",
+    robust_matrix: str | None = None,
+    robust_held_out: str | None = None,
+) -> str:
     """The document for ``results`` (no file written)."""
     import jinja2
 
@@ -226,7 +239,9 @@ def render_text(results: dict[str, Any], rel_img: str = "img", robust_matrix: st
     )
     environment.filters |= {"fmt": fmt, "agg": agg, "f": format}
     environment.globals["table"] = tables.table
-    text = environment.get_template("benchmarks.md").render(context(results, rel_img, robust_matrix))
+    text = environment.get_template("benchmarks.md").render(
+        context(results, rel_img, robust_matrix, robust_held_out)
+    )
     return text.rstrip() + "\n"
 
 
@@ -237,9 +252,9 @@ def render(results_path: Path, doc: Path, img: Path) -> None:
     long_run = results["runs"][results["families"]["long"][0]]
     drift_plot(long_run, img / DRIFT_PLOT)
     doc.parent.mkdir(parents=True, exist_ok=True)
-    matrix = results_path.with_name(ROBUST_MATRIX)
-    robust_matrix = matrix.read_text() if matrix.exists() else None
-    doc.write_text(render_text(results, os.path.relpath(img, doc.parent), robust_matrix))
+    paths = [results_path.with_name(name) for name in (ROBUST_MATRIX, ROBUST_HELD_OUT)]
+    matrix, held_out = (path.read_text() if path.exists() else None for path in paths)
+    doc.write_text(render_text(results, os.path.relpath(img, doc.parent), matrix, held_out))
 
 
 def main() -> None:

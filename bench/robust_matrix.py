@@ -2,14 +2,18 @@
 
 The hard cases of issue 9 that today's recorder can make (off-pose revisits with ``--jitter``,
 video-rate keyframes with ``--fps``, odometry noise, aliasing) on the paper, figure-8 and grid
-routes. Recordings are rendered once and cached (``--cache``, default /tmp/robust/rec); estimates
-are made and scored through the application layer (``aslam.app``), not the CLI.
+routes (``--routes`` also takes route files: ``bench/routes/`` holds two that no setting was chosen
+on, for held-out checks). Recordings are rendered once and cached (``--cache``, default
+/tmp/robust/rec); estimates are made and scored through the application layer (``aslam.app``), not
+the CLI.
 
     python bench/robust_matrix.py --families jitter30 fps10 --seeds 1 2 3 --estimators default paper
     python bench/robust_matrix.py --render-only ...     # render what is missing, score nothing
     python bench/robust_matrix.py --set beta=2 --set observation_model=thumbnail ...
     python bench/robust_matrix.py --estimators default paper nn --workers 2 \
         --markdown bench/results/robust_matrix.md --json bench/results/robust_matrix.json
+    python bench/robust_matrix.py --routes bench/routes/ell.json bench/routes/corridor.json --seeds 6 7 8 \
+        --workers 2 --markdown bench/results/robust_matrix_held_out.md    # held out
     python bench/robust_matrix.py --table-from bench/results/robust_matrix.json --markdown M.md
 
 Prints one row per (family, route, seed, estimator), then per-family means and worst cases; with
@@ -22,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import re
 import sys
 import tempfile
@@ -69,6 +74,15 @@ def is_derived(family: str) -> bool:
 
 
 ROUTES = ("paper", "figure8", "grid")
+HELD_OUT_ROUTES = ("bench/routes/ell.json", "bench/routes/corridor.json")
+"""Closed route files never used to choose a setting: ``--routes`` takes them (or any route file)
+beside the presets, to check a result on routes it was not found on."""
+
+
+def route_label(route: str) -> str:
+    """A preset's name, or a route file's stem: how the route appears in names and tables."""
+    return Path(route).stem if route.endswith(".json") else route
+
 
 BEFORE: dict[str, Any] = {
     "observation_model": "histogram",
@@ -91,7 +105,7 @@ class Scenario:
 
     @property
     def name(self) -> str:
-        return f"{self.family}-{self.route}-seed{self.seed}"
+        return f"{self.family}-{route_label(self.route)}-seed{self.seed}"
 
     @property
     def base(self) -> Scenario:
@@ -108,6 +122,8 @@ class Scenario:
         settings = dict(self.settings)
         noise_keys = ("noise", "jitter_m", "jitter_deg", "wander_m", "wander_deg", "model")
         noise_fields = {k: settings.pop(k) for k in noise_keys if k in settings}
+        if self.route.endswith(".json"):  # a route file is driven once unless told: twice, as the presets
+            settings.setdefault("laps", 2)
         return RecordConfig(route=self.route, seed=self.seed, noise=NoiseParams(**noise_fields), **settings)
 
     def command(self) -> str:
@@ -117,7 +133,10 @@ class Scenario:
         for key, value in self.settings.items():
             name = "noise-model" if key == "model" else key.replace("_", "-")
             flags.append(f"--{name} {value:g}" if isinstance(value, float) else f"--{name} {value}")
-        return f"aslam record --route {self.route} --seed {self.seed} {' '.join(flags)}".strip()
+        route, laps = self.route, ""
+        if route.endswith(".json"):
+            route, laps = os.path.relpath(route, Path(__file__).resolve().parents[1]), " --laps 2"
+        return f"aslam record --route {route}{laps} --seed {self.seed} {' '.join(flags)}".strip()
 
 
 @dataclass
@@ -490,7 +509,12 @@ def main(argv: list[str] | None = None) -> int:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--families", nargs="+", default=list(FAMILIES), choices=list(FAMILIES))
-    parser.add_argument("--routes", nargs="+", default=list(ROUTES), choices=list(ROUTES))
+    parser.add_argument(
+        "--routes",
+        nargs="+",
+        default=list(ROUTES),
+        help=f"presets ({', '.join(ROUTES)}) or route JSON files (held out: {' '.join(HELD_OUT_ROUTES)})",
+    )
     parser.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3, 4, 5])
     parser.add_argument(
         "--estimators", nargs="+", default=["default"], choices=["default", "paper", "nn", "before"]
@@ -515,6 +539,11 @@ def main(argv: list[str] | None = None) -> int:
         help="also kidnaps at these shares of the run (e.g. 0.4:0.75), made from the default renders",
     )
     args = parser.parse_args(argv)
+    for route in args.routes:
+        if route not in ROUTES and not (route.endswith(".json") and Path(route).is_file()):
+            parser.error(f"--routes: {route!r} is neither a preset ({', '.join(ROUTES)}) nor a route file")
+    # absolute, so that the Dask workers find them whatever their directory
+    args.routes = [route if route in ROUTES else str(Path(route).resolve()) for route in args.routes]
     for window in args.kidnap_windows:
         start, _, stop = window.partition(":")
         args.families.append(f"kidnap{round(float(start) * 100)}-{round(float(stop) * 100)}")
