@@ -29,7 +29,7 @@ RESULTS = ROOT / "bench" / "results" / "benchmarks.json"
 ROBUST_MATRIX = "robust_matrix.md"
 """The robust-revisit matrix's table (``bench/robust_matrix.py --markdown``), beside the results."""
 ROBUST_HELD_OUT = "robust_matrix_held_out.md"
-"""The same families on held-out routes and seeds (``--routes bench/routes/*.json --seeds 6 7 8``)."""
+"""The same families on held-out seeds and routes (``--routes … bench/routes/*.json --seeds 6 7 8``)."""
 TEMPLATES = Path(__file__).resolve().parent / "templates"
 DRIFT_PLOT = "long-run-drift.png"
 

@@ -12,8 +12,9 @@ the CLI.
     python bench/robust_matrix.py --set beta=2 --set observation_model=thumbnail ...
     python bench/robust_matrix.py --estimators default paper nn --workers 2 \
         --markdown bench/results/robust_matrix.md --json bench/results/robust_matrix.json
-    python bench/robust_matrix.py --routes bench/routes/ell.json bench/routes/corridor.json --seeds 6 7 8 \
-        --workers 2 --markdown bench/results/robust_matrix_held_out.md    # held out
+    python bench/robust_matrix.py --seeds 6 7 8 --workers 2 \
+        --routes paper figure8 grid bench/routes/ell.json bench/routes/corridor.json \
+        --markdown bench/results/robust_matrix_held_out.md    # held out
     python bench/robust_matrix.py --table-from bench/results/robust_matrix.json --markdown M.md
 
 Prints one row per (family, route, seed, estimator), then per-family means and worst cases; with
