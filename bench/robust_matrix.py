@@ -80,9 +80,13 @@ HELD_OUT_ROUTES = ("bench/routes/ell.json", "bench/routes/corridor.json")
 beside the presets, to check a result on routes it was not found on."""
 
 
+def is_route_file(route: str) -> bool:
+    return route.endswith(".json")
+
+
 def route_label(route: str) -> str:
     """A preset's name, or a route file's stem: how the route appears in names and tables."""
-    return Path(route).stem if route.endswith(".json") else route
+    return Path(route).stem if is_route_file(route) else route
 
 
 BEFORE: dict[str, Any] = {
@@ -123,7 +127,7 @@ class Scenario:
         settings = dict(self.settings)
         noise_keys = ("noise", "jitter_m", "jitter_deg", "wander_m", "wander_deg", "model")
         noise_fields = {k: settings.pop(k) for k in noise_keys if k in settings}
-        if self.route.endswith(".json"):  # a route file is driven once unless told: twice, as the presets
+        if is_route_file(self.route):  # a route file is driven once unless told: twice, as the presets
             settings.setdefault("laps", 2)
         return RecordConfig(route=self.route, seed=self.seed, noise=NoiseParams(**noise_fields), **settings)
 
@@ -135,7 +139,7 @@ class Scenario:
             name = "noise-model" if key == "model" else key.replace("_", "-")
             flags.append(f"--{name} {value:g}" if isinstance(value, float) else f"--{name} {value}")
         route, laps = self.route, ""
-        if route.endswith(".json"):
+        if is_route_file(route):
             route, laps = os.path.relpath(route, Path(__file__).resolve().parents[1]), " --laps 2"
         return f"aslam record --route {route}{laps} --seed {self.seed} {' '.join(flags)}".strip()
 
@@ -541,7 +545,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     for route in args.routes:
-        if route not in ROUTES and not (route.endswith(".json") and Path(route).is_file()):
+        if route not in ROUTES and not (is_route_file(route) and Path(route).is_file()):
             parser.error(f"--routes: {route!r} is neither a preset ({', '.join(ROUTES)}) nor a route file")
     # absolute, so that the Dask workers find them whatever their directory
     args.routes = [route if route in ROUTES else str(Path(route).resolve()) for route in args.routes]
