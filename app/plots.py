@@ -3,7 +3,10 @@
 * ``hypotheses.png``: hypothesis count per keyframe (the paper's figure 8);
 * ``errors.png``: x, y and heading error per keyframe, best and belief-weighted (figures 9-11);
 * ``map.png``: the map of places at their first-visit true positions (dead-reckoned odometry
-  without ground truth), loop-closure links highlighted, the odometry path for comparison.
+  without ground truth), loop-closure links highlighted, the odometry path for comparison;
+* ``pr.png``: loop-closure precision against recall as a threshold on the claim's belief
+  sweeps down, as place-recognition work reports it: where to set a threshold, and what it costs;
+* ``trajectory.png``: the embedded map's trajectory and odometry alone, aligned to the truth.
 """
 
 from __future__ import annotations
@@ -42,10 +45,11 @@ def write_plots(folder: Path, report: Report) -> list[Path]:
     matplotlib.use("Agg")
     title = report.estimate_path.name
     folder.mkdir(parents=True, exist_ok=True)
-    paths = [folder / "hypotheses.png", folder / "errors.png", folder / "map.png"]
+    paths = [folder / name for name in ("hypotheses.png", "errors.png", "map.png", "pr.png")]
     _save(_hypotheses_figure(report.evaluation, title), paths[0])
     _save(_errors_figure(report.evaluation, title), paths[1])
     _save(_map_figure(report.estimate.graph, report.actions, report.true_poses, title), paths[2])
+    _save(_pr_figure(report.evaluation, report.summary["committed"], title), paths[3])
     if report.embedding is not None:
         paths.append(folder / "trajectory.png")
         _save(_trajectory_figure(report, title), paths[-1])
@@ -91,6 +95,74 @@ def _trajectory_figure(report: Report, title: str) -> Any:
     ax.set_ylabel("y (m)")
     ax.set_title(f"Trajectory {frame}\n{title}")
     ax.legend(loc="best", fontsize="small")
+    return fig
+
+
+def _pr_figure(evaluation: Evaluation, committed: dict[str, Any], title: str) -> Any:
+    """Precision against recall over a threshold on the claim's belief (highest first), the
+    best hypothesis's own operating point (every claim: the lowest threshold) and the final map's."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.5, 5.5), layout="constrained")
+    curve = evaluation.pr_curve() if evaluation.has_ground_truth else None
+    if curve is None or curve.revisits == 0:
+        why = "no ground truth" if curve is None else "no true revisit to find"
+        ax.text(0.5, 0.5, why, transform=ax.transAxes, ha="center", va="center", color="0.4")
+        subtitle = why
+    elif not len(curve.recall):
+        ax.text(0.5, 0.5, "no loop closure claimed", transform=ax.transAxes, ha="center", va="center")
+        subtitle = f"{curve.revisits} true revisits, none claimed"
+    else:
+        # From (0, first precision): a threshold above every belief keeps no claim.
+        recall = np.concatenate([[0.0], curve.recall])
+        precision = np.concatenate([curve.precision[:1], curve.precision])
+        ax.step(recall, precision, where="pre", color="tab:blue", linewidth=1.5, label="belief ≥ threshold")
+        points = ax.scatter(
+            curve.recall,
+            curve.precision,
+            c=curve.thresholds,
+            cmap="viridis",
+            vmin=0.0,
+            vmax=1.0,
+            s=18,
+            zorder=3,
+        )
+        fig.colorbar(points, ax=ax, label="threshold on the claim's belief")
+        ax.plot(
+            curve.recall[-1],
+            curve.precision[-1],
+            "o",
+            markersize=11,
+            markerfacecolor="none",
+            markeredgecolor="tab:red",
+            markeredgewidth=1.5,
+            label="best hypothesis (every claim)",
+        )
+        if committed.get("precision") is not None and committed.get("recall") is not None:
+            ax.plot(
+                committed["recall"],
+                committed["precision"],
+                "s",
+                markersize=9,
+                markerfacecolor="none",
+                markeredgecolor="tab:orange",
+                markeredgewidth=1.5,
+                label="final map (committed)",
+            )
+        full = curve.recall_at_full_precision
+        if full:
+            ax.axvline(full, color="0.5", linestyle=":", linewidth=1, label="recall at 100 % precision")
+        subtitle = (
+            f"AUC {curve.auc:.3f}, recall at 100 % precision {full:.3f}, "
+            f"{int(evaluation.claims.sum())} claims, {curve.revisits} true revisits"
+        )
+        ax.legend(loc="lower left", fontsize="small")
+    ax.set_xlim(-0.02, 1.02)
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_xlabel("recall (true revisits claimed)")
+    ax.set_ylabel("precision (claims right)")
+    ax.grid(True, alpha=0.3)
+    ax.set_title(f"Loop closures over a belief threshold — {title}\n{subtitle}", fontsize="medium")
     return fig
 
 

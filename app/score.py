@@ -26,7 +26,7 @@ from aslam.app.metric_view import score as score_trajectories
 from aslam.core import se2
 from aslam.core.config import check_report_tolerances
 from aslam.core.errors import InputError
-from aslam.core.metrics import AssignmentScore, Evaluation, PRCurve, evaluate, score_assignment
+from aslam.core.metrics import AssignmentScore, Evaluation, evaluate, score_assignment
 from aslam.data_formats.errors import EstimateError, RecordingError
 from aslam.data_formats.estimate import EstimateFile, iter_keyframes, read_estimate
 from aslam.data_formats.files import source_files
@@ -365,11 +365,6 @@ def map_assignment(states: Iterable[Any], keyframes: int) -> np.ndarray:
             if 0 <= keyframe < keyframes:
                 assignment[keyframe] = state.id
     return assignment
-
-
-def pr_curve(report: Report) -> PRCurve:
-    """The precision–recall curve of a scored estimate (thresholds, precision, recall arrays)."""
-    return report.evaluation.pr_curve()
 
 
 def _find_recording(given: Path | None, info: EstimateFile, warn: Callable[[str], None]) -> Path | None:

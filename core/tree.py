@@ -401,10 +401,11 @@ class HypothesisTree:
         """Committed places that look like ``observation``, found over the whole map at bounded cost,
         with the log prior of a jump to each, and which of them appearance alone singled out (or None).
 
-        The index (:class:`aslam.core.place_index.PlaceIndex`: an exact scan up to 8,192 places, an
-        HNSW graph beyond) shortlists the ``relocalisation_candidates`` most similar committed
-        places; they are then compared exactly. The best is returned if it looks more alike than the new-place
-        reference, clearly more alike than the runner-up, and the motion model did not propose it.
+        The index (:class:`aslam.core.place_index.PlaceIndex`: an exact scan up to 2,048 places, an
+        inverted file of k-means cells beyond) shortlists the ``relocalisation_candidates`` most
+        similar committed places; they are then compared exactly. The best is returned if it looks
+        more alike than the new-place reference, clearly more alike than the runner-up, and the
+        motion model did not propose it.
         In a prior map, the ``map_relocalisation_candidates`` most alike of the map's own places are
         returned too, untested (``map_relocalisation_prior``): the sequence that follows decides.
         After an odometry jump (``untested``) the robot may be anywhere: as at a session's start,

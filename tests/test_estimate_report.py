@@ -258,7 +258,8 @@ def test_report_outputs(estimate_file: Path, tmp_path: Path, capsys):
     assert set(state) == {"id", "keyframes", "stamps_ns", "first_visit_truth"}
     assert set(state["first_visit_truth"]) == {"x_m", "y_m", "yaw_rad"}
     assert {"from", "to", "action", "covariance", "count", "loop_closure"} <= set(graph["links"][0])
-    assert {p.name for p in plots.iterdir()} == {"hypotheses.png", "errors.png", "map.png", "trajectory.png"}
+    names = {"hypotheses.png", "errors.png", "map.png", "pr.png", "trajectory.png"}
+    assert {p.name for p in plots.iterdir()} == names
     assert all(p.read_bytes().startswith(b"\x89PNG") for p in plots.iterdir())
     assert not [p for p in tmp_path.rglob(".*partial*")]
 
@@ -306,8 +307,21 @@ def test_report_without_the_recording_warns_and_continues(recording: Path, tmp_p
     assert main(["estimate", str(moved), "-o", str(out), "--no-timing"]) == 0
     moved.unlink()
     capsys.readouterr()
-    assert main(["report", str(out), "--json", "-", "--fail-on", "loop_closure.precision==null"]) == 1
+    plots = tmp_path / "plots"
+    args = [
+        "report",
+        str(out),
+        "--json",
+        "-",
+        "--plots",
+        str(plots),
+        "--fail-on",
+        "loop_closure.precision==null",
+    ]
+    assert main(args) == 1
     captured = capsys.readouterr()
+    # Every figure is drawn, saying what it lacks (the precision-recall curve: no ground truth).
+    assert {p.name for p in plots.iterdir()} >= {"hypotheses.png", "errors.png", "map.png", "pr.png"}
     summary = json.loads(captured.out)
     _check_summary(summary)
     assert summary["ground_truth"] is False
