@@ -6,7 +6,8 @@ tried instead (it needs ``libosmesa6``; ``make sysdeps`` installs it when EGL is
 platform must be chosen before PyOpenGL is first imported, so :func:`select_platform` runs first.
 
 The scene is kept light for speed: all wall panels share one texture atlas and one draw call, the
-floor is one draw call per floor texture, the ceiling, light panels and door frames one each.  Four
+floor is one draw call per floor texture (its cells merged into rectangles), the ceiling, light
+panels and door frames one each, and a frame is one sample per pixel (:func:`import_pyrender`).  Four
 point lights (pyrender's per-pass cap per light type) follow the camera: each frame they sit at the
 four ceiling light panels nearest the camera, so a place is lit the same way on every visit —
 unless a per-lap :class:`~aslam.recorder.lighting.Lighting` says otherwise (``--lighting-change``):
@@ -102,6 +103,37 @@ def camera_matrix(pose: np.ndarray, height_m: float) -> np.ndarray:
     return m
 
 
+def import_pyrender():
+    """pyrender on the platform :func:`select_platform` chose, rendering one sample per pixel.
+
+    pyrender always renders into a 4× multisampled framebuffer and has no setting for it. On Mesa's
+    CPU rasteriser that costs a third of every frame (a grid world's bare render loop: 49.5 against
+    32–35 frames/s) for smoother polygon edges only — the textures are filtered by their mipmaps
+    either way. Measured on 30 robustness-matrix runs rendered both ways, the estimates' precision
+    and recall were the same (one jitter run: one more correct claim). So the framebuffer pyrender
+    allocates gets one sample (``samples=0``); the bench's bare pyrender loop renders the same way.
+    """
+    select_platform()
+    try:
+        import pyrender
+        import pyrender.renderer
+    except Exception as err:  # PyOpenGL raises ImportError/AttributeError for missing libraries
+        raise RenderError(
+            f"cannot load pyrender with PYOPENGL_PLATFORM={os.environ.get('PYOPENGL_PLATFORM', '')!r}: {err}"
+        ) from err
+    module = pyrender.renderer
+    if not getattr(module, "_aslam_single_sample", False):
+        allocate = module.glRenderbufferStorageMultisample
+
+        def single_sample(target, _samples, *size_and_format):
+            return allocate(target, 0, *size_and_format)
+
+        module.glRenderbufferStorageMultisample = single_sample
+        module._aslam_single_sample = True
+        module._aslam_stock_allocate = allocate  # for bench/record_bench.py's stock-pyrender figure
+    return pyrender
+
+
 # ----------------------------------------------------------------------------- generated worlds
 
 
@@ -153,11 +185,36 @@ def _quads(corners: np.ndarray, normals: np.ndarray, uvs: np.ndarray):
     return positions, normal, uv, faces
 
 
+def cell_rectangles(mask: np.ndarray) -> np.ndarray:
+    """Disjoint rectangles ``(row0, row1, col0, col1)`` (ends exclusive) covering ``mask``'s cells.
+
+    Each row's runs of cells, a run carried down while the next row has the very same run. Fewer,
+    larger quads are far fewer triangles for the rasteriser (a grid world's floor and ceiling: 8,900
+    triangles → 70); the texture coordinates are the same affine function of position either way.
+    """
+    rectangles: list[tuple[int, int, int, int]] = []
+    open_runs: dict[tuple[int, int], int] = {}  # run (col0, col1) → the row it started on
+    padded = np.zeros((mask.shape[0] + 1, mask.shape[1] + 2), dtype=np.int8)
+    padded[:-1, 1:-1] = mask
+    for row, cells in enumerate(padded):
+        edges = np.flatnonzero(np.diff(cells))
+        runs = set(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
+        for run, start in list(open_runs.items()):
+            if run not in runs:
+                rectangles.append((start, row, *run))
+                del open_runs[run]
+        for run in sorted(runs - open_runs.keys()):
+            open_runs[run] = row
+    return np.array(sorted(rectangles), dtype=np.int64).reshape(-1, 4)
+
+
 def _cell_quads(world, mask: np.ndarray, z: float, up: bool):
-    j, i = np.nonzero(mask)
-    x0 = world.origin_xy[0] + i * world.cell_m
-    y0 = world.origin_xy[1] + j * world.cell_m
-    x1, y1 = x0 + world.cell_m, y0 + world.cell_m
+    """Horizontal quads over the cells of ``mask`` at height ``z``, facing up or down."""
+    row0, row1, col0, col1 = cell_rectangles(mask).T
+    x0 = world.origin_xy[0] + col0 * world.cell_m
+    y0 = world.origin_xy[1] + row0 * world.cell_m
+    x1 = world.origin_xy[0] + col1 * world.cell_m
+    y1 = world.origin_xy[1] + row1 * world.cell_m
     zz = np.full_like(x0, z)
     corners = np.stack(
         [
@@ -349,14 +406,7 @@ class PyrenderRenderer:
     def __init__(
         self, world, camera: CameraSpec, lightings: Sequence[Lighting] = (DEFAULT_LIGHTING,)
     ) -> None:
-        select_platform()
-        try:
-            import pyrender
-        except Exception as err:  # PyOpenGL raises ImportError/AttributeError for missing libraries
-            raise RenderError(
-                f"cannot load pyrender with PYOPENGL_PLATFORM={os.environ.get('PYOPENGL_PLATFORM', '')!r}: "
-                f"{err}"
-            ) from err
+        pyrender = import_pyrender()
         self._pyrender = pyrender
         self.camera = camera
         self._panel_nodes: dict[tuple, object] = {}

@@ -144,6 +144,7 @@ def speed() -> dict[str, Any]:
             "end_to_end_keyframes_per_second": 60.7,
             "loop_keyframes_per_second": 64.3,
             "bare_keyframes_per_second": 71.1,
+            "stock_keyframes_per_second": 48.9,
             "ratio_loop_over_bare": 1.1,
             "ratio_end_to_end_over_bare": 1.17,
         },
@@ -218,6 +219,8 @@ def test_values_land_in_their_tables(results: dict[str, Any], tmp_path: Path) ->
     assert row(text, "estimate ÷ floor, grid route, 640×480, 2 laps")[2:] == ["0.900", "yes"]
     assert row(text, "grid route, 320×240, 2 laps")[5] == "**1.500** (1.40–1.60)"
     assert "- Estimate ÷ floor is 1.500 on the grid route, 320×240, 2 laps recording (145 keyframes)" in text
+    record = row(text, "paper | 137")
+    assert record[4:7] == ["71.1 keyframes/s", "48.9 keyframes/s", "**1.10**"]  # bare, stock, ratio
     assert "Estimate ÷ floor is 0.900" not in text  # a met target gets no note
     assert "more than one at keyframes 40–42 (at most 2, mean 1.2; back to one from keyframe 43 on)" in text
     assert "| load average (1, 5, 15 min) | at start 0.50, 0.60, 0.70; at end 1.00, 1.10, 1.20 |" in text

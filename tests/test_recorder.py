@@ -203,6 +203,43 @@ def test_world_is_deterministic_per_seed():
 # ---------------------------------------------------------------------------------------- rendering
 
 
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.lists(st.booleans(), min_size=7, max_size=7), min_size=0, max_size=9))
+def test_floor_rectangles_cover_every_free_cell_once(rows):
+    from aslam.recorder.render import cell_rectangles
+
+    mask = np.array(rows, dtype=bool).reshape(-1, 7)
+    covered = np.zeros(mask.shape, dtype=int)
+    for row0, row1, col0, col1 in cell_rectangles(mask):
+        assert row0 < row1 and col0 < col1
+        covered[row0:row1, col0:col1] += 1
+    np.testing.assert_array_equal(covered, mask.astype(int))
+
+
+def test_a_generated_worlds_floor_is_a_few_rectangles():
+    from aslam.recorder.render import cell_rectangles
+
+    world = plan(RecordConfig(route="grid")).world
+    assert len(cell_rectangles(world.free)) * 20 < world.free.sum()
+
+
+def test_the_framebuffer_has_one_sample_per_pixel():
+    """pyrender's 4× multisampled framebuffer is asked for one sample (render.import_pyrender)."""
+    from aslam.recorder.render import PyrenderRenderer
+
+    world = generate_world(routes.preset("paper").poses(), seed=0)
+    with PyrenderRenderer(world, SMALL) as renderer:
+        renderer.render(np.array([1.0, 0.0, 0.0]))
+        from OpenGL import GL
+
+        inner = renderer._renderer._renderer
+        if inner._main_cb_ms is None:  # a platform without framebuffer objects (OSMesa): nothing to ask
+            pytest.skip("no multisampled framebuffer on this platform")
+        GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, inner._main_cb_ms)
+        samples = GL.glGetRenderbufferParameteriv(GL.GL_RENDERBUFFER, GL.GL_RENDERBUFFER_SAMPLES)
+    assert int(samples) == 0
+
+
 def test_render_is_not_blank_and_places_differ():
     from aslam.recorder.render import PyrenderRenderer
 
