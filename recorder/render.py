@@ -109,8 +109,9 @@ def import_pyrender():
     pyrender always renders into a 4× multisampled framebuffer and has no setting for it. On Mesa's
     CPU rasteriser that costs a fifth to a third of every frame (a grid world's bare render loop,
     measured side by side: 44–47 frames/s against 52–60 with one sample) for smoother polygon edges
-    only — the textures are filtered by their mipmaps either way. Measured on 30 robustness-matrix runs rendered both ways, the estimates' precision
-    and recall were the same (one jitter run: one more correct claim). So the framebuffer pyrender
+    only — the textures are filtered by their mipmaps either way. Measured on 30 robustness-matrix
+    runs rendered both ways, the estimates' precision and recall were the same (one jitter run: one
+    more correct claim). So the framebuffer pyrender
     allocates gets one sample (``samples=0``); the bench's bare pyrender loop renders the same way.
     """
     select_platform()
