@@ -29,6 +29,7 @@ RESULTS = ROOT / "bench" / "results" / "benchmarks.json"
 ROBUST_MATRIX = "robust_matrix.md"
 """The robust-revisit matrix's table (``bench/robust_matrix.py --markdown``), beside the results."""
 ROBUST_HELD_OUT = "robust_matrix_held_out.md"
+ROBUST_MIXES = "robust_matrix_mixes.md"
 """The same families on held-out seeds and routes (``--routes … bench/routes/*.json --seeds 6 7 8``)."""
 TEMPLATES = Path(__file__).resolve().parent / "templates"
 DRIFT_PLOT = "long-run-drift.png"
@@ -131,6 +132,7 @@ def context(
     rel_img: str,
     robust_matrix: str | None = None,
     robust_held_out: str | None = None,
+    robust_mixes: str | None = None,
 ) -> dict[str, Any]:
     """Every value the template shows, from the results JSON (and the robust-revisit matrix's
     tables, made apart by ``bench/robust_matrix.py``, when there are)."""
@@ -155,6 +157,7 @@ def context(
         "results": results,
         "robust_matrix": robust_matrix,
         "robust_held_out": robust_held_out,
+        "robust_mixes": robust_mixes,
         "started": f"{datetime.datetime.fromisoformat(results['started']):%Y-%m-%d %H:%M %Z}",
         "minutes": minutes,
         "seconds": seconds,
@@ -226,6 +229,7 @@ def render_text(
     rel_img: str = "img",
     robust_matrix: str | None = None,
     robust_held_out: str | None = None,
+    robust_mixes: str | None = None,
 ) -> str:
     """The document for ``results`` (no file written)."""
     import jinja2
@@ -240,7 +244,7 @@ def render_text(
     environment.filters |= {"fmt": fmt, "agg": agg, "f": format}
     environment.globals["table"] = tables.table
     text = environment.get_template("benchmarks.md").render(
-        context(results, rel_img, robust_matrix, robust_held_out)
+        context(results, rel_img, robust_matrix, robust_held_out, robust_mixes)
     )
     return text.rstrip() + "\n"
 
@@ -252,9 +256,9 @@ def render(results_path: Path, doc: Path, img: Path) -> None:
     long_run = results["runs"][results["families"]["long"][0]]
     drift_plot(long_run, img / DRIFT_PLOT)
     doc.parent.mkdir(parents=True, exist_ok=True)
-    paths = [results_path.with_name(name) for name in (ROBUST_MATRIX, ROBUST_HELD_OUT)]
-    matrix, held_out = (path.read_text() if path.exists() else None for path in paths)
-    doc.write_text(render_text(results, os.path.relpath(img, doc.parent), matrix, held_out))
+    paths = [results_path.with_name(name) for name in (ROBUST_MATRIX, ROBUST_HELD_OUT, ROBUST_MIXES)]
+    matrix, held_out, mixes = (path.read_text() if path.exists() else None for path in paths)
+    doc.write_text(render_text(results, os.path.relpath(img, doc.parent), matrix, held_out, mixes))
 
 
 def main() -> None:

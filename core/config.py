@@ -216,6 +216,13 @@ class EstimatorConfig:
         " odometry reset). Each keyframe, a distinctive place found by appearance over the whole map"
         " is proposed with this prior and must be confirmed by the next keyframe (0 = never).",
     )
+    odometry_jump_factor: float = _param(
+        4.0,
+        "An odometry step over this × the median of the run's recent steps is an odometry failure (a reset,"
+        " a driver restart), not a motion: nothing is predicted from it and the robot may be at any of the"
+        " map_relocalisation_candidates places most alike. Independent of relocalisation_prior, so a robot"
+        " that is never carried can turn appearance jumps off and still survive a reset (0 = never).",
+    )
     relocalisation_candidates: int = _param(
         12,
         "Places most similar by the index (exact, or an inverted file beyond 2,048 places) then compared"
@@ -301,6 +308,7 @@ class EstimatorConfig:
             "cells_y": 1,
             "candidate_search": "path",
             "relocalisation_prior": 0.0,
+            "odometry_jump_factor": 0.0,
             "keyframe_adaptive": "off",
             "keyframe_window_m": 0.0,
             "place_radius_m": 0.2,
@@ -365,6 +373,7 @@ RANGES: dict[str, Bounds] = {
     "contradiction_ratio": Bounds(0, 1),
     "new_state_coverage": Bounds(0, 1, high_open=True),
     "relocalisation_prior": Bounds(0, 1, high_open=True),
+    "odometry_jump_factor": Bounds(0, 1000),
     "relocalisation_candidates": Bounds(1, 10_000, integer=True),
     "relocalisation_skip": Bounds(0, 100_000, integer=True),
     "map_relocalisation_prior": Bounds(0, 1, high_open=True),

@@ -199,6 +199,8 @@ class HypothesisTree:
         """Prior of entering a prior map at one of the places appearance proposes (the revisit prior
         shared among ``relocalisation_candidates``): at the session's start, and whenever the best
         hypothesis is off the map."""
+        self._jump_factor = config.odometry_jump_factor if relocalise_within else 0.0
+        """Odometry jumps are looked for only where there is odometry to fail."""
         self._recent_steps = WindowMedian(JUMP_WINDOW)
         self._map_states = np.zeros(0, np.int64)
         """The prior map's places in the order they were made: each one's neighbourhood for
@@ -267,7 +269,7 @@ class HypothesisTree:
         log_new = self._log_new_prior + float(self.model.log_likelihood(self.reference.value))
         action = np.asarray(action, dtype=float)
         action_cov = action_covariance(action, self._noise)
-        jumped = self._log_relocalise > -math.inf and self._odometry_jumped(action)
+        jumped = self._jump_factor > 0 and self._odometry_jumped(action)
         if jumped:  # not a motion: nothing to predict from it
             proposals = [(np.zeros(0, np.int64), np.zeros(0)) for _ in self.leaves]
         else:
@@ -380,12 +382,12 @@ class HypothesisTree:
         return bool(np.any(proposals[index][0] == state))
 
     def _odometry_jumped(self, action: np.ndarray) -> bool:
-        """Whether ``action`` is an odometry failure rather than a motion: over ``JUMP_FACTOR`` times
-        the median of the run's recent keyframe steps (an odometry reset, a driver restart). Judged
+        """Whether ``action`` is an odometry failure rather than a motion: over ``odometry_jump_factor``
+        times the median of the run's recent keyframe steps (an odometry reset, a driver restart). Judged
         against the run's own steps, so a dataset with long steps between frames is not flagged."""
         length = math.hypot(float(action[0]), float(action[1]))
         recent = self._recent_steps
-        jumped = len(recent) >= JUMP_WARMUP and length > JUMP_FACTOR * recent.median
+        jumped = len(recent) >= JUMP_WARMUP and length > self._jump_factor * recent.median
         if not jumped and length >= 0.25 * self.config.step_m:  # turns in place are no step
             recent.append(length)
         return jumped
@@ -412,7 +414,8 @@ class HypothesisTree:
         the ``map_relocalisation_candidates`` most alike places are all returned, untested.
         """
         none = (np.zeros(0, np.int64), [], None)
-        if not self.leaves or (self._log_relocalise == -math.inf and self._log_map_relocalise == -math.inf):
+        appearance_off = self._log_relocalise == -math.inf and self._log_map_relocalise == -math.inf
+        if not self.leaves or (appearance_off and not untested):
             return none
         top = self._index.search(
             observation, len(self.committed_state_of_keyframe), self.config.relocalisation_candidates
@@ -860,8 +863,6 @@ _UNKNOWN_LINK = (1e6, 0.0, 0.0, 1e6, 0.0, 1e6)
 """Covariance of a relocalisation link: so uncertain that no search crosses it (weight ≫ bound)."""
 UNKNOWN_REL: Rel = (0.0, 0.0, 0.0, *_UNKNOWN_LINK)
 """A link odometry did not measure (a session's first keyframe, a prior map's arrivals)."""
-JUMP_FACTOR = 4.0
-"""An action this many times the median recent keyframe step is an odometry jump, not a motion."""
 JUMP_WINDOW = 50
 """Recent keyframe steps the median is taken over."""
 JUMP_WARMUP = 5

@@ -230,3 +230,10 @@ def test_values_land_in_their_tables(results: dict[str, Any], tmp_path: Path) ->
 
 def test_rendering_is_deterministic(results: dict[str, Any]) -> None:
     assert render.render_text(results) == render.render_text(json.loads(json.dumps(results)))
+
+
+def test_matrix_tables_appear_where_given(results: dict[str, Any]) -> None:
+    text = render.render_text(results, "img", "MATRIX-TABLE", "HELD-OUT-TABLE", "MIXES-TABLE")
+    assert text.index("MATRIX-TABLE") < text.index("HELD-OUT-TABLE") < text.index("MIXES-TABLE")
+    assert "### Held out: knobs mixed" in text
+    assert "knobs mixed" not in render.render_text(results, "img", "MATRIX-TABLE", "HELD-OUT-TABLE")

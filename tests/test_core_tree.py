@@ -370,23 +370,38 @@ def _reset_run(world: SyntheticWorld, reset_at: int, config: EstimatorConfig):
     return estimator, results, truths
 
 
-def test_an_odometry_reset_is_a_jump_not_a_motion():
+@pytest.mark.parametrize("relocalisation_prior", [1e-4, 0.0])
+def test_an_odometry_reset_is_a_jump_not_a_motion(relocalisation_prior):
     """The reset's action (back to the origin, many metres) predicts nothing: on lap 2 the robot is
     relocalised by appearance within two keyframes, every claim right; on lap 1 the map's link
-    across the reset is marked as no constraint."""
+    across the reset is marked as no constraint. Also with appearance jumps off (a robot that is
+    never carried still has odometry that can restart)."""
     reset_at = 34 + 7  # lap 2, on the long side far from the start
-    _, results, truths = _reset_run(SyntheticWorld(5), reset_at, synthetic_config())
+    config = synthetic_config(relocalisation_prior=relocalisation_prior)
+    _, results, truths = _reset_run(SyntheticWorld(5), reset_at, config)
     claims = [t for t in range(reset_at, len(results)) if not results[t].best.is_new_state]
     assert claims and claims[0] - reset_at <= 2
     for t in claims:
         here, there = truths[t], truths[results[t].best.state]
         assert math.hypot(*(here[:2] - there[:2])) < 0.5
     reset_at = 8  # lap 1: nothing to relocalise to yet
-    estimator, _, _ = _reset_run(SyntheticWorld(5), reset_at, synthetic_config())
+    estimator, _, _ = _reset_run(SyntheticWorld(5), reset_at, config)
+    assert _link_across(estimator, reset_at).covariance[0][0] >= 1e5
+
+
+def _link_across(estimator: Estimator, keyframe: int):
+    """The map's link between the places of ``keyframe - 1`` and ``keyframe``."""
     state_of = {k: s.id for s in estimator.result().states for k in s.keyframes}
-    ends = {state_of[reset_at - 1], state_of[reset_at]}
-    across = [link for link in estimator.result().links if {link.from_state, link.to_state} == ends]
-    assert across and across[0].covariance[0][0] >= 1e5
+    ends = {state_of[keyframe - 1], state_of[keyframe]}
+    return next(link for link in estimator.result().links if {link.from_state, link.to_state} == ends)
+
+
+def test_the_jump_test_can_be_turned_off():
+    """``odometry_jump_factor`` 0 (as --paper-faithful): the reset's action is taken for a motion."""
+    config = synthetic_config(odometry_jump_factor=0.0)
+    estimator, _, _ = _reset_run(SyntheticWorld(5), 8, config)
+    assert _link_across(estimator, 8).covariance[0][0] < 1.0
+    assert EstimatorConfig.paper_faithful().odometry_jump_factor == 0.0
 
 
 def test_long_steps_throughout_are_no_jump():
