@@ -221,7 +221,8 @@ class EstimatorConfig:
         "An odometry step over this × the median of the run's recent steps is an odometry failure (a reset,"
         " a driver restart), not a motion: nothing is predicted from it and the robot may be at any of the"
         " map_relocalisation_candidates places most alike. Independent of relocalisation_prior, so a robot"
-        " that is never carried can turn appearance jumps off and still survive a reset (0 = never).",
+        " that is never carried can turn appearance jumps off and still survive a reset (0 = never; else"
+        " above 1).",
     )
     relocalisation_candidates: int = _param(
         12,
@@ -289,6 +290,9 @@ class EstimatorConfig:
             value = getattr(self, name)
             if value not in choices:
                 problems.append(f"{name} must be {' or '.join(map(repr, choices))}, got {value!r}")
+        jump = self.odometry_jump_factor
+        if isinstance(jump, float | int) and 0 < jump <= 1:  # every ordinary step would be a jump
+            problems.append(f"odometry_jump_factor must be 0 (off) or above 1, got {jump!r}")
         if isinstance(self.histogram_bins, int) and self.histogram_bins % 2:
             problems.append(f"histogram_bins must be even, got {self.histogram_bins}")
         length = self.histogram_bins * self.cells_x * self.cells_y

@@ -169,6 +169,7 @@ def test_ctrl_c_inside_a_native_import_is_an_interrupt(recording: Path, tmp_path
         (["--step-m", "-1"], "step_m"),
         (["--step-m", "abc"], "step-m"),
         (["--max-hypotheses", "0", "--beta", "0"], "beta"),
+        (["--odometry-jump-factor", "0.5"], "odometry_jump_factor must be 0 (off) or above 1"),
     ],
 )
 def test_bad_option_values_are_one_line_exit_2(recording: Path, tmp_path: Path, capsys, extra, needle):
