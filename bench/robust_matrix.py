@@ -15,6 +15,8 @@ the CLI.
     python bench/robust_matrix.py --seeds 6 7 8 --workers 2 \
         --routes paper figure8 grid bench/routes/ell.json bench/routes/corridor.json \
         --markdown bench/results/robust_matrix_held_out.md    # held out
+    python bench/robust_matrix.py --families mix-fps5-lighting50 mix-fps10-noise5 … --seeds 6 7 \
+        --markdown bench/results/robust_matrix_mixes.md     # knobs mixed (MIXES), held out
     python bench/robust_matrix.py --table-from bench/results/robust_matrix.json --markdown M.md
 
 Prints one row per (family, route, seed, estimator), then per-family means and worst cases; with
