@@ -7,6 +7,7 @@ folder on ``sys.path``.
 from __future__ import annotations
 
 import math
+import signal
 import sys
 from pathlib import Path
 from typing import Any
@@ -22,6 +23,19 @@ from aslam.data_formats import ros_msgs
 from aslam.data_formats.camera import CameraIntrinsics
 from aslam.data_formats.images import EncodedImage, ImageFormat, encode_image
 from aslam.data_formats.recording_writer import RecordingWriter
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _interruptible():
+    """Ctrl-C reaches the tests as it reaches a user. Started as a background job (``make test &``,
+    ``nohup``) the test process ignores SIGINT, which aslam rightly keeps ignoring
+    (:mod:`aslam.cli.entry`) and every ``aslam`` it starts inherits: the tests that interrupt an
+    estimate would then watch it finish."""
+    previous = signal.getsignal(signal.SIGINT)
+    if previous is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
 
 
 def one_error_line(err: str) -> str:
