@@ -17,6 +17,7 @@ the CLI.
         --markdown bench/results/robust_matrix_held_out.md    # held out
     python bench/robust_matrix.py --families mix-fps5-lighting50 mix-fps10-noise5 … --seeds 6 7 \
         --markdown bench/results/robust_matrix_mixes.md     # knobs mixed (MIXES), held out
+    python bench/robust_matrix.py --families kidnap@lighting50 reset@fps5 …   # events on other renders
     python bench/robust_matrix.py --table-from bench/results/robust_matrix.json --markdown M.md
 
 Prints one row per (family, route, seed, estimator), then per-family means and worst cases; with
@@ -74,18 +75,38 @@ MIXES: dict[str, dict[str, Any]] = {
 }
 
 
+#: A kidnap or a reset made from another family's renders (``EVENT@FAMILY``): the events where the
+#: lap is lit differently, the stream is dense, the world aliased or the odometry noisier. Held out
+#: as the mixes are; not in the default ``--families``.
+EVENT_MIXES = (
+    "kidnap@lighting50",
+    "kidnap@fps5",
+    "kidnap@alias50",
+    "kidnap@noise5",
+    "reset@lighting50",
+    "reset@fps5",
+    "reset@alias50",
+)
+
+
+def base_family(family: str) -> str:
+    """The family a derived one is made from: ``default``, or what follows ``@``."""
+    return family.partition("@")[2] or "default"
+
+
 def kidnap_window(family: str) -> tuple[float, float] | None:
     """The shares of the run at which a kidnap family's robot is picked up and put down: ``kidnap``
     60 % → 80 %, ``kidnapAA-BB`` AA % → BB % (``--kidnap-windows``); None for any other family."""
-    if family == "kidnap":
+    event = family.partition("@")[0]
+    if event == "kidnap":
         return (0.6, 0.8)
-    match = re.fullmatch(r"kidnap(\d+)-(\d+)", family)
+    match = re.fullmatch(r"kidnap(\d+)-(\d+)", event)
     return (int(match[1]) / 100, int(match[2]) / 100) if match else None
 
 
 def is_derived(family: str) -> bool:
-    """Made from the default render of its route and seed (a kidnap, an odometry reset)."""
-    return family == "reset" or kidnap_window(family) is not None
+    """Made from another family's render of its route and seed (a kidnap, an odometry reset)."""
+    return family.partition("@")[0] == "reset" or kidnap_window(family) is not None
 
 
 ROUTES = ("paper", "figure8", "grid")
@@ -129,12 +150,13 @@ class Scenario:
     @property
     def base(self) -> Scenario:
         """The rendered scenario this one is made from (itself unless derived)."""
-        return Scenario("default", self.route, self.seed) if is_derived(self.family) else self
+        return Scenario(base_family(self.family), self.route, self.seed) if is_derived(self.family) else self
 
     @property
     def settings(self) -> dict[str, Any]:
+        """The recorder settings of the render (a derived family's: its base's)."""
         if is_derived(self.family):
-            return FAMILIES.get(self.family, {})
+            return self.base.settings
         return MIXES[self.family] if self.family in MIXES else FAMILIES[self.family]
 
     def record_config(self):  # -> RecordConfig
@@ -529,7 +551,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--families", nargs="+", default=list(FAMILIES), choices=[*FAMILIES, *MIXES])
+    parser.add_argument(
+        "--families", nargs="+", default=list(FAMILIES), choices=[*FAMILIES, *MIXES, *EVENT_MIXES]
+    )
     parser.add_argument(
         "--routes",
         nargs="+",

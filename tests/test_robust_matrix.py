@@ -31,3 +31,17 @@ def test_a_route_that_is_neither_a_preset_nor_a_file_is_refused(capsys):
     with pytest.raises(SystemExit):
         main(["--routes", "nowhere.json", "--render-only"])
     assert "neither a preset" in capsys.readouterr().err
+
+
+def test_mixes_and_events_on_other_renders_are_scenarios():
+    """A knob mix records with every knob it names; an event made from another family's render
+    is derived from that render and its estimate is told that family's odometry noise."""
+    mix = Scenario("mix-fps10-noise5", "paper", 6)
+    config = mix.record_config()
+    assert config.fps == 10.0 and config.noise.noise == 0.05
+    kidnap = Scenario("kidnap@noise5", "grid", 7)
+    assert kidnap.base.name == "noise5-grid-seed7"
+    assert kidnap.settings == {"noise": 0.05}
+    assert kidnap.command().endswith("derive kidnap@noise5")
+    assert Scenario("reset@fps5", "paper", 6).base.name == "fps5-paper-seed6"
+    assert Scenario("kidnap", "paper", 6).base.name == "default-paper-seed6"
