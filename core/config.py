@@ -216,6 +216,17 @@ class EstimatorConfig:
         " odometry reset). Each keyframe, a distinctive place found by appearance over the whole map"
         " is proposed with this prior and must be confirmed by the next keyframe (0 = never).",
     )
+    relocalisation_lost_prior: float = _param(
+        0.1,
+        "For lost_window keyframes after the robot lost track (the best hypothesis was at a mapped place"
+        " and now at none), a place appearance alone singles out is proposed with this prior instead of"
+        " relocalisation_prior: after a kidnap the right places often look only a little more alike than"
+        " a new place (another light, a view off the first visit's line), and at 1e-4 such a jump was"
+        " pruned before the next keyframe could confirm it (0 = relocalisation_prior throughout).",
+    )
+    lost_window: int = _param(
+        5, "Keyframes after a loss of track during which relocalisation_lost_prior holds."
+    )
     odometry_jump_factor: float = _param(
         4.0,
         "An odometry step over this × the median of the run's recent steps is an odometry failure (a reset,"
@@ -312,6 +323,7 @@ class EstimatorConfig:
             "cells_y": 1,
             "candidate_search": "path",
             "relocalisation_prior": 0.0,
+            "relocalisation_lost_prior": 0.0,
             "odometry_jump_factor": 0.0,
             "keyframe_adaptive": "off",
             "keyframe_window_m": 0.0,
@@ -377,6 +389,8 @@ RANGES: dict[str, Bounds] = {
     "contradiction_ratio": Bounds(0, 1),
     "new_state_coverage": Bounds(0, 1, high_open=True),
     "relocalisation_prior": Bounds(0, 1, high_open=True),
+    "relocalisation_lost_prior": Bounds(0, 1, high_open=True),
+    "lost_window": Bounds(0, 100_000, integer=True),
     "odometry_jump_factor": Bounds(0, 1000),
     "relocalisation_candidates": Bounds(1, 10_000, integer=True),
     "relocalisation_skip": Bounds(0, 100_000, integer=True),

@@ -190,6 +190,14 @@ class HypothesisTree:
             if config.relocalisation_prior > 0 and relocalise_within
             else -math.inf
         )
+        self._log_relocalise_lost = (
+            math.log(config.revisit_prior) + math.log(config.relocalisation_lost_prior)
+            if config.relocalisation_lost_prior > 0 and relocalise_within
+            else self._log_relocalise
+        )
+        self._lost_at = -math.inf
+        """The keyframe the robot last lost track: the best hypothesis went from a mapped place to a
+        new one (a kidnap, a stretch the views no longer explain, or simply the end of mapped ground)."""
         self._log_map_relocalise = (
             math.log(config.revisit_prior) + math.log(config.map_relocalisation_prior)
             if config.map_relocalisation_prior > 0
@@ -338,6 +346,8 @@ class HypothesisTree:
                     rel[:3] + _UNKNOWN_LINK
                 )  # odometry does not link the places: the search never crosses it
             leaves.append(self._new_node(keyframe, state, parent, log_belief, is_new, rel))
+        if not self.leaves[0].is_new and leaves[0].is_new:
+            self._lost_at = keyframe
         self.leaves = leaves
         self._commit_shared_history()
         self._record_count(len(leaves))
@@ -407,7 +417,8 @@ class HypothesisTree:
         inverted file of k-means cells beyond) shortlists the ``relocalisation_candidates`` most
         similar committed places; they are then compared exactly. The best is returned if it looks
         more alike than the new-place reference, clearly more alike than the runner-up, and the
-        motion model did not propose it.
+        motion model did not propose it; its prior is ``relocalisation_lost_prior`` for
+        ``lost_window`` keyframes after the robot lost track, ``relocalisation_prior`` otherwise.
         In a prior map, the ``map_relocalisation_candidates`` most alike of the map's own places are
         returned too, untested (``map_relocalisation_prior``): the sequence that follows decides.
         After an odometry jump (``untested``) the robot may be anywhere: as at a session's start,
@@ -446,7 +457,8 @@ class HypothesisTree:
         if self._log_relocalise > -math.inf:
             own = self._distinctive(observation, top, distances, order, proposed)
             found += own
-            priors += [self._log_relocalise] * len(own)
+            lost = keyframe - self._lost_at <= self.config.lost_window
+            priors += [self._log_relocalise_lost if lost else self._log_relocalise] * len(own)
             distinctive = own[0] if own else None
         return np.array(found, dtype=np.int64), priors, distinctive
 

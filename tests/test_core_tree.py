@@ -259,31 +259,51 @@ def test_adaptive_keyframing_changes_nothing_at_one_pose_per_step(moves):
         assert (a is None) == (b is None)
 
 
-def test_relocalises_after_a_kidnap_by_appearance():
-    """Carried from the middle of lap 2 to another side of the rectangle, odometry unaware."""
+def _kidnap_run(config: EstimatorConfig, noise_after: float = 0.05, keyframes_after: int = 8):
+    """Carried from the middle of lap 2 to another side of the rectangle, odometry unaware; from
+    then on the views are copies of their places with ``noise_after`` (another light)."""
     world = SyntheticWorld(3)
     actions = rectangle_actions(2)
-    estimator = Estimator(synthetic_config())  # the default relocalisation prior
+    estimator = Estimator(config)
     rng = np.random.default_rng(0)
     truths = [np.zeros(3)]
     results = [estimator.add_keyframe(0, np.zeros(3), world.observe(truths[0]))]
     kidnap_at = 34 + 5
-    for i, action in enumerate(actions[: kidnap_at + 8], start=1):
+    for i, action in enumerate(actions[: kidnap_at + keyframes_after], start=1):
         truth = se2.compose(truths[-1], action)
         if i == kidnap_at:
             truth = np.array([10.0, 5.0, math.pi])  # the far corner, facing back
+            world.noise = noise_after
         truths.append(truth)
         measured = action * (1 + 0.03 * rng.standard_normal(3))
         results.append(estimator.add_keyframe(i, measured, world.observe(truth)))
     after = list(range(kidnap_at, len(results)))
-    first = next((t for t in after if not results[t].best.is_new_state), None)
-    assert first is not None and first - kidnap_at <= 3, "not relocalised within 3 keyframes"
     for t in after:
         best = results[t].best
         if not best.is_new_state:  # every claim names the place truly visited on lap 1
             here, there = truths[t], truths[best.state]
             assert math.hypot(*(here[:2] - there[:2])) < 0.5
             assert abs(se2.wrap_angle(here[2] - there[2])) < 0.5
+    first = next((t for t in after if not results[t].best.is_new_state), None)
+    return None if first is None else first - kidnap_at
+
+
+def test_relocalises_after_a_kidnap_by_appearance():
+    delay = _kidnap_run(synthetic_config())  # the default relocalisation priors
+    assert delay is not None and delay <= 3, "not relocalised within 3 keyframes"
+
+
+def test_after_losing_track_a_weaker_match_relocalises():
+    """Put down where the views match their places only moderately (another light): for
+    ``lost_window`` keyframes after losing track a jump is proposed with ``relocalisation_lost_prior``
+    and relocalises within 2 keyframes; with ``relocalisation_prior`` throughout the jump is pruned
+    before the next keyframe can confirm it, keyframe after keyframe."""
+    delay = _kidnap_run(synthetic_config(), noise_after=0.4, keyframes_after=12)
+    assert delay is not None and delay <= 2
+    assert (
+        _kidnap_run(synthetic_config(relocalisation_lost_prior=0.0), noise_after=0.4, keyframes_after=12)
+        is None
+    )
 
 
 class ThumbnailWorld:
