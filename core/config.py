@@ -222,7 +222,8 @@ class EstimatorConfig:
         " and now at none), a place appearance alone singles out is proposed with this prior instead of"
         " relocalisation_prior: after a kidnap the right places often look only a little more alike than"
         " a new place (another light, a view off the first visit's line), and at 1e-4 such a jump was"
-        " pruned before the next keyframe could confirm it (0 = relocalisation_prior throughout).",
+        " pruned before the next keyframe could confirm it (0 = relocalisation_prior throughout; no jumps"
+        " at all while relocalisation_prior is 0).",
     )
     lost_window: int = _param(
         5, "Keyframes after a loss of track during which relocalisation_lost_prior holds."
