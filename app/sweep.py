@@ -19,6 +19,7 @@ rows, except the timing and worker columns.
 
 from __future__ import annotations
 
+import gc
 import hashlib
 import json
 import os
@@ -383,7 +384,13 @@ def open_client(*, workers: int | None, scheduler: str | None) -> Any:
         try:
             return Client(scheduler, timeout="10s")
         except (OSError, TimeoutError, ValueError) as err:  # ValueError: not an address
-            raise InputError(f"cannot reach the Dask scheduler at {scheduler}: {err}") from err
+            message = f"cannot reach the Dask scheduler at {scheduler}: {err}"
+        # The half-made Client is a reference cycle (its own handlers) that only the garbage collector
+        # frees, closing it then: at a random later moment, and if that is inside another Client's
+        # start, distributed deadlocks (the loop runner's lock, held, taken again by the dying
+        # client's close; seen in the test suite). Collected here, where nothing else is starting.
+        gc.collect()
+        raise InputError(message)
     count = (
         workers
         if workers is not None

@@ -23,6 +23,7 @@ from aslam.app.sweep import (
     VARYING_COLUMNS,
     Objective,
     TaskResult,
+    open_client,
     pareto_front,
     plan_tasks,
     resolve_objectives,
@@ -346,6 +347,23 @@ def test_a_bad_scheduler_address_is_exit_2(recordings, tmp_path, capsys):
         ["sweep", str(sweep), "-o", str(tmp_path / "out"), "--scheduler", "tcp://x:1", "--workers", "2"]
     )
     assert code == 2 and "--workers sizes a local cluster" in capsys.readouterr().err
+
+
+def test_a_client_that_could_not_connect_is_gone_at_once(tmp_path):
+    """Left to the garbage collector, it would be closed at a random later moment, which inside
+    another Client's start deadlocks distributed (it hung the suite once)."""
+    import gc
+
+    import distributed
+
+    gc.disable()  # only an explicit collection may free it
+    try:
+        with pytest.raises(InputError, match="cannot reach the Dask scheduler"):
+            open_client(workers=None, scheduler="nonsense")
+        left = [o for o in gc.get_objects() if isinstance(o, distributed.Client) and "nonsense" in repr(o)]
+    finally:
+        gc.enable()
+    assert left == []
 
 
 def test_several_grids_run_in_turn_and_every_row_shows_the_effective_values(tmp_path, recordings):
