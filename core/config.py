@@ -228,6 +228,18 @@ class EstimatorConfig:
     lost_window: int = _param(
         5, "Keyframes after a loss of track during which relocalisation_lost_prior holds."
     )
+    jump_alarm_rate: float = _param(
+        0.01,
+        "Share of keyframes at which appearance is expected to single out a place the motion model did not"
+        " propose while the robot is not lost. Where the run's own share is higher (an aliased world: look-"
+        " alike places far apart), such a view is weaker evidence of a jump, and both jump priors are scaled"
+        " by (this / the run's share)^jump_alarm_power; the share is counted from the run's start with this"
+        " rate as a prior worth 1/rate keyframes (0 = never scaled).",
+    )
+    jump_alarm_power: float = _param(
+        4.0,
+        "How steeply the jump priors fall as the share of look-alike alarms rises (see jump_alarm_rate).",
+    )
     odometry_jump_factor: float = _param(
         4.0,
         "An odometry step over this × the median of the run's recent steps is an odometry failure (a reset,"
@@ -325,6 +337,7 @@ class EstimatorConfig:
             "candidate_search": "path",
             "relocalisation_prior": 0.0,
             "relocalisation_lost_prior": 0.0,
+            "jump_alarm_rate": 0.0,
             "odometry_jump_factor": 0.0,
             "keyframe_adaptive": "off",
             "keyframe_window_m": 0.0,
@@ -392,6 +405,8 @@ RANGES: dict[str, Bounds] = {
     "relocalisation_prior": Bounds(0, 1, high_open=True),
     "relocalisation_lost_prior": Bounds(0, 1, high_open=True),
     "lost_window": Bounds(0, 100_000, integer=True),
+    "jump_alarm_rate": Bounds(0, 1, high_open=True),
+    "jump_alarm_power": Bounds(0, 100),
     "odometry_jump_factor": Bounds(0, 1000),
     "relocalisation_candidates": Bounds(1, 10_000, integer=True),
     "relocalisation_skip": Bounds(0, 100_000, integer=True),

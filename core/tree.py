@@ -109,6 +109,14 @@ class WindowMedian:
         return ordered[middle] if len(ordered) % 2 else (ordered[middle - 1] + ordered[middle]) / 2
 
 
+@dataclass
+class AlarmCount:
+    """Keyframes at which the robot was not lost, and how many jumps appearance proposed at them."""
+
+    keyframes: int = 0
+    count: int = 0
+
+
 class NewPlaceReference:
     """The distance an unseen place is taken to have: fixed, or calibrated on the run's own views.
 
@@ -196,6 +204,7 @@ class HypothesisTree:
             else self._log_relocalise
         )
         self._lost_at = -math.inf
+        self._alarms = AlarmCount()
         """The keyframe the robot last lost track: the best hypothesis went from a mapped place to a
         new one (a kidnap, a stretch the views no longer explain, or simply the end of mapped ground)."""
         self._log_map_relocalise = (
@@ -458,9 +467,25 @@ class HypothesisTree:
             own = self._distinctive(observation, top, distances, order, proposed)
             found += own
             lost = keyframe - self._lost_at <= self.config.lost_window
-            priors += [self._log_relocalise_lost if lost else self._log_relocalise] * len(own)
+            log_prior = self._log_relocalise_lost if lost else self._log_relocalise
+            log_prior += self._log_alarm_scale()
+            priors += [log_prior] * len(own)
             distinctive = own[0] if own else None
+            if not lost:
+                self._alarms.keyframes += 1
+                self._alarms.count += len(own)
         return np.array(found, dtype=np.int64), priors, distinctive
+
+    def _log_alarm_scale(self) -> float:
+        """The log of what the jump priors are scaled by: (expected / the run's share of alarms)^power,
+        at most 1. An alarm is a place appearance alone singled out while the robot was not lost; in a
+        world where such look-alikes keep turning up, the next one is little evidence of a kidnap."""
+        rate = self.config.jump_alarm_rate
+        if rate <= 0:
+            return 0.0
+        alarms = self._alarms
+        share = (alarms.count + 1.0) / (alarms.keyframes + 1.0 / rate)
+        return self.config.jump_alarm_power * min(0.0, math.log(rate / share))
 
     def _distinctive(
         self,

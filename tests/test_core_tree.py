@@ -446,3 +446,49 @@ def test_the_running_median_is_numpys_median_of_the_window(values, window):
         recent = values[max(0, i + 1 - window) : i + 1]
         assert len(running) == len(recent)
         assert running.median == float(np.median(recent))  # the same bits, not just close
+
+
+def _wrong_claims(config: EstimatorConfig, seed: int, alphabet: int) -> int:
+    """Claims naming a place 0.5 m or more from where the robot truly is, over three laps of a
+    world whose places share ``alphabet`` views: look-alikes everywhere, far apart."""
+    world = SyntheticWorld(seed, alphabet=alphabet)
+    actions = rectangle_actions(3)
+    _, results = run(actions, world, config, seed=seed)
+    truths = [np.zeros(3)]
+    for action in actions:
+        truths.append(se2.compose(truths[-1], action))
+    return sum(
+        1
+        for t, result in enumerate(results)
+        if not result.best.is_new_state
+        and math.hypot(*(truths[t][:2] - truths[result.best.state][:2])) >= 0.5
+    )
+
+
+@pytest.mark.parametrize(("seed", "alphabet"), [(4, 8), (2, 12)])
+def test_in_an_aliased_world_look_alike_alarms_weaken_the_jumps(seed, alphabet):
+    """Where appearance keeps singling out places the motion model did not propose, a jump is weak
+    evidence: the jump priors fall with the run's share of such alarms, and the look-alike jumps
+    that made most of these wrong claims are not taken."""
+    without = _wrong_claims(synthetic_config(jump_alarm_rate=0.0), seed, alphabet)
+    assert _wrong_claims(synthetic_config(), seed, alphabet) <= without / 3
+
+
+@given(
+    keyframes=st.integers(0, 5000),
+    alarms=st.integers(0, 5000),
+    rate=st.floats(1e-4, 0.5),
+    power=st.floats(0, 10),
+)
+def test_the_alarm_scale_is_one_until_alarms_outrun_their_expected_rate(keyframes, alarms, rate, power):
+    tree = HypothesisTree(synthetic_config(jump_alarm_rate=rate, jump_alarm_power=power))
+    tree._alarms.keyframes, tree._alarms.count = keyframes, min(alarms, keyframes)
+    share = (tree._alarms.count + 1) / (keyframes + 1 / rate)
+    scale = tree._log_alarm_scale()
+    assert scale <= 0.0
+    if share <= rate:
+        assert scale == 0.0
+    else:
+        assert scale == pytest.approx(power * math.log(rate / share))
+    tree._alarms.count += 1  # one more alarm never strengthens a jump
+    assert tree._log_alarm_scale() <= scale + 1e-12
