@@ -230,11 +230,12 @@ class EstimatorConfig:
     )
     jump_alarm_rate: float = _param(
         0.01,
-        "Share of keyframes at which appearance is expected to single out a place the motion model did not"
-        " propose while the robot is not lost. Where the run's own share is higher (an aliased world: look-"
-        " alike places far apart), such a view is weaker evidence of a jump, and both jump priors are scaled"
-        " by (this / the run's share)^jump_alarm_power; the share is counted from the run's start with this"
-        " rate as a prior worth 1/rate keyframes (0 = never scaled).",
+        "Expected share of keyframes with a false alarm: appearance singling out a place the motion model did"
+        " not propose while the robot is not lost, in an episode (alarms at most 2 keyframes apart) of which"
+        " no jump was taken. Where the run's own share is higher (an aliased world: look-alike places far"
+        " apart), such a view is weaker evidence of a kidnap, and both jump priors are scaled by (this / the"
+        " run's share)^jump_alarm_power; the share counts from the run's start with this rate as a prior"
+        " worth 1/rate keyframes (0 = never scaled).",
     )
     jump_alarm_power: float = _param(
         4.0,

@@ -16,7 +16,8 @@ import heapq
 import math
 from bisect import bisect_left, insort
 from collections import deque
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -111,10 +112,38 @@ class WindowMedian:
 
 @dataclass
 class AlarmCount:
-    """Keyframes at which the robot was not lost, and how many jumps appearance proposed at them."""
+    """Keyframes at which the robot was not lost, and the look-alike alarms that were never taken.
+
+    Alarms come in episodes (keyframes at most ``ALARM_EPISODE_GAP`` apart). An episode counts
+    once, when it is over, and only if the best hypothesis took none of its jumps: a kidnapped
+    robot's views single out the right places keyframe after keyframe until one is taken, and a
+    place a jump rightly found is no false alarm either.
+    """
 
     keyframes: int = 0
     count: int = 0
+    episode: list[tuple[int, int]] = field(default_factory=list)
+    """(keyframe, place) of each jump the open episode proposed."""
+
+    def close_before(self, keyframe: int, taken: Callable[[int, int], bool]) -> None:
+        """End the open episode if its last alarm is over ``ALARM_EPISODE_GAP`` keyframes before
+        ``keyframe``; ``taken(k, place)``: whether the best hypothesis now puts keyframe k there."""
+        if self.episode and keyframe - self.episode[-1][0] > ALARM_EPISODE_GAP:
+            if not any(taken(k, place) for k, place in self.episode):
+                self.count += 1
+            self.episode.clear()
+
+    def add(self, keyframe: int, place: int | None, lost: bool) -> None:
+        """One keyframe's jump test: ``place`` the place it singled out, if any. An episode begins
+        only while the robot is tracked; once begun, it runs on while the robot is lost."""
+        if not lost:
+            self.keyframes += 1
+        if place is not None and (self.episode or not lost):
+            self.episode.append((keyframe, place))
+
+    def share(self, rate: float) -> float:
+        """The run's share of false alarms, with ``rate`` as a prior worth 1/``rate`` keyframes."""
+        return (self.count + 1.0) / (self.keyframes + 1.0 / rate)
 
 
 class NewPlaceReference:
@@ -467,25 +496,32 @@ class HypothesisTree:
             own = self._distinctive(observation, top, distances, order, proposed)
             found += own
             lost = keyframe - self._lost_at <= self.config.lost_window
+            self._alarms.close_before(keyframe, lambda k, place: self._best_state_at(k) == place)
             log_prior = self._log_relocalise_lost if lost else self._log_relocalise
             log_prior += self._log_alarm_scale()
             priors += [log_prior] * len(own)
             distinctive = own[0] if own else None
-            if not lost:
-                self._alarms.keyframes += 1
-                self._alarms.count += len(own)
+            self._alarms.add(keyframe, distinctive, lost)
         return np.array(found, dtype=np.int64), priors, distinctive
+
+    def _best_state_at(self, keyframe: int) -> int:
+        """The state the best hypothesis assigns to ``keyframe``."""
+        node = self.leaves[0]
+        while node.keyframe > keyframe and node is not self.commit_root:
+            node = node.parent
+        if node.keyframe == keyframe:
+            return node.state
+        return int(self.committed_state_of_keyframe.view[keyframe])
 
     def _log_alarm_scale(self) -> float:
         """The log of what the jump priors are scaled by: (expected / the run's share of alarms)^power,
-        at most 1. An alarm is a place appearance alone singled out while the robot was not lost; in a
-        world where such look-alikes keep turning up, the next one is little evidence of a kidnap."""
+        at most 1. An alarm is a place appearance alone singled out while the robot was not lost (see
+        :class:`AlarmCount`); in a world where such look-alikes keep turning up and are never taken,
+        the next one is little evidence of a kidnap."""
         rate = self.config.jump_alarm_rate
         if rate <= 0:
             return 0.0
-        alarms = self._alarms
-        share = (alarms.count + 1.0) / (alarms.keyframes + 1.0 / rate)
-        return self.config.jump_alarm_power * min(0.0, math.log(rate / share))
+        return self.config.jump_alarm_power * min(0.0, math.log(rate / self._alarms.share(rate)))
 
     def _distinctive(
         self,
@@ -900,6 +936,8 @@ _UNKNOWN_LINK = (1e6, 0.0, 0.0, 1e6, 0.0, 1e6)
 """Covariance of a relocalisation link: so uncertain that no search crosses it (weight ≫ bound)."""
 UNKNOWN_REL: Rel = (0.0, 0.0, 0.0, *_UNKNOWN_LINK)
 """A link odometry did not measure (a session's first keyframe, a prior map's arrivals)."""
+ALARM_EPISODE_GAP = 2
+"""Alarms at most this many keyframes apart are one episode (see :class:`AlarmCount`)."""
 JUMP_WINDOW = 50
 """Recent keyframe steps the median is taken over."""
 JUMP_WARMUP = 5
