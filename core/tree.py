@@ -233,9 +233,9 @@ class HypothesisTree:
             else self._log_relocalise
         )
         self._lost_at = -math.inf
-        self._alarms = AlarmCount()
         """The keyframe the robot last lost track: the best hypothesis went from a mapped place to a
         new one (a kidnap, a stretch the views no longer explain, or simply the end of mapped ground)."""
+        self._alarms = AlarmCount()
         self._log_map_relocalise = (
             math.log(config.revisit_prior) + math.log(config.map_relocalisation_prior)
             if config.map_relocalisation_prior > 0
