@@ -237,6 +237,9 @@ def scaling_rows(speed: dict[str, Any]) -> list[list[str]]:
                 f"{d['last_ms']:.3f}",
                 ratio,
                 met(d["ratio_last_over_first"] <= SCALING_TARGET),
+                "—"
+                if d.get("second_ms") is None
+                else f"{d['second_ms']:.3f}: {d['ratio_last_over_second']:.2f}",
                 f"{d['hypotheses_mean']:.2f} / {d['hypotheses_max']}",
                 f"{d['searched_states_mean']:.0f}",
                 f"{d['peak_rss_mib']:.0f}",

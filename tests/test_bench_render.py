@@ -121,6 +121,8 @@ def speed() -> dict[str, Any]:
         "last_ms": 0.8,
         "ratio_last_over_first": 1.143,
         "ratio_at_start": 1.176,
+        "second_ms": 0.75,
+        "ratio_last_over_second": 1.067,
         "hypotheses_mean": 1.0,
         "hypotheses_max": 1,
         "searched_states_mean": 195.0,

@@ -35,3 +35,12 @@ def test_the_ratio_is_judged_on_the_replayed_window_and_the_start_is_kept():
         assert math.isfinite(result[key]) and result[key] > 0
     assert result["ratio_last_over_first"] == pytest.approx(result["last_ms"] / result["first_ms"])
     assert result["ratio_at_start"] == pytest.approx(result["last_ms"] / result["first_ms_at_start"])
+    assert result["second_ms"] is None  # too short a run for a second window apart from the last
+
+
+def test_a_long_enough_run_also_measures_its_second_window_alongside_the_last(monkeypatch):
+    monkeypatch.setattr(slam_scaling_bench, "WINDOW", 100)
+    monkeypatch.setattr(slam_scaling_bench, "BLOCK", 50)
+    result = slam_scaling_bench.run(500, "blocks", 20, seed=2, trace_memory=False)
+    assert math.isfinite(result["second_ms"]) and result["second_ms"] > 0
+    assert result["ratio_last_over_second"] == pytest.approx(result["last_ms"] / result["second_ms"])
