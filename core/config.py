@@ -108,7 +108,7 @@ class EstimatorConfig:
     keyframe_window_m: float = _param(
         0.35,
         "On a dense stream, each keyframe is taken among the frames within this distance (and 20°) of the"
-        " odometry's choice: the one the best hypothesis most believes is at the place it predicts (by"
+        " odometry's choice: the one the hypotheses, by belief, most believe is at a place they predict (by"
         " appearance and odometry), the next due a step from it, so a second lap's keyframes land on the"
         " first lap's places, not between them (0: odometry's choice, only keyframes decoded).",
     )

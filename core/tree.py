@@ -609,13 +609,16 @@ class HypothesisTree:
         ]
 
     # ------------------------------------------------------------------ prediction
-    def predicted_revisit(self, actions: list[np.ndarray]) -> tuple[int, np.ndarray] | None:
-        """The mapped place the best hypothesis most expects the robot at after ``actions[0]`` (by
-        the motion model alone), and ``log P(x = that place | x', u)`` under each of ``actions`` (the
-        frames near a keyframe); None in new ground, before the first keyframe, at a session's start."""
+    def predicted_revisit(
+        self, actions: list[np.ndarray], leaf: Node | None = None
+    ) -> tuple[int, np.ndarray] | None:
+        """The mapped place ``leaf`` (default: the best hypothesis) most expects the robot at after
+        ``actions[0]`` (by the motion model alone), and ``log P(x = that place | x', u)`` under each
+        of ``actions`` (the frames near a keyframe); None in new ground, before the first keyframe,
+        at a session's start."""
         if not self.leaves or self.leaves[0].state == SESSION_START:
             return None
-        leaf = self.leaves[0]
+        leaf = self.leaves[0] if leaf is None else leaf
         first = np.asarray(actions[0], dtype=float)
         first_cov = action_covariance(first, self._noise)
         searched = self._searched_sum  # a look ahead, not a step: the statistics stay the steps'
