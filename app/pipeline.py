@@ -105,8 +105,8 @@ def keyframes_taken(
     The odometry decides when a keyframe is due — a step from the frame *taken* before, so the
     windows follow the places the map holds rather than the odometry's own schedule (which drifts
     against a first lap's places by up to half a step). Of the frames within ``window_m`` and
-    ``WINDOW_HEADING_DEG`` of the odometry's keyframe the estimator takes the one most like the place
-    it predicts (:meth:`Estimator.choose_keyframe`); the frames after it are tested again from
+    ``WINDOW_HEADING_DEG`` of the odometry's keyframe the estimator takes the one most like the places
+    its hypotheses predict (:meth:`Estimator.choose_keyframe`); the frames after it are tested again from
     there. Runs interleaved with the estimator's steps: each choice sees the map of every keyframe
     before it.
     """
