@@ -32,6 +32,8 @@ ROBUST_HELD_OUT = "robust_matrix_held_out.md"
 """The same families on held-out seeds and routes (``--routes … bench/routes/*.json --seeds 6 7 8``)."""
 ROBUST_MIXES = "robust_matrix_mixes.md"
 """Mixes of the matrix's knobs, held out (``--families mix-…``)."""
+ROBUST_LATER = "robust_matrix_seeds_9_10.md"
+"""The families whose targets hold on seeds 1–8, on seeds 9–10 rendered later (``--seeds 9 10``)."""
 TEMPLATES = Path(__file__).resolve().parent / "templates"
 DRIFT_PLOT = "long-run-drift.png"
 
@@ -134,6 +136,7 @@ def context(
     robust_matrix: str | None = None,
     robust_held_out: str | None = None,
     robust_mixes: str | None = None,
+    robust_later: str | None = None,
 ) -> dict[str, Any]:
     """Every value the template shows, from the results JSON (and the robust-revisit matrix's
     tables, made apart by ``bench/robust_matrix.py``, when there are)."""
@@ -159,6 +162,7 @@ def context(
         "robust_matrix": robust_matrix,
         "robust_held_out": robust_held_out,
         "robust_mixes": robust_mixes,
+        "robust_later": robust_later,
         "started": f"{datetime.datetime.fromisoformat(results['started']):%Y-%m-%d %H:%M %Z}",
         "minutes": minutes,
         "seconds": seconds,
@@ -231,6 +235,7 @@ def render_text(
     robust_matrix: str | None = None,
     robust_held_out: str | None = None,
     robust_mixes: str | None = None,
+    robust_later: str | None = None,
 ) -> str:
     """The document for ``results`` (no file written)."""
     import jinja2
@@ -245,7 +250,7 @@ def render_text(
     environment.filters |= {"fmt": fmt, "agg": agg, "f": format}
     environment.globals["table"] = tables.table
     text = environment.get_template("benchmarks.md").render(
-        context(results, rel_img, robust_matrix, robust_held_out, robust_mixes)
+        context(results, rel_img, robust_matrix, robust_held_out, robust_mixes, robust_later)
     )
     return text.rstrip() + "\n"
 
@@ -257,9 +262,9 @@ def render(results_path: Path, doc: Path, img: Path) -> None:
     long_run = results["runs"][results["families"]["long"][0]]
     drift_plot(long_run, img / DRIFT_PLOT)
     doc.parent.mkdir(parents=True, exist_ok=True)
-    paths = [results_path.with_name(name) for name in (ROBUST_MATRIX, ROBUST_HELD_OUT, ROBUST_MIXES)]
-    matrix, held_out, mixes = (path.read_text() if path.exists() else None for path in paths)
-    doc.write_text(render_text(results, os.path.relpath(img, doc.parent), matrix, held_out, mixes))
+    names = (ROBUST_MATRIX, ROBUST_HELD_OUT, ROBUST_MIXES, ROBUST_LATER)
+    tables_ = [path.read_text() if path.exists() else None for path in map(results_path.with_name, names)]
+    doc.write_text(render_text(results, os.path.relpath(img, doc.parent), *tables_))
 
 
 def main() -> None:

@@ -239,3 +239,6 @@ def test_matrix_tables_appear_where_given(results: dict[str, Any]) -> None:
     assert text.index("MATRIX-TABLE") < text.index("HELD-OUT-TABLE") < text.index("MIXES-TABLE")
     assert "### Held out: knobs mixed" in text
     assert "knobs mixed" not in render.render_text(results, "img", "MATRIX-TABLE", "HELD-OUT-TABLE")
+    later = render.render_text(results, "img", "MATRIX-TABLE", "HELD-OUT-TABLE", "MIXES-TABLE", "LATER-TABLE")
+    assert later.index("MIXES-TABLE") < later.index("LATER-TABLE") and "seeds 9–10" in later
+    assert "seeds 9–10" not in text
