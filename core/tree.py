@@ -363,10 +363,12 @@ class HypothesisTree:
                 )
         # Relocalisation: the best leaf may also jump to a place found by appearance alone, with a
         # small prior and no motion term (a kidnap, an odometry reset, a stretch the motion missed).
-        # It is never the best at birth (at most half the best leaf's new-place child): the next
-        # keyframe must confirm it through the motion model, as a revisit of the next place.
+        # It is never the best at birth (at most JUMP_CEILING of the best leaf's new-place child,
+        # JUMP_CEILING_LOST while lost): the next keyframe must confirm it through the motion model,
+        # as a revisit of the next place.
         best = self.leaves[0]
-        ceiling = children[0][0] + math.log(0.5)  # the best leaf's new-place child, coverage included
+        lost = keyframe - self._lost_at <= self.config.lost_window
+        ceiling = children[0][0] + math.log(JUMP_CEILING_LOST if lost else JUMP_CEILING)
         for state, log_prior in zip(relocalisation.tolist(), relocalisation_priors, strict=True):
             log_belief = best.log_belief + log_prior + log_obs_of[state]
             children.append((min(log_belief, ceiling), best, state, False))
@@ -935,6 +937,14 @@ def _recent_states(node: Node | None, count: int) -> tuple[int, ...]:
 RELOCALISATION_RATIO = 0.8
 """A place found by appearance alone must be this much closer than the next best (Lowe's ratio)."""
 
+JUMP_CEILING = 0.5
+"""A jump by appearance is born with at most this share of the best leaf's "new place" belief: never
+the best at birth, so the next keyframe must confirm it through the motion model."""
+JUMP_CEILING_LOST = 0.9
+"""The same within ``lost_window`` keyframes of losing track. Still never the best at birth, but a
+moderately alike confirmation then wins at the next keyframe: after a kidnap under another light the
+confirming views are only a little more alike than a new place (docs/estimator.md, "After losing
+track, a larger prior for a few keyframes")."""
 _UNKNOWN_LINK = (1e6, 0.0, 0.0, 1e6, 0.0, 1e6)
 """Covariance of a relocalisation link: so uncertain that no search crosses it (weight ≫ bound)."""
 UNKNOWN_REL: Rel = (0.0, 0.0, 0.0, *_UNKNOWN_LINK)

@@ -520,3 +520,33 @@ def test_the_alarm_scale_is_one_until_alarms_outrun_their_expected_rate(keyframe
         assert scale == pytest.approx(power * math.log(rate / share))
     tree._alarms.count += 1  # one more alarm never strengthens a jump
     assert tree._log_alarm_scale() <= scale + 1e-12
+
+
+@pytest.mark.parametrize("blank_at_carry", [False, True])
+def test_a_jump_is_born_below_the_new_place_and_nearer_it_once_lost(blank_at_carry):
+    """A jump by appearance is never the best at birth: ``JUMP_CEILING`` of the best leaf's "new
+    place" where the robot was tracked (a carry whose first view already matches), but
+    ``JUMP_CEILING_LOST`` within ``lost_window`` of losing track (the carry's first view matched
+    nothing), so a moderately alike confirmation wins at the next keyframe."""
+    from aslam.core.tree import JUMP_CEILING, JUMP_CEILING_LOST
+
+    world = SyntheticWorld(3)
+    estimator = Estimator(synthetic_config())
+    rng = np.random.default_rng(0)
+    truth = np.zeros(3)
+    estimator.add_keyframe(0, np.zeros(3), world.observe(truth))
+    born = None
+    for i, action in enumerate(rectangle_actions(2)[:41], start=1):
+        truth = se2.compose(truth, action) if i != 39 else np.array([10.0, 5.0, math.pi])
+        blank = blank_at_carry and i == 39
+        view = (
+            np.random.default_rng(i).dirichlet(np.ones(BINS)).astype(np.float32)
+            if blank
+            else world.observe(truth)
+        )
+        hypotheses = estimator.add_keyframe(i, action * (1 + 0.03 * rng.standard_normal(3)), view).hypotheses
+        if i >= 39 and born is None and len(hypotheses) == 2 and hypotheses[0].is_new_state:
+            born = hypotheses[1].belief / hypotheses[0].belief
+    assert born == pytest.approx(JUMP_CEILING_LOST if blank_at_carry else JUMP_CEILING, rel=1e-6)
+    assert (born > 1.5 * JUMP_CEILING) == blank_at_carry
+    assert not hypotheses[0].is_new_state  # confirmed at the next keyframe
