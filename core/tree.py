@@ -536,7 +536,13 @@ class HypothesisTree:
         """The best of ``top`` (ranked by ``order``) if appearance alone singles it out, else none."""
         # Distinctive only (Lowe's ratio test): in an aliased stretch, where several places look
         # alike, appearance alone must not move the robot.
-        if len(order) < 2 or not distances[order[0]] < RELOCALISATION_RATIO * distances[order[1]]:
+        if len(order) < 2:
+            return []
+        best = int(top[order[0]])
+        # The runner-up is the most alike place elsewhere: the best place's neighbours on its first
+        # visit look alike too, and tell nothing against it.
+        elsewhere = [i for i in order[1:].tolist() if abs(int(top[i]) - best) > RUNNER_UP_GAP]
+        if elsewhere and not distances[order[0]] < RELOCALISATION_RATIO * distances[elsewhere[0]]:
             return []
         if not distances[order[0]] < self.reference.value:
             return []
@@ -544,7 +550,7 @@ class HypothesisTree:
             predicted = self._distances(observation, proposed)
             if not distances[order[0]] < RELOCALISATION_RATIO * float(predicted.min()):
                 return []
-        return [int(top[order[0]])]
+        return [best]
 
     def _distances(self, observation: np.ndarray, states: np.ndarray) -> np.ndarray:
         """Distances of ``observation`` to ``states``' views; a prior map's judged across sessions
@@ -937,6 +943,9 @@ def _recent_states(node: Node | None, count: int) -> tuple[int, ...]:
 RELOCALISATION_RATIO = 0.8
 """A place found by appearance alone must be this much closer than the next best (Lowe's ratio)."""
 
+RUNNER_UP_GAP = 2
+"""Places first seen within this many keyframes of the best one are its neighbours, not rivals, in
+the distinctiveness test."""
 JUMP_CEILING = 0.5
 """A jump by appearance is born with at most this share of the best leaf's "new place" belief: never
 the best at birth, so the next keyframe must confirm it through the motion model."""

@@ -550,3 +550,22 @@ def test_a_jump_is_born_below_the_new_place_and_nearer_it_once_lost(blank_at_car
     assert born == pytest.approx(JUMP_CEILING_LOST if blank_at_carry else JUMP_CEILING, rel=1e-6)
     assert (born > 1.5 * JUMP_CEILING) == blank_at_carry
     assert not hypotheses[0].is_new_state  # confirmed at the next keyframe
+
+
+def test_a_places_own_neighbours_are_no_rivals_in_the_distinctiveness_test():
+    """Lowe's ratio compares the best place with the most alike place *elsewhere*: the places first
+    seen just before or after it look alike too (a video-rate stream's neighbours 0.4 m apart) and
+    must not hide it, while a look-alike elsewhere still does."""
+    from aslam.core.tree import RUNNER_UP_GAP
+
+    estimator, _ = run(rectangle_actions(1)[:20], SyntheticWorld(1), synthetic_config())
+    tree = estimator._tree
+    alike = 0.5 * tree.reference.value
+    observation, none = np.zeros(BINS, np.float32), np.zeros(0, np.int64)
+    order = np.arange(2)
+    neighbour = np.array([10, 10 + RUNNER_UP_GAP])
+    elsewhere = np.array([10, 11 + RUNNER_UP_GAP])
+    distances = np.array([alike, 1.05 * alike])
+    assert tree._distinctive(observation, neighbour, distances, order, none) == [10]
+    assert tree._distinctive(observation, elsewhere, distances, order, none) == []
+    assert tree._distinctive(observation, elsewhere, np.array([alike, 2 * alike]), order, none) == [10]
