@@ -540,9 +540,11 @@ class HypothesisTree:
             return []
         best = int(top[order[0]])
         # The runner-up is the most alike place elsewhere: the best place's neighbours on its first
-        # visit look alike too, and tell nothing against it.
+        # visit look alike too, and tell nothing against it. Only when no place elsewhere is among
+        # the candidates is a neighbour the runner-up.
         elsewhere = [i for i in order[1:].tolist() if abs(int(top[i]) - best) > RUNNER_UP_GAP]
-        if elsewhere and not distances[order[0]] < RELOCALISATION_RATIO * distances[elsewhere[0]]:
+        runner_up = elsewhere[0] if elsewhere else int(order[1])
+        if not distances[order[0]] < RELOCALISATION_RATIO * distances[runner_up]:
             return []
         if not distances[order[0]] < self.reference.value:
             return []

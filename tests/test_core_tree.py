@@ -566,6 +566,9 @@ def test_a_places_own_neighbours_are_no_rivals_in_the_distinctiveness_test():
     neighbour = np.array([10, 10 + RUNNER_UP_GAP])
     elsewhere = np.array([10, 11 + RUNNER_UP_GAP])
     distances = np.array([alike, 1.05 * alike])
-    assert tree._distinctive(observation, neighbour, distances, order, none) == [10]
+    assert tree._distinctive(
+        observation, np.array([10, 11, 30]), np.append(distances, 1.0), np.arange(3), none
+    ) == [10]
+    assert tree._distinctive(observation, neighbour, distances, order, none) == []  # only a neighbour
     assert tree._distinctive(observation, elsewhere, distances, order, none) == []
     assert tree._distinctive(observation, elsewhere, np.array([alike, 2 * alike]), order, none) == [10]
