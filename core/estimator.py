@@ -203,6 +203,7 @@ class Estimator:
             return 0
         tree = self._tree
         weighed = []  # log (belief × P(frame at the leaf's predicted place)) per frame, one row a leaf
+        looks: dict[int, np.ndarray] = {}  # log P(frame | place) per predicted place: leaves often share one
         for leaf in tree.leaves:
             if math.exp(leaf.log_belief) < WINDOW_LEAF_BELIEF and leaf is not tree.leaves[0]:
                 continue
@@ -210,11 +211,13 @@ class Estimator:
             if predicted is None:
                 continue
             place, log_transition = predicted
-            view = tree.observations.view[place][None, :]
-            distances = np.array([float(self.observation_model.distances(o, view)[0]) for o in observations])
-            weighed.append(
-                leaf.log_belief + log_transition + self.observation_model.log_likelihood(distances)
-            )
+            if place not in looks:
+                view = tree.observations.view[place][None, :]
+                distances = np.array(
+                    [float(self.observation_model.distances(o, view)[0]) for o in observations]
+                )
+                looks[place] = self.observation_model.log_likelihood(distances)
+            weighed.append(leaf.log_belief + log_transition + looks[place])
         if not weighed:
             return 0
         return int(np.argmax(np.logaddexp.reduce(np.array(weighed), axis=0)))

@@ -542,8 +542,8 @@ class HypothesisTree:
         # The runner-up is the most alike place elsewhere: the best place's neighbours on its first
         # visit look alike too, and tell nothing against it. Only when no place elsewhere is among
         # the candidates is a neighbour the runner-up.
-        elsewhere = [i for i in order[1:].tolist() if abs(int(top[i]) - best) > RUNNER_UP_GAP]
-        runner_up = elsewhere[0] if elsewhere else int(order[1])
+        elsewhere = (i for i in order[1:].tolist() if abs(int(top[i]) - best) > RUNNER_UP_GAP)
+        runner_up = next(elsewhere, int(order[1]))
         if not distances[order[0]] < RELOCALISATION_RATIO * distances[runner_up]:
             return []
         if not distances[order[0]] < self.reference.value:
