@@ -34,6 +34,8 @@ ROBUST_MIXES = "robust_matrix_mixes.md"
 """Mixes of the matrix's knobs, held out (``--families mix-…``)."""
 ROBUST_LATER = "robust_matrix_seeds_9_10.md"
 """The families whose targets hold on seeds 1–8, on seeds 9–10 rendered later (``--seeds 9 10``)."""
+ROBUST_LATEST = "robust_matrix_seeds_11_12.md"
+"""The same on seeds 11–12 and a sixth route, ``bench/routes/notch.json`` (``--seeds 11 12``)."""
 TEMPLATES = Path(__file__).resolve().parent / "templates"
 DRIFT_PLOT = "long-run-drift.png"
 
@@ -137,6 +139,7 @@ def context(
     robust_held_out: str | None = None,
     robust_mixes: str | None = None,
     robust_later: str | None = None,
+    robust_latest: str | None = None,
 ) -> dict[str, Any]:
     """Every value the template shows, from the results JSON (and the robust-revisit matrix's
     tables, made apart by ``bench/robust_matrix.py``, when there are)."""
@@ -163,6 +166,7 @@ def context(
         "robust_held_out": robust_held_out,
         "robust_mixes": robust_mixes,
         "robust_later": robust_later,
+        "robust_latest": robust_latest,
         "started": f"{datetime.datetime.fromisoformat(results['started']):%Y-%m-%d %H:%M %Z}",
         "minutes": minutes,
         "seconds": seconds,
@@ -236,6 +240,7 @@ def render_text(
     robust_held_out: str | None = None,
     robust_mixes: str | None = None,
     robust_later: str | None = None,
+    robust_latest: str | None = None,
 ) -> str:
     """The document for ``results`` (no file written)."""
     import jinja2
@@ -250,7 +255,7 @@ def render_text(
     environment.filters |= {"fmt": fmt, "agg": agg, "f": format}
     environment.globals["table"] = tables.table
     text = environment.get_template("benchmarks.md").render(
-        context(results, rel_img, robust_matrix, robust_held_out, robust_mixes, robust_later)
+        context(results, rel_img, robust_matrix, robust_held_out, robust_mixes, robust_later, robust_latest)
     )
     return text.rstrip() + "\n"
 
@@ -262,7 +267,7 @@ def render(results_path: Path, doc: Path, img: Path) -> None:
     long_run = results["runs"][results["families"]["long"][0]]
     drift_plot(long_run, img / DRIFT_PLOT)
     doc.parent.mkdir(parents=True, exist_ok=True)
-    names = (ROBUST_MATRIX, ROBUST_HELD_OUT, ROBUST_MIXES, ROBUST_LATER)
+    names = (ROBUST_MATRIX, ROBUST_HELD_OUT, ROBUST_MIXES, ROBUST_LATER, ROBUST_LATEST)
     tables_ = [path.read_text() if path.exists() else None for path in map(results_path.with_name, names)]
     doc.write_text(render_text(results, os.path.relpath(img, doc.parent), *tables_))
 

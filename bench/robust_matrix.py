@@ -2,8 +2,8 @@
 
 The hard cases of issue 9 that today's recorder can make (off-pose revisits with ``--jitter``,
 video-rate keyframes with ``--fps``, odometry noise, aliasing) on the paper, figure-8 and grid
-routes (``--routes`` also takes route files: ``bench/routes/`` holds two that no setting was chosen
-on, for held-out checks). Recordings are rendered once and cached (``--cache``, default
+routes (``--routes`` also takes route files: ``bench/routes/`` holds three that no setting was
+chosen on, for held-out checks). Recordings are rendered once and cached (``--cache``, default
 /tmp/robust/rec); estimates are made and scored through the application layer (``aslam.app``), not
 the CLI.
 
@@ -110,7 +110,7 @@ def is_derived(family: str) -> bool:
 
 
 ROUTES = ("paper", "figure8", "grid")
-HELD_OUT_ROUTES = ("bench/routes/ell.json", "bench/routes/corridor.json")
+HELD_OUT_ROUTES = ("bench/routes/ell.json", "bench/routes/corridor.json", "bench/routes/notch.json")
 """Closed route files never used to choose a setting: ``--routes`` takes them (or any route file)
 beside the presets, to check a result on routes it was not found on."""
 

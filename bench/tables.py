@@ -188,6 +188,7 @@ ESTIMATES = (
     ("estimate_320x240", "grid route, 320×240, 2 laps"),
     ("estimate_320x240_long", "grid route, 320×240, 8 laps"),
     ("estimate_640x480", "grid route, 640×480, 2 laps"),
+    ("estimate_320x240_paper", "paper route, 320×240, 2 laps"),
 )
 STAGES = (
     "read_and_sync_s",
