@@ -113,8 +113,13 @@ def notes(speed: dict[str, Any], search_max_states: int) -> dict[str, Any]:
             )
     small, big = speed["scaling_blocks"], speed["scaling_big"]
     rows = tables.target_rows(speed)
+    short, long = speed["estimate_320x240"], speed["estimate_320x240_long"]
+    more = (long["stages"]["keyframes"] - short["stages"]["keyframes"]) / 1e3
     return {
         "estimate": estimate,
+        # What each keyframe past the fixed costs costs, from the grid route's 2 laps to its 8 (ms).
+        "estimate_per_keyframe_ms": (long["estimate_s"]["median"] - short["estimate_s"]["median"]) / more,
+        "floor_per_keyframe_ms": (long["floor_s"]["median"] - short["floor_s"]["median"]) / more,
         "scaling": [
             speed[k]
             for k in ("scaling_blocks", "scaling_random", "scaling_big")

@@ -231,6 +231,8 @@ def test_values_land_in_their_tables(results: dict[str, Any], tmp_path: Path) ->
     record = row(text, "paper | 137")
     assert record[4:7] == ["71.1 keyframes/s", "48.9 keyframes/s", "**1.10**"]  # bare, stock, ratio
     assert "Estimate ÷ floor is 0.900" not in text  # a met target gets no note
+    # per keyframe past the fixed costs, grid 2 → 8 laps: (0.76 − 0.3) / 435 and (0.8 − 0.2) / 435 s
+    assert "1.06 ms a keyframe against the floor's 1.38 ms" in text
     assert "more than one at keyframes 40–42 (at most 2, mean 1.2; back to one from keyframe 43 on)" in text
     assert "| load average (1, 5, 15 min) | at start 0.50, 0.60, 0.70; at end 1.00, 1.10, 1.20 |" in text
     assert "on 2026-11-29 20:00 UTC; the whole run took 7 min 01 s." in text
