@@ -40,7 +40,18 @@ from aslam.core.place_index import PlaceIndex
 class Node:
     """One tree node: keyframe t was at ``state``; ``rel`` is the link from the parent's state."""
 
-    __slots__ = ("id", "inverse_rel", "is_new", "keyframe", "log_belief", "parent", "rel", "state", "weight")
+    __slots__ = (
+        "id",
+        "inverse_rel",
+        "is_new",
+        "keyframe",
+        "log_belief",
+        "parent",
+        "rel",
+        "settled_at",
+        "state",
+        "weight",
+    )
 
     def __init__(
         self,
@@ -61,6 +72,9 @@ class Node:
         self.rel = rel
         self.inverse_rel = inverse_rel(rel)
         self.weight = link_weight(rel)
+        # The keyframe from which this line's revisits may be the best (a jump by appearance is
+        # believed once the motion model has confirmed it: ``JUMP_CONFIRMATIONS``).
+        self.settled_at = 0 if parent is None else parent.settled_at
 
 
 @dataclass(frozen=True)
@@ -330,8 +344,10 @@ class HypothesisTree:
             dtype=np.int64,
         )
         log_obs_of: dict[int, float] = {}
+        alike: set[int] = set()  # candidates that look like a revisit (under the new-place reference)
         if len(candidate_ids):
             distances = self._distances(observation, candidate_ids)
+            alike = set(candidate_ids[distances < self.reference.value].tolist())
             log_obs = self.model.log_likelihood(distances)
             if self.config.appearance_veto > 0:
                 # A view as unlike the place as views a step apart are is no revisit, whatever
@@ -369,6 +385,20 @@ class HypothesisTree:
         best = self.leaves[0]
         lost = keyframe - self._lost_at <= self.config.lost_window
         ceiling = children[0][0] + math.log(JUMP_CEILING_LOST if lost else JUMP_CEILING)
+        # A jump's line is believed once the motion model confirmed it, unless the track it left
+        # still explains the view (a place a settled line predicts looks like a revisit): then it
+        # must be confirmed again (an aliased stretch can fit a look-alike track twice in a row).
+        explained = any(
+            leaf.settled_at <= keyframe and alike.intersection(states.tolist())
+            for leaf, (states, _) in zip(self.leaves, proposals, strict=True)
+        )
+        if explained:
+            children = [
+                (min(log_belief, ceiling), parent, state, is_new)
+                if not is_new and parent.settled_at > keyframe
+                else (log_belief, parent, state, is_new)
+                for log_belief, parent, state, is_new in children
+            ]
         for state, log_prior in zip(relocalisation.tolist(), relocalisation_priors, strict=True):
             log_belief = best.log_belief + log_prior + log_obs_of[state]
             children.append((min(log_belief, ceiling), best, state, False))
@@ -381,11 +411,14 @@ class HypothesisTree:
             rel = action_rel if not jumped else UNKNOWN_REL
             if not (is_new and parent.is_new):  # measured from or to a visit, not the place itself
                 rel = rel[:3] + tuple(np.add(rel[3:], _flat(self._visit_cov)).tolist())
-            if parent is best and state in self._relocalised and not self._proposed(parent, state, proposals):
-                rel = (
-                    rel[:3] + _UNKNOWN_LINK
-                )  # odometry does not link the places: the search never crosses it
-            leaves.append(self._new_node(keyframe, state, parent, log_belief, is_new, rel))
+            jump = parent is best and state in self._relocalised
+            jump = jump and not self._proposed(parent, state, proposals)
+            if jump:  # odometry does not link the places: the search never crosses it
+                rel = rel[:3] + _UNKNOWN_LINK
+            node = self._new_node(keyframe, state, parent, log_belief, is_new, rel)
+            if jump:
+                node.settled_at = keyframe + JUMP_CONFIRMATIONS
+            leaves.append(node)
         if not self.leaves[0].is_new and leaves[0].is_new:
             self._lost_at = keyframe
         self.leaves = leaves
@@ -956,6 +989,11 @@ JUMP_CEILING_LOST = 0.9
 moderately alike confirmation then wins at the next keyframe: after a kidnap under another light the
 confirming views are only a little more alike than a new place (docs/estimator.md, "After losing
 track, a larger prior for a few keyframes")."""
+JUMP_CONFIRMATIONS = 2
+"""Keyframes a jump's line stays under the ceiling while the track it left still explains the view:
+born there, and at the next keyframe, the motion model's first confirmation, too. In an aliased
+stretch two views in a row can fit a look-alike track (a periodic wallpaper at two corners); a third
+rarely does (docs/estimator.md, "A jump the left track still explains")."""
 _UNKNOWN_LINK = (1e6, 0.0, 0.0, 1e6, 0.0, 1e6)
 """Covariance of a relocalisation link: so uncertain that no search crosses it (weight ≫ bound)."""
 UNKNOWN_REL: Rel = (0.0, 0.0, 0.0, *_UNKNOWN_LINK)
