@@ -14,6 +14,7 @@ import datetime
 import json
 import os
 import sys
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -26,16 +27,19 @@ from tables import Run, agg, fmt, mean, scores, summaries
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results" / "benchmarks.json"
-ROBUST_MATRIX = "robust_matrix.md"
-"""The robust-revisit matrix's table (``bench/robust_matrix.py --markdown``), beside the results."""
-ROBUST_HELD_OUT = "robust_matrix_held_out.md"
-"""The same families on held-out seeds and routes (``--routes … bench/routes/*.json --seeds 6 7 8``)."""
-ROBUST_MIXES = "robust_matrix_mixes.md"
-"""Mixes of the matrix's knobs, held out (``--families mix-…``)."""
-ROBUST_LATER = "robust_matrix_seeds_9_10.md"
-"""The families whose targets hold on seeds 1–8, on seeds 9–10 rendered later (``--seeds 9 10``)."""
-ROBUST_LATEST = "robust_matrix_seeds_11_12.md"
-"""The same on seeds 11–12 and a sixth route, ``bench/routes/notch.json`` (``--seeds 11 12``)."""
+ROBUST_TABLES = {
+    "robust_matrix": "robust_matrix.md",
+    "robust_held_out": "robust_matrix_held_out.md",
+    "robust_mixes": "robust_matrix_mixes.md",
+    "robust_later": "robust_matrix_seeds_9_10.md",
+    "robust_latest": "robust_matrix_seeds_11_12.md",
+    "robust_fresh": "robust_matrix_seeds_13_14.md",
+}
+"""The robust-revisit matrix's tables (``bench/robust_matrix.py --markdown``), beside the results,
+by the template's name for each: the matrix; the same families on held-out seeds and routes (seeds
+6–8); mixes of its knobs, held out; seeds 9–10; seeds 11–12 with a sixth route
+(``bench/routes/notch.json``); seeds 13–14 with jitter and wander too. A table not made is left out
+of the page."""
 TEMPLATES = Path(__file__).resolve().parent / "templates"
 DRIFT_PLOT = "long-run-drift.png"
 
@@ -138,16 +142,10 @@ def notes(speed: dict[str, Any], search_max_states: int) -> dict[str, Any]:
 
 
 def context(
-    results: dict[str, Any],
-    rel_img: str,
-    robust_matrix: str | None = None,
-    robust_held_out: str | None = None,
-    robust_mixes: str | None = None,
-    robust_later: str | None = None,
-    robust_latest: str | None = None,
+    results: dict[str, Any], rel_img: str, robust_tables: Mapping[str, str] | None = None
 ) -> dict[str, Any]:
     """Every value the template shows, from the results JSON (and the robust-revisit matrix's
-    tables, made apart by ``bench/robust_matrix.py``, when there are)."""
+    tables, made apart by ``bench/robust_matrix.py``, when there are: see ``ROBUST_TABLES``)."""
     runs = results["runs"]
     by_name = {
         name: [runs[n] for n in names] for name, names in results["families"].items() if name != "noise"
@@ -167,11 +165,7 @@ def context(
     margins += [(f"{r['scenario']['route']} ×{r['scenario']['laps']}", f["f1_margin"]) for r, f in later]
     return shown | {
         "results": results,
-        "robust_matrix": robust_matrix,
-        "robust_held_out": robust_held_out,
-        "robust_mixes": robust_mixes,
-        "robust_later": robust_later,
-        "robust_latest": robust_latest,
+        **{name: (robust_tables or {}).get(name) for name in ROBUST_TABLES},
         "started": f"{datetime.datetime.fromisoformat(results['started']):%Y-%m-%d %H:%M %Z}",
         "minutes": minutes,
         "seconds": seconds,
@@ -239,13 +233,7 @@ def drift_plot(run: Run, path: Path) -> None:
 
 
 def render_text(
-    results: dict[str, Any],
-    rel_img: str = "img",
-    robust_matrix: str | None = None,
-    robust_held_out: str | None = None,
-    robust_mixes: str | None = None,
-    robust_later: str | None = None,
-    robust_latest: str | None = None,
+    results: dict[str, Any], rel_img: str = "img", robust_tables: Mapping[str, str] | None = None
 ) -> str:
     """The document for ``results`` (no file written)."""
     import jinja2
@@ -259,9 +247,7 @@ def render_text(
     )
     environment.filters |= {"fmt": fmt, "agg": agg, "f": format}
     environment.globals["table"] = tables.table
-    text = environment.get_template("benchmarks.md").render(
-        context(results, rel_img, robust_matrix, robust_held_out, robust_mixes, robust_later, robust_latest)
-    )
+    text = environment.get_template("benchmarks.md").render(context(results, rel_img, robust_tables))
     return text.rstrip() + "\n"
 
 
@@ -272,9 +258,9 @@ def render(results_path: Path, doc: Path, img: Path) -> None:
     long_run = results["runs"][results["families"]["long"][0]]
     drift_plot(long_run, img / DRIFT_PLOT)
     doc.parent.mkdir(parents=True, exist_ok=True)
-    names = (ROBUST_MATRIX, ROBUST_HELD_OUT, ROBUST_MIXES, ROBUST_LATER, ROBUST_LATEST)
-    tables_ = [path.read_text() if path.exists() else None for path in map(results_path.with_name, names)]
-    doc.write_text(render_text(results, os.path.relpath(img, doc.parent), *tables_))
+    paths = {name: results_path.with_name(file) for name, file in ROBUST_TABLES.items()}
+    robust_tables = {name: path.read_text() for name, path in paths.items() if path.exists()}
+    doc.write_text(render_text(results, os.path.relpath(img, doc.parent), robust_tables))
 
 
 def main() -> None:

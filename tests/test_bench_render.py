@@ -244,13 +244,18 @@ def test_rendering_is_deterministic(results: dict[str, Any]) -> None:
 
 
 def test_matrix_tables_appear_where_given(results: dict[str, Any]) -> None:
-    text = render.render_text(results, "img", "MATRIX-TABLE", "HELD-OUT-TABLE", "MIXES-TABLE")
-    assert text.index("MATRIX-TABLE") < text.index("HELD-OUT-TABLE") < text.index("MIXES-TABLE")
+    def page(*names: str) -> str:
+        return render.render_text(results, "img", {name: name.upper() for name in names})
+
+    text = page("robust_matrix", "robust_held_out", "robust_mixes")
+    assert text.index("ROBUST_MATRIX") < text.index("ROBUST_HELD_OUT") < text.index("ROBUST_MIXES")
     assert "### Held out: knobs mixed" in text
-    assert "knobs mixed" not in render.render_text(results, "img", "MATRIX-TABLE", "HELD-OUT-TABLE")
-    later = render.render_text(results, "img", "MATRIX-TABLE", "HELD-OUT-TABLE", "MIXES-TABLE", "LATER-TABLE")
-    assert later.index("MIXES-TABLE") < later.index("LATER-TABLE") and "seeds 9–10" in later
+    assert "knobs mixed" not in page("robust_matrix", "robust_held_out")
+    later = page("robust_matrix", "robust_held_out", "robust_mixes", "robust_later")
+    assert later.index("ROBUST_MIXES") < later.index("ROBUST_LATER") and "seeds 9–10" in later
     assert "seeds 9–10" not in text
-    latest = render.render_text(results, "img", "M", "H", "X", "LATER-TABLE", "LATEST-TABLE")
-    assert latest.index("LATER-TABLE") < latest.index("LATEST-TABLE") and "seeds 11–12" in latest
-    assert "seeds 11–12" not in later
+    latest = page(*render.ROBUST_TABLES)
+    order = [latest.index(name.upper()) for name in render.ROBUST_TABLES]
+    assert order == sorted(order), "the tables in the order of ROBUST_TABLES"
+    assert "seeds 11–12" in latest and "seeds 11–12" not in later
+    assert "seeds 13–14" in latest and "seeds 13–14" not in page(*list(render.ROBUST_TABLES)[:-1])
