@@ -388,11 +388,11 @@ class HypothesisTree:
         # A jump's line is believed once the motion model confirmed it, unless the track it left
         # still explains the view (a place a settled line predicts looks like a revisit): then it
         # must be confirmed again (an aliased stretch can fit a look-alike track twice in a row).
-        explained = any(
+        unconfirmed = any(leaf.settled_at > keyframe for leaf in self.leaves)
+        if unconfirmed and any(
             leaf.settled_at <= keyframe and alike.intersection(states.tolist())
             for leaf, (states, _) in zip(self.leaves, proposals, strict=True)
-        )
-        if explained:
+        ):
             children = [
                 (min(log_belief, ceiling), parent, state, is_new)
                 if not is_new and parent.settled_at > keyframe
