@@ -386,16 +386,20 @@ class HypothesisTree:
         lost = keyframe - self._lost_at <= self.config.lost_window
         ceiling = children[0][0] + math.log(JUMP_CEILING_LOST if lost else JUMP_CEILING)
         # A jump's line is believed once the motion model confirmed it, unless the track it left
-        # still explains the view (a place a settled line predicts looks like a revisit): then it
-        # must be confirmed again (an aliased stretch can fit a look-alike track twice in a row).
-        unconfirmed = any(leaf.settled_at > keyframe for leaf in self.leaves)
-        if unconfirmed and any(
-            leaf.settled_at <= keyframe and alike.intersection(states.tolist())
-            for leaf, (states, _) in zip(self.leaves, proposals, strict=True)
-        ):
+        # still explains the view otherwise (a settled line predicts another place that looks like a
+        # revisit): then it must be confirmed again (an aliased stretch can fit a look-alike track
+        # twice in a row). Where the settled lines predict the same place, they agree with it.
+        if any(leaf.settled_at > keyframe for leaf in self.leaves):
+            explained = set().union(
+                *(
+                    alike.intersection(states.tolist())
+                    for leaf, (states, _) in zip(self.leaves, proposals, strict=True)
+                    if leaf.settled_at <= keyframe
+                )
+            )
             children = [
                 (min(log_belief, ceiling), parent, state, is_new)
-                if not is_new and parent.settled_at > keyframe
+                if not is_new and parent.settled_at > keyframe and explained - {state}
                 else (log_belief, parent, state, is_new)
                 for log_belief, parent, state, is_new in children
             ]
