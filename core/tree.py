@@ -994,10 +994,10 @@ moderately alike confirmation then wins at the next keyframe: after a kidnap und
 confirming views are only a little more alike than a new place (docs/estimator.md, "After losing
 track, a larger prior for a few keyframes")."""
 JUMP_CONFIRMATIONS = 2
-"""Keyframes a jump's line stays under the ceiling while the track it left still explains the view:
-born there, and at the next keyframe, the motion model's first confirmation, too. In an aliased
-stretch two views in a row can fit a look-alike track (a periodic wallpaper at two corners); a third
-rarely does (docs/estimator.md, "A jump the left track still explains")."""
+"""Keyframes a jump's line stays under the ceiling while the track it left still explains the view
+with another place: born there, and at the next keyframe, the motion model's first confirmation,
+too. In an aliased stretch two views in a row can fit a look-alike track (a periodic wallpaper at
+two corners); a third rarely does (docs/estimator.md, "A jump the left track still explains")."""
 _UNKNOWN_LINK = (1e6, 0.0, 0.0, 1e6, 0.0, 1e6)
 """Covariance of a relocalisation link: so uncertain that no search crosses it (weight ≫ bound)."""
 UNKNOWN_REL: Rel = (0.0, 0.0, 0.0, *_UNKNOWN_LINK)
