@@ -344,10 +344,9 @@ class HypothesisTree:
             dtype=np.int64,
         )
         log_obs_of: dict[int, float] = {}
-        alike: set[int] = set()  # candidates that look like a revisit (under the new-place reference)
+        distances = np.zeros(0)
         if len(candidate_ids):
             distances = self._distances(observation, candidate_ids)
-            alike = set(candidate_ids[distances < self.reference.value].tolist())
             log_obs = self.model.log_likelihood(distances)
             if self.config.appearance_veto > 0:
                 # A view as unlike the place as views a step apart are is no revisit, whatever
@@ -390,6 +389,7 @@ class HypothesisTree:
         # revisit): then it must be confirmed again (an aliased stretch can fit a look-alike track
         # twice in a row). Where the settled lines predict the same place, they agree with it.
         if any(leaf.settled_at > keyframe for leaf in self.leaves):
+            alike = set(candidate_ids[distances < self.reference.value].tolist())  # look like a revisit
             explained = set().union(
                 *(
                     alike.intersection(states.tolist())

@@ -594,7 +594,8 @@ def _look_alike_pair_run(confirmations: int, monkeypatch) -> tuple[list[bool], b
 def test_a_jump_the_left_track_still_explains_waits_for_a_second_confirmation(monkeypatch):
     """A look-alike pair of places a step apart fits two views in a row: the jump to the first is
     capped at birth, and the motion model confirms it at the next keyframe. While the track it left
-    still explains the view (a place it predicts looks like a revisit), the jump's line stays under
+    still explains the view with another place (one it predicts looks like a revisit), the jump's
+    line stays under
     the ceiling one keyframe more (``JUMP_CONFIRMATIONS``): no wrong claim, and the track goes on."""
     assert any(_look_alike_pair_run(1, monkeypatch)[0])  # confirmed once: the look-alike is claimed
     wrong, tracked = _look_alike_pair_run(2, monkeypatch)
