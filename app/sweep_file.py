@@ -174,21 +174,8 @@ def _renders(value: Any, base: Path, problems: list[str]) -> tuple[RecordConfig,
     configs: dict[RecordConfig, None] = {}
     for number, raw in enumerate(value, start=1):
         where = f"render #{number}"
-        table = _table(raw, "render", RENDER_KEYS, problems)
-        lists: dict[str, list[Any]] = {}
-        bad = False
-        for key, item in table.items():
-            items = _as_list(item)
-            if not items:
-                problems.append(f"{where}: {key} is an empty list")
-                bad = True
-            for one in items:
-                problem = _type_problem(f"{where}: {key}", one, RENDER_KEYS[key])
-                if problem:
-                    problems.append(problem)
-                    bad = True
-            lists[key] = items
-        if bad:
+        lists = _typed_lists(_table(raw, "render", RENDER_KEYS, problems), RENDER_KEYS, where, problems)
+        if lists is None:
             continue
         lists.setdefault("route", ["paper"])
         lists.setdefault("seeds", [0])
@@ -198,6 +185,27 @@ def _renders(value: Any, base: Path, problems: list[str]) -> tuple[RecordConfig,
             if config is not None:
                 configs[config] = None
     return tuple(configs)
+
+
+def _typed_lists(
+    table: dict[str, Any], types: dict[str, Any], where: str, problems: list[str]
+) -> dict[str, list[Any]] | None:
+    """Each key's value as a list (a scalar is a list of one), every item of its key's type; None
+    (the problems noted) if a list is empty or an item is mistyped, so no combination is made."""
+    lists: dict[str, list[Any]] = {}
+    bad = False
+    for key, item in table.items():
+        items = _as_list(item)
+        if not items:
+            problems.append(f"{where}: {key} is an empty list")
+            bad = True
+        for one in items:
+            problem = _type_problem(f"{where}: {key}", one, types[key])
+            if problem:
+                problems.append(problem)
+                bad = True
+        lists[key] = items
+    return None if bad else lists
 
 
 def _record_config(knobs: dict[str, Any], base: Path, where: str, problems: list[str]) -> RecordConfig | None:
@@ -272,23 +280,10 @@ def _grids(value: Any, problems: list[str]) -> tuple[Grid, ...]:
 
 def _grid(value: dict[str, Any], where: str, problems: list[str]) -> Grid:
     types = {name: kind for name, kind, _default, _help in EstimatorConfig.parameters()}
-    table = _table(value, "grid", types, problems)
-    grid: list[tuple[str, tuple[Any, ...]]] = []
-    bad = False
-    for key, item in table.items():
-        values = _as_list(item)
-        if not values:
-            problems.append(f"{where}: {key} is an empty list")
-            bad = True
-        for one in values:
-            problem = _type_problem(f"{where}: {key}", one, types[key])
-            if problem:
-                problems.append(problem)
-                bad = True
-        grid.append((key, tuple(values)))
-    if bad:
-        return tuple(grid)
-    grid = [(key, tuple(types[key](v) for v in values)) for key, values in grid]
+    lists = _typed_lists(_table(value, "grid", types, problems), types, where, problems)
+    if lists is None:  # the problems are raised before any grid is used
+        return ()
+    grid = [(key, tuple(types[key](v) for v in values)) for key, values in lists.items()]
     names = [name for name, _values in grid]
     for combination in itertools.product(*(values for _name, values in grid)):
         try:
