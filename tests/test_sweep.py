@@ -239,6 +239,9 @@ def test_sweep_file_problems_are_one_line_exit_2_naming_the_file(tmp_path, capsy
         ("[grid]\nbeta = 3.0\n", "no recordings"),
         ("[[render]]\nroute = 'nowhere'\n", "route 'nowhere' is neither a preset"),
         ("[[render]\n", "not valid TOML"),
+        ("[grid]\nbeta = []\n[[render]]\nseeds = 1\n", "grid: beta is an empty list"),
+        ("[[render]]\nseeds = []\n", "render #1: seeds is an empty list"),
+        ("[[render]]\nlaps = [2, 'two']\n", "render #1: laps must be a whole number, got 'two'"),
     ],
 )
 def test_sweep_file_values_are_checked_by_building_the_configs(tmp_path, text, needle):
