@@ -248,7 +248,13 @@ class HypothesisTree:
         )
         self._lost_at = -math.inf
         """The keyframe the robot last lost track: the best hypothesis went from a mapped place to a
-        new one (a kidnap, a stretch the views no longer explain, or simply the end of mapped ground)."""
+        new one where its map has places (a kidnap, a stretch the views no longer explain), or
+        odometry jumped. Driving off the end of mapped ground is exploring, not losing track."""
+        self._best_in_map = True
+        """Whether the best leaf's map has a place within ``IN_MAP_STEPS`` steps of where odometry
+        puts the robot now (set by each graph search of the best leaf)."""
+        self._nearest2 = 0.0
+        """Squared distance from the prediction to the nearest place the last graph search reached."""
         self._alarms = AlarmCount()
         self._log_map_relocalise = (
             math.log(config.revisit_prior) + math.log(config.map_relocalisation_prior)
@@ -423,7 +429,7 @@ class HypothesisTree:
             if jump:
                 node.settled_at = keyframe + JUMP_CONFIRMATIONS
             leaves.append(node)
-        if not self.leaves[0].is_new and leaves[0].is_new:
+        if not self.leaves[0].is_new and leaves[0].is_new and (jumped or self._best_in_map):
             self._lost_at = keyframe
         self.leaves = leaves
         self._commit_shared_history()
@@ -723,7 +729,12 @@ class HypothesisTree:
         if self.config.candidate_search == "path":
             searches = [self._search_path(leaf) for leaf in leaves]
         else:
-            searches = [self._search(leaf, action, action_cov) for leaf in leaves]
+            searches = []
+            for leaf in leaves:
+                searches.append(self._search(leaf, action, action_cov))
+                if leaf is leaves[0]:
+                    near = IN_MAP_STEPS * self.config.step_m
+                    self._best_in_map = self._nearest2 <= near * near
         sizes = [len(states) for states, _ in searches]
         if not any(sizes):
             return [(np.zeros(0, np.int64), np.zeros(0)) for _ in leaves]
@@ -780,6 +791,7 @@ class HypothesisTree:
         reached: dict[int, tuple[float, float, float]] = {}  # yaw, U, V
         heap = [(nearness * (tx * tx + ty * ty), start)]
         expanded = 0
+        nearest2 = math.inf
         candidates: list[int] = []
         limit = self.config.search_max_states
         bound = self._search_bound
@@ -806,6 +818,8 @@ class HypothesisTree:
             expanded += 1
             dx, dy = tx - x, ty - y
             distance2 = dx * dx + dy * dy
+            if distance2 < nearest2:
+                nearest2 = distance2
             dyaw = (tyaw - yaw + pi) % two_pi - pi
             if dyaw * dyaw <= gate * (v + fixed_heading):
                 spread = u_bound + sqrt(distance2 * v)
@@ -825,6 +839,7 @@ class HypothesisTree:
                     ex, ey = nx - tx, ny - ty
                     push(heap, (total + nearness * (ex * ex + ey * ey), neighbour))
         self._searched_sum += expanded
+        self._nearest2 = nearest2
         rels: dict[int, Rel] = {start: IDENTITY_REL}
 
         def rel_of(state: int) -> Rel:  # composed along the search tree, memoised
@@ -993,6 +1008,11 @@ JUMP_CEILING_LOST = 0.9
 moderately alike confirmation then wins at the next keyframe: after a kidnap under another light the
 confirming views are only a little more alike than a new place (docs/estimator.md, "After losing
 track, a larger prior for a few keyframes")."""
+IN_MAP_STEPS = 0.75
+"""The robot is on mapped ground when a place of the best leaf's map lies within this many steps
+(``step_m``) of where odometry puts it, whatever its heading: a track that fails there is lost (a
+kidnap, a turn the map never saw from there); one stepping a whole step past its last mapped place
+is exploring (docs/estimator.md, "Leaving the map is not losing track")."""
 JUMP_CONFIRMATIONS = 2
 """Keyframes a jump's line stays under the ceiling while the track it left still explains the view
 with another place: born there, and at the next keyframe, the motion model's first confirmation,

@@ -622,3 +622,27 @@ def test_a_places_own_neighbours_are_no_rivals_in_the_distinctiveness_test():
     assert tree._distinctive(observation, neighbour, distances, order, none) == []  # only a neighbour
     assert tree._distinctive(observation, elsewhere, distances, order, none) == []
     assert tree._distinctive(observation, elsewhere, np.array([alike, 2 * alike]), order, none) == [10]
+
+
+def _drive_off_the_map(monkeypatch, in_map_steps: float) -> tuple[HypothesisTree, list]:
+    """One lap of the rectangle, then the second lap's first side and on, straight past the corner
+    where the first lap turned: four steps onto ground the map has no place on."""
+    import aslam.core.tree as tree_module
+
+    monkeypatch.setattr(tree_module, "IN_MAP_STEPS", in_map_steps)
+    forward = np.array([1.0, 0.0, 0.0])
+    estimator, results = run(rectangle_actions(1) + [forward] * 14, SyntheticWorld(1), synthetic_config())
+    return estimator._tree, results
+
+
+def test_driving_off_the_end_of_the_map_is_exploring_not_losing_track(monkeypatch):
+    """Losing track (a kidnap, views the track no longer explains) raises the jump priors for a few
+    keyframes; stepping past the last mapped place onto new ground does not: nothing mapped lies
+    where odometry puts the robot (``IN_MAP_STEPS``), so a look-alike there gets the ordinary prior."""
+    tree, results = _drive_off_the_map(monkeypatch, 0.75)
+    lap = 34
+    assert all(not r.best.is_new_state for r in results[lap + 1 : lap + 11])  # tracked along the side
+    assert all(r.best.is_new_state for r in results[lap + 11 :])  # then new ground
+    assert tree._lost_at == -math.inf
+    tree, _ = _drive_off_the_map(monkeypatch, math.inf)  # every place counts as near: the old rule
+    assert tree._lost_at == lap + 11
