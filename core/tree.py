@@ -253,6 +253,7 @@ class HypothesisTree:
         self._best_in_map = True
         """Whether the best leaf's map has a place within ``IN_MAP_STEPS`` steps of where odometry
         puts the robot now (set by each graph search of the best leaf)."""
+        self._in_map2 = (IN_MAP_STEPS * config.step_m) ** 2
         self._nearest2 = 0.0
         """Squared distance from the prediction to the nearest place the last graph search reached."""
         self._alarms = AlarmCount()
@@ -729,12 +730,9 @@ class HypothesisTree:
         if self.config.candidate_search == "path":
             searches = [self._search_path(leaf) for leaf in leaves]
         else:
-            searches = []
-            for leaf in leaves:
-                searches.append(self._search(leaf, action, action_cov))
-                if leaf is leaves[0]:
-                    near = IN_MAP_STEPS * self.config.step_m
-                    self._best_in_map = self._nearest2 <= near * near
+            searches = [self._search(leaves[0], action, action_cov)]
+            self._best_in_map = self._nearest2 <= self._in_map2
+            searches += [self._search(leaf, action, action_cov) for leaf in leaves[1:]]
         sizes = [len(states) for states, _ in searches]
         if not any(sizes):
             return [(np.zeros(0, np.int64), np.zeros(0)) for _ in leaves]
