@@ -41,6 +41,7 @@ class Node:
     """One tree node: keyframe t was at ``state``; ``rel`` is the link from the parent's state."""
 
     __slots__ = (
+        "doubted",
         "id",
         "inverse_rel",
         "is_new",
@@ -75,6 +76,9 @@ class Node:
         # The keyframe from which this line's revisits may be the best (a jump by appearance is
         # believed once the motion model has confirmed it: ``JUMP_CONFIRMATIONS``).
         self.settled_at = 0 if parent is None else parent.settled_at
+        # A jump born while the best line explored new ground without having lost track: it is
+        # confirmed twice whatever the other lines predict (docs/estimator.md, "Exploring, not lost").
+        self.doubted = False
 
 
 @dataclass(frozen=True)
@@ -393,8 +397,9 @@ class HypothesisTree:
         ceiling = children[0][0] + math.log(JUMP_CEILING_LOST if lost else JUMP_CEILING)
         # A jump's line is believed once the motion model confirmed it, unless the track it left
         # still explains the view otherwise (a settled line predicts another place that looks like a
-        # revisit): then it must be confirmed again (an aliased stretch can fit a look-alike track
-        # twice in a row). Where the settled lines predict the same place, they agree with it.
+        # revisit) or it was born while the robot explored without having lost track (``doubted``):
+        # then it must be confirmed again (an aliased stretch can fit a look-alike track twice in a
+        # row). Where the settled lines predict the same place, they agree with it.
         if any(leaf.settled_at > keyframe for leaf in self.leaves):
             alike = set(candidate_ids[distances < self.reference.value].tolist())  # look like a revisit
             explained = set().union(
@@ -406,7 +411,7 @@ class HypothesisTree:
             )
             children = [
                 (min(log_belief, ceiling), parent, state, is_new)
-                if not is_new and parent.settled_at > keyframe and explained - {state}
+                if not is_new and parent.settled_at > keyframe and (parent.doubted or explained - {state})
                 else (log_belief, parent, state, is_new)
                 for log_belief, parent, state, is_new in children
             ]
@@ -429,6 +434,7 @@ class HypothesisTree:
             node = self._new_node(keyframe, state, parent, log_belief, is_new, rel)
             if jump:
                 node.settled_at = keyframe + JUMP_CONFIRMATIONS
+                node.doubted = best.is_new and not lost
             leaves.append(node)
         if not self.leaves[0].is_new and leaves[0].is_new and (jumped or self._best_in_map):
             self._lost_at = keyframe
@@ -1013,9 +1019,10 @@ kidnap, a turn the map never saw from there); one stepping a whole step past its
 is exploring (docs/estimator.md, "Leaving the map is not losing track")."""
 JUMP_CONFIRMATIONS = 2
 """Keyframes a jump's line stays under the ceiling while the track it left still explains the view
-with another place: born there, and at the next keyframe, the motion model's first confirmation,
-too. In an aliased stretch two views in a row can fit a look-alike track (a periodic wallpaper at
-two corners); a third rarely does (docs/estimator.md, "A jump the left track still explains")."""
+with another place, or when it was born while the robot explored without having lost track: born
+there, and at the next keyframe, the motion model's first confirmation, too. In an aliased stretch
+two views in a row can fit a look-alike track (a periodic wallpaper at two corners); a third rarely
+does (docs/estimator.md, "A jump the left track still explains" and "Exploring, not lost")."""
 _UNKNOWN_LINK = (1e6, 0.0, 0.0, 1e6, 0.0, 1e6)
 """Covariance of a relocalisation link: so uncertain that no search crosses it (weight ≫ bound)."""
 UNKNOWN_REL: Rel = (0.0, 0.0, 0.0, *_UNKNOWN_LINK)

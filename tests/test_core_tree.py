@@ -646,3 +646,39 @@ def test_driving_off_the_end_of_the_map_is_exploring_not_losing_track(monkeypatc
     assert tree._lost_at == -math.inf
     tree, _ = _drive_off_the_map(monkeypatch, math.inf)  # every place counts as near: the old rule
     assert tree._lost_at == lap + 11
+
+
+def _look_alike_while_exploring(confirmations: int, monkeypatch) -> tuple[list[bool], bool]:
+    """On the first lap, all of it new ground, the views at keyframes 20 and 21 (the far side,
+    heading west) are views of places 5 and 6 (the near side, heading east, 5 m away), as a world of
+    shared surfaces makes two stretches look alike. Returns whether each keyframe's best claim from
+    19 to 23 is wrong (over 0.5 m off), and whether the second lap is tracked at its keyframe 40."""
+    import aslam.core.tree as tree_module
+
+    monkeypatch.setattr(tree_module, "JUMP_CONFIRMATIONS", confirmations)
+    world = SyntheticWorld(3)
+    estimator = Estimator(synthetic_config())
+    rng = np.random.default_rng(0)
+    truths = [np.zeros(3)]
+    results = [estimator.add_keyframe(0, np.zeros(3), world.observe(truths[0]))]
+    for i, action in enumerate(rectangle_actions(2)[:40], start=1):
+        truths.append(se2.compose(truths[-1], action))
+        view = world.observe(truths[-1])
+        if i in (20, 21):
+            view = world.observe(truths[i - 15])
+        results.append(estimator.add_keyframe(i, action * (1 + 0.03 * rng.standard_normal(3)), view))
+    wrong = []
+    for i in range(19, 24):
+        best = results[i].best
+        wrong.append(not best.is_new_state and math.hypot(*(truths[i][:2] - truths[best.state][:2])) > 0.5)
+    return wrong, not results[40].best.is_new_state
+
+
+def test_a_jump_born_while_exploring_waits_for_a_second_confirmation(monkeypatch):
+    """Exploring (the best leaf a new place) and not lost, the robot knows where it is: a look-alike
+    stretch that fits two views in a row is likelier than a kidnap. Such a jump's line stays under
+    the ceiling at its first confirmation too, although no other line predicts anything there (the
+    rule for a track that still explains the view cannot fire on new ground)."""
+    assert any(_look_alike_while_exploring(1, monkeypatch)[0])  # confirmed once: the look-alike is claimed
+    wrong, tracked = _look_alike_while_exploring(2, monkeypatch)
+    assert not any(wrong) and tracked
