@@ -518,6 +518,12 @@ class HypothesisTree:
         appearance_off = self._log_relocalise == -math.inf and self._log_map_relocalise == -math.inf
         if not self.leaves or (appearance_off and not untested):
             return none
+        if not untested and not len(self._map_states) and self._well_explained(observation, proposed):
+            # Tracked this well, the robot was not carried: nothing to look for elsewhere (and the
+            # index's query, the part of a step that grows with the map, is spared).
+            self._alarms.close_before(keyframe, lambda k, place: self._best_state_at(k) == place)
+            self._alarms.add(keyframe, None, keyframe - self._lost_at <= self.config.lost_window)
+            return none
         top = self._index.search(
             observation, len(self.committed_state_of_keyframe), self.config.relocalisation_candidates
         )
@@ -555,6 +561,13 @@ class HypothesisTree:
             distinctive = own[0] if own else None
             self._alarms.add(keyframe, distinctive, lost)
         return np.array(found, dtype=np.int64), priors, distinctive
+
+    def _well_explained(self, observation: np.ndarray, proposed: np.ndarray) -> bool:
+        """Whether a place the best leaf's motion model proposed fits the view at under
+        ``WELL_EXPLAINED`` × the new-place reference."""
+        if not len(proposed):
+            return False
+        return float(self._distances(observation, proposed).min()) < WELL_EXPLAINED * self.reference.value
 
     def _best_state_at(self, keyframe: int) -> int:
         """The state the best hypothesis assigns to ``keyframe``."""
@@ -1023,6 +1036,11 @@ with another place, or when it was born while the robot explored without having 
 there, and at the next keyframe, the motion model's first confirmation, too. In an aliased stretch
 two views in a row can fit a look-alike track (a periodic wallpaper at two corners); a third rarely
 does (docs/estimator.md, "A jump the left track still explains" and "Exploring, not lost")."""
+WELL_EXPLAINED = 0.5
+"""A view the best leaf's predicted place fits at under this share of the new-place reference is
+explained: the index is not searched for a jump at that keyframe. A kidnap's first view fits the
+place odometry predicts at 0.9–1.1 × the reference (the matrix's two closest calls); right revisits
+at 0.16–0.74 (docs/estimator.md, "Not searched where the track explains the view")."""
 _UNKNOWN_LINK = (1e6, 0.0, 0.0, 1e6, 0.0, 1e6)
 """Covariance of a relocalisation link: so uncertain that no search crosses it (weight ≫ bound)."""
 UNKNOWN_REL: Rel = (0.0, 0.0, 0.0, *_UNKNOWN_LINK)

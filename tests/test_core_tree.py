@@ -682,3 +682,34 @@ def test_a_jump_born_while_exploring_waits_for_a_second_confirmation(monkeypatch
     assert any(_look_alike_while_exploring(1, monkeypatch)[0])  # confirmed once: the look-alike is claimed
     wrong, tracked = _look_alike_while_exploring(2, monkeypatch)
     assert not any(wrong) and tracked
+
+
+def test_the_index_is_searched_only_where_the_track_does_not_explain_the_view(monkeypatch):
+    """A revisit whose predicted place fits the view well (under ``WELL_EXPLAINED`` × the new-place
+    reference) is no occasion to look elsewhere: the index, the part of a step that grows with the
+    map, is not searched there. Where the prediction fails (a kidnap) it is, and the robot relocalises."""
+    from aslam.core.place_index import PlaceIndex
+
+    searched: list[int] = []  # the keyframes at which the index was searched
+    current = [0]
+    search, add_keyframe = PlaceIndex.search, HypothesisTree.add_keyframe
+
+    def counting(self, observation, keyframes, count):
+        searched.append(current[0])
+        return search(self, observation, keyframes, count)
+
+    def stepping(self, action, observation):
+        current[0] = len(self.observations)
+        return add_keyframe(self, action, observation)
+
+    monkeypatch.setattr(PlaceIndex, "search", counting)
+    monkeypatch.setattr(HypothesisTree, "add_keyframe", stepping)
+    _, results = run(rectangle_actions(2), SyntheticWorld(1, noise=0.02), synthetic_config())
+    lap = 34
+    revisits = [k for k in range(lap + 1, len(results)) if not results[k].best.is_new_state]
+    assert len(revisits) > 25
+    assert len(set(revisits) & set(searched)) < len(revisits) // 2
+    searched.clear()
+    delay, _ = _kidnap(synthetic_config())
+    assert delay is not None and delay <= 3
+    assert set(range(34 + 5, 34 + 5 + delay + 1)) <= set(searched)  # from the carry until relocalised
