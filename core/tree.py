@@ -520,9 +520,11 @@ class HypothesisTree:
             return none
         if not untested and not len(self._map_states) and self._well_explained(observation, proposed):
             # Tracked this well, the robot was not carried: nothing to look for elsewhere (and the
-            # index's query, the part of a step that grows with the map, is spared).
-            self._alarms.close_before(keyframe, lambda k, place: self._best_state_at(k) == place)
-            self._alarms.add(keyframe, None, keyframe - self._lost_at <= self.config.lost_window)
+            # index's query, the part of a step that grows with the map, is spared). The run's
+            # alarm count still counts the keyframe, as a search that singled out nothing would.
+            if self._log_relocalise > -math.inf:
+                self._alarms.close_before(keyframe, lambda k, place: self._best_state_at(k) == place)
+                self._alarms.add(keyframe, None, keyframe - self._lost_at <= self.config.lost_window)
             return none
         top = self._index.search(
             observation, len(self.committed_state_of_keyframe), self.config.relocalisation_candidates
