@@ -573,22 +573,38 @@ def _look_alike_pair_run(confirmations: int, monkeypatch) -> tuple[list[bool], b
         own, shared = world.rng.dirichlet(np.ones(BINS)), world.rng.dirichlet(np.ones(BINS))
         world.places[key(first_lap[5 + step])] = shared
         world.places[key(first_lap[20 + step])] = 0.7 * shared + 0.3 * own
+
+    def view_at(i: int, truths: list[np.ndarray], view: np.ndarray) -> np.ndarray:
+        if i not in (39, 40):  # lap 2 at places 5 and 6: leaning towards 20 and 21
+            return view
+        look_alike = world.places[key(first_lap[20 + i - 39])]
+        return (0.7 * look_alike + 0.3 * world.places[key(truths[-1])]).astype(np.float32)
+
+    truths, results = _drive_with_views(world, 44, view_at)
+    return _wrong_claims(truths, results, range(38, 45)), not results[-1].best.is_new_state
+
+
+def _drive_with_views(world: SyntheticWorld, keyframes: int, view_at) -> tuple[list[np.ndarray], list]:
+    """Drive the rectangle's first ``keyframes`` actions (3 % odometry noise) through the estimator;
+    ``view_at(i, truths, view)`` may replace keyframe i's own view. The true poses and the results."""
     estimator = Estimator(synthetic_config())
     rng = np.random.default_rng(0)
     truths = [np.zeros(3)]
     results = [estimator.add_keyframe(0, np.zeros(3), world.observe(truths[0]))]
-    for i, action in enumerate(rectangle_actions(2)[:44], start=1):
+    for i, action in enumerate(rectangle_actions(2)[:keyframes], start=1):
         truths.append(se2.compose(truths[-1], action))
-        view = world.observe(truths[-1])
-        if i in (39, 40):  # lap 2 at places 5 and 6
-            look_alike = world.places[key(first_lap[20 + i - 39])]
-            view = (0.7 * look_alike + 0.3 * world.places[key(truths[-1])]).astype(np.float32)
+        view = view_at(i, truths, world.observe(truths[-1]))
         results.append(estimator.add_keyframe(i, action * (1 + 0.03 * rng.standard_normal(3)), view))
-    wrong = []
-    for i in range(38, 45):
-        best = results[i].best
-        wrong.append(not best.is_new_state and math.hypot(*(truths[i][:2] - truths[best.state][:2])) > 0.5)
-    return wrong, not results[-1].best.is_new_state
+    return truths, results
+
+
+def _wrong_claims(truths: list[np.ndarray], results: list, keyframes: range) -> list[bool]:
+    """Whether each keyframe's best claim names a place over 0.5 m from where the robot truly is."""
+    return [
+        not results[i].best.is_new_state
+        and math.hypot(*(truths[i][:2] - truths[results[i].best.state][:2])) > 0.5
+        for i in keyframes
+    ]
 
 
 def test_a_jump_the_left_track_still_explains_waits_for_a_second_confirmation(monkeypatch):
@@ -657,21 +673,12 @@ def _look_alike_while_exploring(confirmations: int, monkeypatch) -> tuple[list[b
 
     monkeypatch.setattr(tree_module, "JUMP_CONFIRMATIONS", confirmations)
     world = SyntheticWorld(3)
-    estimator = Estimator(synthetic_config())
-    rng = np.random.default_rng(0)
-    truths = [np.zeros(3)]
-    results = [estimator.add_keyframe(0, np.zeros(3), world.observe(truths[0]))]
-    for i, action in enumerate(rectangle_actions(2)[:40], start=1):
-        truths.append(se2.compose(truths[-1], action))
-        view = world.observe(truths[-1])
-        if i in (20, 21):
-            view = world.observe(truths[i - 15])
-        results.append(estimator.add_keyframe(i, action * (1 + 0.03 * rng.standard_normal(3)), view))
-    wrong = []
-    for i in range(19, 24):
-        best = results[i].best
-        wrong.append(not best.is_new_state and math.hypot(*(truths[i][:2] - truths[best.state][:2])) > 0.5)
-    return wrong, not results[40].best.is_new_state
+
+    def view_at(i: int, truths: list[np.ndarray], view: np.ndarray) -> np.ndarray:
+        return world.observe(truths[i - 15]) if i in (20, 21) else view
+
+    truths, results = _drive_with_views(world, 40, view_at)
+    return _wrong_claims(truths, results, range(19, 24)), not results[40].best.is_new_state
 
 
 def test_a_jump_born_while_exploring_waits_for_a_second_confirmation(monkeypatch):
