@@ -513,6 +513,8 @@ class HypothesisTree:
         returned too, untested (``map_relocalisation_prior``): the sequence that follows decides.
         After an odometry jump (``untested``) the robot may be anywhere: as at a session's start,
         the ``map_relocalisation_candidates`` most alike places are all returned, untested.
+        Where the best leaf's prediction already fits the view well (``WELL_EXPLAINED``), within a
+        run, the index is not searched and nothing is returned.
         """
         none = (np.zeros(0, np.int64), [], None)
         appearance_off = self._log_relocalise == -math.inf and self._log_map_relocalise == -math.inf
@@ -1041,7 +1043,7 @@ does (docs/estimator.md, "A jump the left track still explains" and "Exploring, 
 WELL_EXPLAINED = 0.5
 """A view the best leaf's predicted place fits at under this share of the new-place reference is
 explained: the index is not searched for a jump at that keyframe. A kidnap's first view fits the
-place odometry predicts at 0.9–1.1 × the reference (the matrix's two closest calls); right revisits
+place odometry predicts at 0.88–1.11 × the reference (the matrix's two closest calls); right revisits
 at 0.16–0.74 (docs/estimator.md, "Not searched where the track explains the view")."""
 _UNKNOWN_LINK = (1e6, 0.0, 0.0, 1e6, 0.0, 1e6)
 """Covariance of a relocalisation link: so uncertain that no search crosses it (weight ≫ bound)."""
