@@ -96,13 +96,16 @@ class PlaceIndex:
         """Places most like ``observation`` by any part of the key, ``count`` per part (so up to
         ``count`` × parts, in increasing order), among those first seen at least ``skip`` keyframes
         before keyframe ``keyframes``."""
+        arriving: list[list[np.ndarray]] = [[] for _ in self._vectors]
         while self._waiting and self._waiting[0][0] < keyframes - self._skip:
             state, parts = self._waiting.popleft()
-            for index, (vectors, part) in enumerate(zip(self._vectors, parts, strict=True)):
+            for vectors, part, batch in zip(self._vectors, parts, arriving, strict=True):
                 vectors.append(part)
-                if self._cells is not None:
-                    self._cells[index].add(part[None, :])
+                batch.append(part)
             self._states.append(state)
+        if self._cells is not None and arriving[0]:
+            for cells, batch in zip(self._cells, arriving, strict=True):
+                cells.add(np.stack(batch))  # one call per part: a faiss call costs more than a place
         searchable = len(self._states)
         if not searchable:
             return np.zeros(0, np.int64)
