@@ -520,7 +520,9 @@ class HypothesisTree:
         appearance_off = self._log_relocalise == -math.inf and self._log_map_relocalise == -math.inf
         if not self.leaves or (appearance_off and not untested):
             return none
-        if not untested and not len(self._map_states) and self._well_explained(observation, proposed):
+        # How well the best leaf's motion model explains the view: its most alike proposed place.
+        fit = float(self._distances(observation, proposed).min()) if len(proposed) else math.inf
+        if not untested and not len(self._map_states) and fit < WELL_EXPLAINED * self.reference.value:
             # Tracked this well, the robot was not carried: nothing to look for elsewhere (and the
             # index's query, the part of a step that grows with the map, is spared). The run's
             # alarm count still counts the keyframe, as a search that singled out nothing would.
@@ -555,7 +557,7 @@ class HypothesisTree:
             order = order[~from_map]
         distinctive = None
         if self._log_relocalise > -math.inf:
-            own = self._distinctive(observation, top, distances, order, proposed)
+            own = self._distinctive(top, distances, order, fit)
             found += own
             lost = keyframe - self._lost_at <= self.config.lost_window
             self._alarms.close_before(keyframe, lambda k, place: self._best_state_at(k) == place)
@@ -565,13 +567,6 @@ class HypothesisTree:
             distinctive = own[0] if own else None
             self._alarms.add(keyframe, distinctive, lost)
         return np.array(found, dtype=np.int64), priors, distinctive
-
-    def _well_explained(self, observation: np.ndarray, proposed: np.ndarray) -> bool:
-        """Whether a place the best leaf's motion model proposed fits the view at under
-        ``WELL_EXPLAINED`` × the new-place reference."""
-        if not len(proposed):
-            return False
-        return float(self._distances(observation, proposed).min()) < WELL_EXPLAINED * self.reference.value
 
     def _best_state_at(self, keyframe: int) -> int:
         """The state the best hypothesis assigns to ``keyframe``."""
@@ -593,14 +588,10 @@ class HypothesisTree:
         return self.config.jump_alarm_power * min(0.0, math.log(rate / self._alarms.share(rate)))
 
     def _distinctive(
-        self,
-        observation: np.ndarray,
-        top: np.ndarray,
-        distances: np.ndarray,
-        order: np.ndarray,
-        proposed: np.ndarray,
+        self, top: np.ndarray, distances: np.ndarray, order: np.ndarray, fit: float
     ) -> list[int]:
-        """The best of ``top`` (ranked by ``order``) if appearance alone singles it out, else none."""
+        """The best of ``top`` (ranked by ``order``) if appearance alone singles it out, else none;
+        ``fit`` is the distance of the most alike place the motion model proposed (inf: none)."""
         # Distinctive only (Lowe's ratio test): in an aliased stretch, where several places look
         # alike, appearance alone must not move the robot.
         if len(order) < 2:
@@ -615,10 +606,8 @@ class HypothesisTree:
             return []
         if not distances[order[0]] < self.reference.value:
             return []
-        if len(proposed):  # and clearly more alike than what the motion model predicts
-            predicted = self._distances(observation, proposed)
-            if not distances[order[0]] < RELOCALISATION_RATIO * float(predicted.min()):
-                return []
+        if not distances[order[0]] < RELOCALISATION_RATIO * fit:  # clearly more alike than predicted
+            return []
         return [best]
 
     def _distances(self, observation: np.ndarray, states: np.ndarray) -> np.ndarray:

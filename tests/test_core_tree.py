@@ -627,17 +627,16 @@ def test_a_places_own_neighbours_are_no_rivals_in_the_distinctiveness_test():
     estimator, _ = run(rectangle_actions(1)[:20], SyntheticWorld(1), synthetic_config())
     tree = estimator._tree
     alike = 0.5 * tree.reference.value
-    observation, none = np.zeros(BINS, np.float32), np.zeros(0, np.int64)
     order = np.arange(2)
     neighbour = np.array([10, 10 + RUNNER_UP_GAP])
     elsewhere = np.array([10, 11 + RUNNER_UP_GAP])
     distances = np.array([alike, 1.05 * alike])
-    assert tree._distinctive(
-        observation, np.array([10, 11, 30]), np.append(distances, 1.0), np.arange(3), none
-    ) == [10]
-    assert tree._distinctive(observation, neighbour, distances, order, none) == []  # only a neighbour
-    assert tree._distinctive(observation, elsewhere, distances, order, none) == []
-    assert tree._distinctive(observation, elsewhere, np.array([alike, 2 * alike]), order, none) == [10]
+    assert tree._distinctive(np.array([10, 11, 30]), np.append(distances, 1.0), np.arange(3), math.inf) == [
+        10
+    ]
+    assert tree._distinctive(neighbour, distances, order, math.inf) == []  # only a neighbour
+    assert tree._distinctive(elsewhere, distances, order, math.inf) == []
+    assert tree._distinctive(elsewhere, np.array([alike, 2 * alike]), order, math.inf) == [10]
 
 
 def _drive_off_the_map(monkeypatch, in_map_steps: float) -> tuple[HypothesisTree, list]:
