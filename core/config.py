@@ -156,7 +156,8 @@ class EstimatorConfig:
         0.8,
         "A revisit the motion model proposes is ruled out when a place found by appearance alone (a"
         " relocalisation) is clearly more alike: its distance under this × the proposed place's (0 = never)."
-        " Where the robot was carried, the place odometry predicts can still look half alike.",
+        " Where the robot was carried, the place odometry predicts can still look half alike (past an"
+        " odometry jump no old track predicts: what the lines that jumped there predict is not ruled out).",
     )
     new_state_coverage: float = _param(
         0.9,

@@ -254,6 +254,8 @@ class HypothesisTree:
         """The keyframe the robot last lost track: the best hypothesis went from a mapped place to a
         new one where its map has places (a kidnap, a stretch the views no longer explain), or
         odometry jumped. Driving off the end of mapped ground is exploring, not losing track."""
+        self._odometry_jumped_at = -1
+        """The keyframe odometry last jumped (a reset): no track leads past it."""
         self._best_in_map = True
         """Whether the best leaf's map has a place within ``IN_MAP_STEPS`` steps of where odometry
         puts the robot now (set by each graph search of the best leaf)."""
@@ -341,7 +343,9 @@ class HypothesisTree:
         action = np.asarray(action, dtype=float)
         action_cov = action_covariance(action, self._noise)
         jumped = self._jump_factor > 0 and self._odometry_jumped(action)
+        after_odometry_jump = self._odometry_jumped_at == keyframe - 1
         if jumped:  # not a motion: nothing to predict from it
+            self._odometry_jumped_at = keyframe
             proposals = [(np.zeros(0, np.int64), np.zeros(0)) for _ in self.leaves]
         else:
             proposals = self._propose(self.leaves, action, action_cov)
@@ -355,6 +359,7 @@ class HypothesisTree:
             dtype=np.int64,
         )
         log_obs_of: dict[int, float] = {}
+        unvetoed_of: dict[int, float] | None = None  # before the contradiction veto, where it applied
         distances = np.zeros(0)
         if len(candidate_ids):
             distances = self._distances(observation, candidate_ids)
@@ -368,6 +373,7 @@ class HypothesisTree:
                 # Appearance singles out a place the motion model did not propose, and the places it
                 # did propose look far less alike: the robot was carried (the matrix's kidnaps: the
                 # predicted place still half alike, the true place found by the index).
+                unvetoed_of = dict(zip(candidate_ids.tolist(), log_obs.tolist(), strict=True))
                 found = distances[int(np.searchsorted(candidate_ids, distinctive))]
                 unlike = distances * self.config.contradiction_ratio >= found
                 vetoed = unlike & (candidate_ids != distinctive)
@@ -383,9 +389,15 @@ class HypothesisTree:
                 # A mapped place where the robot is predicted to stand makes "a new place" unlikely.
                 leaf_log_new += math.log1p(-coverage * math.exp(min(0.0, float(log_transition.max()))))
             children.append((leaf.log_belief + leaf_log_new, leaf, keyframe, True))
+            obs_of = log_obs_of
+            if unvetoed_of is not None and leaf.settled_at > keyframe and after_odometry_jump:
+                # The veto is for the old track's prediction; past an odometry jump there is none:
+                # the lines that jumped there by appearance are all the robot has, and their
+                # predictions are the jumps' tests.
+                obs_of = unvetoed_of
             for state, log_t in zip(states.tolist(), log_transition.tolist(), strict=True):
                 children.append(
-                    (leaf.log_belief + self._log_revisit + log_t + log_obs_of[state], leaf, state, False)
+                    (leaf.log_belief + self._log_revisit + log_t + obs_of[state], leaf, state, False)
                 )
         # Relocalisation: the best leaf may also jump to a place found by appearance alone, with a
         # small prior and no motion term (a kidnap, an odometry reset, a stretch the motion missed).
