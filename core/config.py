@@ -157,7 +157,9 @@ class EstimatorConfig:
         "A revisit the motion model proposes is ruled out when a place found by appearance alone (a"
         " relocalisation) is clearly more alike: its distance under this × the proposed place's (0 = never)."
         " Where the robot was carried, the place odometry predicts can still look half alike (past an"
-        " odometry jump no old track predicts: what the lines that jumped there predict is not ruled out).",
+        " odometry jump no old track predicts: what the lines that jumped there predict is not ruled out)."
+        " With nothing singled out, the most alike place elsewhere rules out proposed places that look less"
+        " alike than the new-place reference, if it looks more.",
     )
     new_state_coverage: float = _param(
         0.9,

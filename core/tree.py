@@ -350,7 +350,7 @@ class HypothesisTree:
         else:
             proposals = self._propose(self.leaves, action, action_cov)
 
-        relocalisation, relocalisation_priors, distinctive = self._relocalisation_candidates(
+        relocalisation, relocalisation_priors, distinctive, elsewhere = self._relocalisation_candidates(
             observation, keyframe, proposals[0][0], untested=jumped
         )
         # Sorted and unique, as np.unique would give (which imports numpy.ma on first use: 10 ms).
@@ -369,14 +369,25 @@ class HypothesisTree:
                 # odometry predicts (a kidnap, a reset, a wrong chain).
                 vetoed = distances >= self.config.appearance_veto * self.reference.value
                 log_obs = np.where(vetoed, -np.inf, log_obs)
-            if self.config.contradiction_ratio > 0 and distinctive is not None:
-                # Appearance singles out a place the motion model did not propose, and the places it
-                # did propose look far less alike: the robot was carried (the matrix's kidnaps: the
-                # predicted place still half alike, the true place found by the index).
+            ratio = self.config.contradiction_ratio
+            if ratio > 0 and (distinctive is not None or elsewhere < self.reference.value):
                 unvetoed_of = dict(zip(candidate_ids.tolist(), log_obs.tolist(), strict=True))
-                found = distances[int(np.searchsorted(candidate_ids, distinctive))]
-                unlike = distances * self.config.contradiction_ratio >= found
-                vetoed = unlike & (candidate_ids != distinctive)
+                if distinctive is not None:
+                    # Appearance singles out a place the motion model did not propose, and the places
+                    # it did propose look far less alike: the robot was carried (the matrix's kidnaps:
+                    # the predicted place still half alike, the true place found by the index).
+                    found = distances[int(np.searchsorted(candidate_ids, distinctive))]
+                    vetoed = (distances * ratio >= found) & (candidate_ids != distinctive)
+                else:
+                    # Nothing singled out (look-alikes), but a place elsewhere looks like a revisit and
+                    # clearly more alike than a proposed place that does not: the view speaks against
+                    # that prediction (a kidnap into an aliased stretch). Not claimed; no jump either.
+                    found_elsewhere = set(relocalisation.tolist())  # a prior map's own candidates
+                    vetoed = (
+                        (distances >= self.reference.value)
+                        & (distances * ratio >= elsewhere)
+                        & np.array([state not in found_elsewhere for state in candidate_ids.tolist()])
+                    )
                 log_obs = np.where(vetoed, -np.inf, log_obs)
             log_obs_of = dict(zip(candidate_ids.tolist(), log_obs.tolist(), strict=True))
 
@@ -511,9 +522,10 @@ class HypothesisTree:
         proposed: np.ndarray,
         *,
         untested: bool = False,
-    ) -> tuple[np.ndarray, list[float], int | None]:
+    ) -> tuple[np.ndarray, list[float], int | None, float]:
         """Committed places that look like ``observation``, found over the whole map at bounded cost,
-        with the log prior of a jump to each, and which of them appearance alone singled out (or None).
+        with the log prior of a jump to each, which of them appearance alone singled out (or None),
+        and the distance of the most alike place elsewhere (not proposed, not held; inf if none).
 
         The index (:class:`aslam.core.place_index.PlaceIndex`: an exact scan up to 2,048 places, an
         inverted file of k-means cells beyond) shortlists the ``relocalisation_candidates`` most
@@ -528,7 +540,7 @@ class HypothesisTree:
         Where the best leaf's prediction already fits the view well (``WELL_EXPLAINED``), within a
         run, the index is not searched and nothing is returned.
         """
-        none = (np.zeros(0, np.int64), [], None)
+        none = (np.zeros(0, np.int64), [], None, math.inf)
         appearance_off = self._log_relocalise == -math.inf and self._log_map_relocalise == -math.inf
         if not self.leaves or (appearance_off and not untested):
             return none
@@ -554,9 +566,10 @@ class HypothesisTree:
             return none
         distances = self._distances(observation, top)
         order = np.lexsort((top, distances))
+        elsewhere = float(distances[order[0]])
         if untested:
             found = top[order][: self.config.map_relocalisation_candidates].tolist()
-            return np.array(found, dtype=np.int64), [self._log_enter_map] * len(found), None
+            return np.array(found, dtype=np.int64), [self._log_enter_map] * len(found), None, elsewhere
         from_map = top[order] < self._first_keyframe
         found: list[int] = []
         priors: list[float] = []
@@ -578,7 +591,7 @@ class HypothesisTree:
             priors += [log_prior] * len(own)
             distinctive = own[0] if own else None
             self._alarms.add(keyframe, distinctive, lost)
-        return np.array(found, dtype=np.int64), priors, distinctive
+        return np.array(found, dtype=np.int64), priors, distinctive, elsewhere
 
     def _best_state_at(self, keyframe: int) -> int:
         """The state the best hypothesis assigns to ``keyframe``."""
