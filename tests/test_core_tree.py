@@ -26,6 +26,19 @@ def rectangle_actions(laps: int = 2) -> list[np.ndarray]:
     return lap * laps
 
 
+def place_key(pose: np.ndarray) -> tuple[int, int, int]:
+    """The synthetic worlds' place of a pose: its position rounded to the metre, its heading to 90°."""
+    return (round(pose[0]), round(pose[1]), round(math.degrees(pose[2]) / 90) % 4)
+
+
+def first_lap_poses() -> list[np.ndarray]:
+    """The true poses of the rectangle's first lap, keyframe by keyframe."""
+    poses = [np.zeros(3)]
+    for action in rectangle_actions(1):
+        poses.append(se2.compose(poses[-1], action))
+    return poses
+
+
 class SyntheticWorld:
     """Each place (rounded true pose) has a random histogram; views of it are noisy copies."""
 
@@ -37,7 +50,7 @@ class SyntheticWorld:
         self.shared = [self.rng.dirichlet(np.ones(BINS)) for _ in range(alphabet or 0)]
 
     def observe(self, pose: np.ndarray) -> np.ndarray:
-        key = (round(pose[0]), round(pose[1]), round(math.degrees(pose[2]) / 90) % 4)
+        key = place_key(pose)
         if key not in self.places:
             self.places[key] = (
                 self.shared[self.rng.integers(len(self.shared))]
@@ -321,7 +334,7 @@ class ThumbnailWorld:
         self.places: dict[tuple[int, int, int], np.ndarray] = {}
 
     def observe(self, pose: np.ndarray) -> np.ndarray:
-        key = (round(pose[0]), round(pose[1]), round(math.degrees(pose[2]) / 90) % 4)
+        key = place_key(pose)
         if key not in self.places:
             self.places[key] = self.rng.standard_normal(192).astype(np.float32)
         return (self.places[key] + self.noise * self.rng.standard_normal(192)).astype(np.float32)
@@ -444,22 +457,16 @@ def test_past_an_odometry_jump_a_look_alike_does_not_rule_out_what_the_jumps_pre
     is no old track, and the line that jumped there keeps its prediction: relocalised at the first
     keyframe after the reset, not the second, every claim right."""
     world = SyntheticWorld(5)
-    first_lap = [np.zeros(3)]
-    for action in rectangle_actions(1):
-        first_lap.append(se2.compose(first_lap[-1], action))
-
-    def key(pose: np.ndarray) -> tuple[int, int, int]:
-        return (round(pose[0]), round(pose[1]), round(math.degrees(pose[2]) / 90) % 4)
-
+    first_lap = first_lap_poses()
     own, shared = world.rng.dirichlet(np.ones(BINS)), world.rng.dirichlet(np.ones(BINS))
-    world.places[key(first_lap[8])] = shared
-    world.places[key(first_lap[20])] = 0.7 * shared + 0.3 * own
+    world.places[place_key(first_lap[8])] = shared
+    world.places[place_key(first_lap[20])] = 0.7 * shared + 0.3 * own
     reset_at = 34 + 7  # lap 2 at place 7; place 8 next
 
     def view_at(i: int, truths: list[np.ndarray], view: np.ndarray) -> np.ndarray:
         if i != reset_at + 1:
             return view
-        return (0.7 * world.places[key(first_lap[20])] + 0.3 * shared).astype(np.float32)
+        return (0.7 * world.places[place_key(first_lap[20])] + 0.3 * shared).astype(np.float32)
 
     _, results, truths = _reset_run(world, reset_at, synthetic_config(), view_at)
     assert results[reset_at + 1].best.state == 8
@@ -615,23 +622,17 @@ def _look_alike_pair_run(confirmations: int, monkeypatch) -> tuple[list[bool], b
 
     monkeypatch.setattr(tree_module, "JUMP_CONFIRMATIONS", confirmations)
     world = SyntheticWorld(3)
-    first_lap = [np.zeros(3)]
-    for action in rectangle_actions(1):
-        first_lap.append(se2.compose(first_lap[-1], action))
-
-    def key(pose: np.ndarray) -> tuple[int, int, int]:
-        return (round(pose[0]), round(pose[1]), round(math.degrees(pose[2]) / 90) % 4)
-
+    first_lap = first_lap_poses()
     for step in (0, 1):
         own, shared = world.rng.dirichlet(np.ones(BINS)), world.rng.dirichlet(np.ones(BINS))
-        world.places[key(first_lap[5 + step])] = shared
-        world.places[key(first_lap[20 + step])] = 0.7 * shared + 0.3 * own
+        world.places[place_key(first_lap[5 + step])] = shared
+        world.places[place_key(first_lap[20 + step])] = 0.7 * shared + 0.3 * own
 
     def view_at(i: int, truths: list[np.ndarray], view: np.ndarray) -> np.ndarray:
         if i not in (39, 40):  # lap 2 at places 5 and 6: leaning towards 20 and 21
             return view
-        look_alike = world.places[key(first_lap[20 + i - 39])]
-        return (0.7 * look_alike + 0.3 * world.places[key(truths[-1])]).astype(np.float32)
+        look_alike = world.places[place_key(first_lap[20 + i - 39])]
+        return (0.7 * look_alike + 0.3 * world.places[place_key(truths[-1])]).astype(np.float32)
 
     truths, results = _drive_with_views(world, 44, view_at)
     return _wrong_claims(truths, results, range(38, 45)), not results[-1].best.is_new_state
