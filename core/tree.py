@@ -359,7 +359,7 @@ class HypothesisTree:
             dtype=np.int64,
         )
         log_obs_of: dict[int, float] = {}
-        unvetoed_of: dict[int, float] | None = None  # before the contradiction veto, where it applied
+        unvetoed_of: dict[int, float] | None = None  # before the contradiction veto, where it applies
         distances = np.zeros(0)
         if len(candidate_ids):
             distances = self._distances(observation, candidate_ids)
@@ -371,7 +371,8 @@ class HypothesisTree:
                 log_obs = np.where(vetoed, -np.inf, log_obs)
             ratio = self.config.contradiction_ratio
             if ratio > 0 and (distinctive is not None or elsewhere < self.reference.value):
-                unvetoed_of = dict(zip(candidate_ids.tolist(), log_obs.tolist(), strict=True))
+                if after_odometry_jump:  # the lines that jumped there are spared (below)
+                    unvetoed_of = dict(zip(candidate_ids.tolist(), log_obs.tolist(), strict=True))
                 if distinctive is not None:
                     # Appearance singles out a place the motion model did not propose, and the places
                     # it did propose look far less alike: the robot was carried (the matrix's kidnaps:
@@ -401,7 +402,7 @@ class HypothesisTree:
                 leaf_log_new += math.log1p(-coverage * math.exp(min(0.0, float(log_transition.max()))))
             children.append((leaf.log_belief + leaf_log_new, leaf, keyframe, True))
             obs_of = log_obs_of
-            if unvetoed_of is not None and leaf.settled_at > keyframe and after_odometry_jump:
+            if unvetoed_of is not None and leaf.settled_at > keyframe:
                 # The veto is for the old track's prediction; past an odometry jump there is none:
                 # the lines that jumped there by appearance are all the robot has, and their
                 # predictions are the jumps' tests.
