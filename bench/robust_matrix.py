@@ -115,6 +115,10 @@ HELD_OUT_ROUTES = ("bench/routes/ell.json", "bench/routes/corridor.json", "bench
 beside the presets, to check a result on routes it was not found on."""
 
 
+REPOSITORY = Path(__file__).resolve().parents[1]
+"""The repository's root: results files name route files from it."""
+
+
 def is_route_file(route: str) -> bool:
     return route.endswith(".json")
 
@@ -176,10 +180,16 @@ class Scenario:
         for key, value in self.settings.items():
             name = "noise-model" if key == "model" else key.replace("_", "-")
             flags.append(f"--{name} {value:g}" if isinstance(value, float) else f"--{name} {value}")
-        route, laps = self.route, ""
-        if is_route_file(route):
-            route, laps = os.path.relpath(route, Path(__file__).resolve().parents[1]), " --laps 2"
-        return f"aslam record --route {route}{laps} --seed {self.seed} {' '.join(flags)}".strip()
+        route = self.portable_route + (" --laps 2" if is_route_file(self.route) else "")
+        return f"aslam record --route {route} --seed {self.seed} {' '.join(flags)}".strip()
+
+    @property
+    def portable_route(self) -> str:
+        """A preset's name, or a route file's path from the repository's root (as results files keep it;
+        the scenario itself holds the absolute path, which a Dask worker in any folder can open)."""
+        if not is_route_file(self.route) or not os.path.isabs(self.route):
+            return self.route
+        return os.path.relpath(self.route, REPOSITORY)
 
 
 @dataclass
@@ -635,7 +645,7 @@ def main(argv: list[str] | None = None) -> int:
                     {
                         "scenario": r.scenario.name,
                         "family": r.scenario.family,
-                        "route": r.scenario.route,
+                        "route": r.scenario.portable_route,
                         "seed": r.scenario.seed,
                         "command": r.scenario.command(),
                         "estimator": r.estimator,
