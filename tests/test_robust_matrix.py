@@ -24,6 +24,8 @@ def test_a_held_out_route_is_closed_and_driven_twice_under_its_own_name(route):
     assert scenario.name == f"lighting50-{stem}-seed6"
     assert scenario.record_config().laps == 2
     assert scenario.command().startswith(f"aslam record --route {route} --laps 2 --seed 6 ")
+    assert scenario.portable_route == route  # what results files keep: no machine's own path
+    assert Scenario("lighting50", "paper", 6).portable_route == "paper"
     assert Scenario("kidnap", path, 6).base.name == f"default-{stem}-seed6"
 
 
