@@ -42,8 +42,8 @@ ROBUST_TABLES = {
 by the template's name for each: the matrix; the same families on held-out seeds and routes (seeds
 6–8); mixes of its knobs, held out; seeds 9–10; seeds 11–12 with a sixth route
 (``bench/routes/notch.json``); seeds 13–14 with jitter and wander too, and the mixes on them; the
-events and aliasing on seeds 15–16; the events, aliasing, lighting and two mixes on seeds 19–20, held
-out. A table not made is left out of the page."""
+events and aliasing on seeds 15–16; the events, the families with targets and six mixes on seeds 19–20,
+held out. A table not made is left out of the page."""
 TEMPLATES = Path(__file__).resolve().parent / "templates"
 DRIFT_PLOT = "long-run-drift.png"
 
