@@ -59,16 +59,21 @@ def between(a: Pose2, b: Pose2) -> Pose2:
     return compose(inverse(a), b)
 
 
-def interpolate(a: Pose2, b: Pose2, fraction: float) -> Pose2:
+def interpolate(a: Pose2, b: Pose2, fraction: float, turn_rad: float | None = None) -> Pose2:
     """Pose a fraction of the way from ``a`` to ``b`` (straight line, shortest turn).
 
     The one interpolation of the tool: poses between render frames, odometry and ground truth at
-    image stamps, truth at keyframe stamps.
+    image stamps, truth at keyframe stamps. Two headings alone cannot say which way a half turn
+    or more went; where the motion's own turn is known (a commanded ``turn_rad``), the heading
+    turns the way of ``b − a`` nearest it instead, so a 180° or 270° turn is swept as commanded.
     """
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
     xy = a[:2] + fraction * (b[:2] - a[:2])
-    yaw = wrap_angle(a[2] + fraction * wrap_angle(b[2] - a[2]))
+    turn = wrap_angle(b[2] - a[2])
+    if turn_rad is not None and (laps := round((turn_rad - float(turn)) / (2.0 * np.pi))):
+        turn = turn + 2.0 * np.pi * laps
+    yaw = wrap_angle(a[2] + fraction * turn)
     return np.array([xy[0], xy[1], float(yaw)])
 
 

@@ -99,8 +99,9 @@ class Plan:
                     yield Frame(stamp, self.truth[k], self.odometry[k], None, lighting)
                 else:
                     f = j / n
-                    truth = se2.interpolate(self.truth[k], self.truth[k + 1], f)
-                    odom = se2.interpolate(self.odometry[k], odom_next, f)
+                    turn = self.route.actions[k].turn_rad  # both turn the way commanded, however far
+                    truth = se2.interpolate(self.truth[k], self.truth[k + 1], f, turn)
+                    odom = se2.interpolate(self.odometry[k], odom_next, f, turn)
                     yield Frame(stamp, truth, odom, None, lighting)
         k = len(self.truth) - 1
         yield Frame(

@@ -153,3 +153,16 @@ def test_interpolate_runs_from_a_to_b_along_the_shorter_turn(a, b):
     np.testing.assert_allclose(middle[:2], (a[:2] + b[:2]) / 2, atol=1e-9)
     turn = abs(se2.wrap_angle(middle[2] - a[2]))
     assert turn <= np.pi / 2 + 1e-9  # half of a turn that is at most π
+
+
+@given(poses, st.floats(-4 * math.pi, 4 * math.pi), st.floats(-0.3, 0.3), st.floats(0.0, 1.0))
+def test_interpolate_sweeps_a_known_turn_the_way_it_went(a, turn, error, fraction):
+    """A commanded turn of any size, executed with an error: the heading sweeps the turn made, the
+    way it was commanded, not the shorter way between the two end headings."""
+    made = turn + error
+    b = np.array([a[0], a[1], float(se2.wrap_angle(a[2] + made))])
+    pose = se2.interpolate(a, b, fraction, turn_rad=turn)
+    assert abs(se2.wrap_angle(pose[2] - (a[2] + fraction * made))) < 1e-6
+    assert close_poses(se2.interpolate(a, b, 1.0, turn_rad=turn), b, 1e-6)
+    if abs(made) < 3.0:  # within the shorter turn the known turn changes nothing
+        np.testing.assert_array_equal(pose, se2.interpolate(a, b, fraction))

@@ -621,6 +621,19 @@ def test_odometry_reset_restarts_from_zero_and_keeps_the_motion(tmp_path, capsys
     assert "--odometry-reset-at" in one_error_line(capsys.readouterr().err)
 
 
+@pytest.mark.parametrize("turn_deg", [180, -180, 270])
+def test_a_half_turn_or_more_at_video_rate_turns_the_commanded_way(tmp_path, turn_deg):
+    """Between keyframes the truth and odometry both sweep the commanded turn: two headings 180°
+    apart do not say which way the robot went, and the shorter way sent them opposite ways."""
+    doc = {"start": {"x_m": 0, "y_m": 0, "yaw_deg": 0}, "actions": [{"forward_m": 1}, {"turn_deg": turn_deg}]}
+    p = plan(RecordConfig(route=str(_write_json(tmp_path / "u.json", doc)), fps=8, seed=5))
+    frames = list(p.frames())
+    for poses in ([f.truth_pose for f in frames], [f.odometry_pose for f in frames]):
+        steps = se2.wrap_angle(np.diff(np.array(poses)[:, 2]))[8:]  # the turn's frames
+        assert np.all(np.sign(steps) == np.sign(turn_deg))
+        assert abs(np.sum(steps) - math.radians(turn_deg)) < 0.2  # noise and jitter
+
+
 def test_every_knob_at_video_rate_is_deterministic_and_in_the_metadata(tmp_path):
     # the 2 m × 1 m loop, carried from its first corner to its third mid-lap, closed so it repeats
     loop = routes.parse_route(LOOP)
