@@ -31,7 +31,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from aslam.core import se2
-from aslam.core.estimator import Estimator, StepResult
+from aslam.core.estimator import Estimator, Keyframer, StepResult
 from aslam.core.observation import ObservationModel
 from aslam.data_formats.images import LazyImage
 from aslam.data_formats.pose_sync import Sample
@@ -111,6 +111,7 @@ def keyframes_taken(
     before it.
     """
     heading = math.radians(WINDOW_HEADING_DEG)
+    keyframer = estimator.keyframer
     source = iter(frames)
     replay: deque[Frame] = deque()
     recent: deque[Frame] = deque(maxlen=MAX_WINDOW_FRAMES)
@@ -120,10 +121,13 @@ def keyframes_taken(
         return replay.popleft() if replay else next(source, None)
 
     while (frame := pull()) is not None:
-        action = estimator.keyframe_action(frame.odometry_pose)
+        action = keyframer.action_if_keyframe(frame.odometry_pose)
         if action is None:
             recent.append(frame)
             continue
+        if keyframer.at_previous:  # the frame before, where a turn in place began; this one comes again
+            replay.appendleft(frame)
+            frame = recent.pop()
         if previous is None:  # the first keyframe: nothing to choose from, nothing to predict
             previous = frame
             recent.clear()
@@ -144,7 +148,7 @@ def keyframes_taken(
             actions = [se2.between(previous.odometry_pose, o.odometry_pose) for o in options]
             taken = options[estimator.choose_keyframe(actions, [o.histogram for o in options])]
         if taken is not frame:
-            estimator.keyframe_taken_at(taken.odometry_pose)
+            keyframer.anchor(taken.odometry_pose)
         later = [f for f in (*before, frame, *after) if f.stamp_ns > taken.stamp_ns]
         replay.extendleft(reversed(later))
         recent.clear()
@@ -191,7 +195,7 @@ def _described(
 
 def keyframe_histograms(
     samples: Iterable[Sample],
-    keyframe_action: Callable[[np.ndarray], np.ndarray | None],
+    keyframer: Keyframer,
     histogram: ObservationModel,
     *,
     counts: PipelineCounts | None = None,
@@ -200,18 +204,17 @@ def keyframe_histograms(
 ) -> Iterator[Keyframe]:
     """The keyframes of ``samples`` with their histograms, in order (only keyframes are decoded).
 
-    ``keyframe_action(odometry_pose)`` is the keyframe test (the action, or None).
+    ``keyframer`` decides from each sample's odometry pose.
     """
     counts = counts if counts is not None else PipelineCounts()
 
-    def keyframes() -> Iterator[tuple[Sample, np.ndarray]]:
+    def counted() -> Iterator[Sample]:
         for sample in samples:
             counts.samples += 1
-            action = keyframe_action(sample.odometry_pose)
-            if action is not None:
-                yield sample, action
+            yield sample
 
-    for sample, action, vector in _described(keyframes(), histogram, workers, depth):
+    keyframes = keyframer.keyframes(counted(), lambda sample: sample.odometry_pose)
+    for sample, action, vector in _described(keyframes, histogram, workers, depth):
         pose = np.asarray(sample.odometry_pose, dtype=float)
         yield Keyframe(sample.stamp_ns, action, vector, sample.ground_truth_pose, pose)
 
@@ -381,7 +384,7 @@ def run_estimate(
                 samples, describe, window_m, counts=reader_counts, workers=workers, depth=depth
             )
         return keyframe_histograms(
-            samples, estimator.keyframe_action, describe, counts=reader_counts, workers=workers, depth=depth
+            samples, estimator.keyframer, describe, counts=reader_counts, workers=workers, depth=depth
         )
 
     if reader_process and can_fork():

@@ -59,9 +59,7 @@ def read_keyframes(
     model = model if model is not None else HistogramModel(config.histogram)
     keyframer = make_keyframer(config)
     stamps, actions, histograms = [], [], []
-    with closing(
-        keyframe_histograms(Recording(recording).samples(), keyframer.action_if_keyframe, model)
-    ) as keyframes:
+    with closing(keyframe_histograms(Recording(recording).samples(), keyframer, model)) as keyframes:
         for keyframe in keyframes:
             stamps.append(keyframe.stamp_ns)
             actions.append(np.asarray(keyframe.action, float))

@@ -77,10 +77,8 @@ def stages(recording: Path, config: EstimatorConfig, output: Path) -> dict[str, 
     keyframe_test = keyframer(config)
     keyframes = []
     with closing(Recording(recording).samples()) as samples:
-        for sample in samples:
-            action = keyframe_test.action_if_keyframe(sample.odometry_pose)
-            if action is not None:
-                keyframes.append((sample.stamp_ns, action, sample.image))
+        for sample, action in keyframe_test.keyframes(samples, lambda sample: sample.odometry_pose):
+            keyframes.append((sample.stamp_ns, action, sample.image))
     timings["read_and_sync_s"] = time.perf_counter() - start
     start = time.perf_counter()
     grays = [image.decode_gray() for _, _, image in keyframes]

@@ -46,9 +46,8 @@ def keyframes(path: Path) -> list[tuple[np.ndarray, np.ndarray]]:
     test = keyframer(EstimatorConfig())
     out = []
     with closing(Recording(path).samples()) as samples:
-        for sample in samples:
-            if test.action_if_keyframe(sample.odometry_pose) is not None:
-                out.append((sample.image.decode_gray(), np.asarray(sample.ground_truth_pose, float)))
+        for sample, _ in test.keyframes(samples, lambda sample: sample.odometry_pose):
+            out.append((sample.image.decode_gray(), np.asarray(sample.ground_truth_pose, float)))
     return out
 
 

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 
@@ -13,6 +15,14 @@ from aslam.core.mapgraph import PriorMap, SharedMap
 from aslam.core.motion import rel_covariance
 from aslam.core.observation import ObservationModel, observation_model
 from aslam.core.tree import SESSION_START, Hypothesis, HypothesisTree, TreeStats
+
+T = TypeVar("T")
+
+TURN_IN_PLACE_M_PER_RAD = 0.3
+"""A motion between two poses is a turn in place when it advances less than this per radian turned
+(a turning circle of 30 cm: a corner, not a curve)."""
+MIN_TURN_RAD = math.radians(0.5)
+"""...and turns at least this much: a robot standing still, its heading jittering, is not turning."""
 
 
 class Keyframer:
@@ -24,6 +34,12 @@ class Keyframer:
     With ``adaptive`` the threshold is also at least ``step − increment/2`` (and likewise for the
     turn), ``increment`` being the motion since the previous pose: the keyframe is the pose
     nearest the full step that the stream offers. With one pose per step it changes nothing.
+
+    A robot that stops to turn in place comes no nearer the full step until the turn is done, and
+    one pass may reach the stop a few centimetres short of the step and take the turn into its next
+    keyframe while another keyframes the stop: at a turn of less than ``turn_deg`` (60° corners,
+    say), the two laps' keyframes then lie on either side of the corner. So with ``adaptive`` a
+    turn in place that begins at least the slack's step from the last keyframe is a keyframe.
     """
 
     def __init__(self, step_m: float, turn_deg: float, slack: float, *, adaptive: bool = False) -> None:
@@ -34,14 +50,19 @@ class Keyframer:
         self._adaptive = adaptive
         self._last: np.ndarray | None = None
         self._previous: np.ndarray | None = None
+        self.at_previous = False
+        """The keyframe just found is the pose tested before this one, where a turn in place began
+        (adaptive only): the caller takes that pose, then tests this one again."""
 
     def action_if_keyframe(self, odometry_pose: np.ndarray) -> np.ndarray | None:
-        """The odometry action since the last keyframe if this pose is a keyframe, else None.
+        """The odometry action since the last keyframe if this pose is a keyframe, else None
+        (if :attr:`at_previous`, the action to the pose tested before, which is the keyframe).
 
         The first pose is always a keyframe, with a zero action.
         """
         pose = np.asarray(odometry_pose, dtype=float)
         previous, self._previous = self._previous, pose
+        self.at_previous = False
         if self._last is None:
             self._last = pose
             return np.zeros(3)
@@ -49,12 +70,40 @@ class Keyframer:
         step_m, turn_rad = self._step_m, self._turn_rad
         if self._adaptive and previous is not None:
             increment = se2.between(previous, pose)
-            step_m = max(step_m, self._full_step_m - 0.5 * math.hypot(increment[0], increment[1]))
-            turn_rad = max(turn_rad, self._full_turn_rad - 0.5 * abs(float(increment[2])))
+            advance, turn = math.hypot(increment[0], increment[1]), abs(float(increment[2]))
+            if (
+                previous is not self._last
+                and turn >= MIN_TURN_RAD
+                and advance < TURN_IN_PLACE_M_PER_RAD * turn
+            ):
+                to_stop = se2.between(self._last, previous)
+                if math.hypot(to_stop[0], to_stop[1]) >= step_m:
+                    self._last = self._previous = previous  # this pose is tested again from the stop
+                    self.at_previous = True
+                    return to_stop
+            step_m = max(step_m, self._full_step_m - 0.5 * advance)
+            turn_rad = max(turn_rad, self._full_turn_rad - 0.5 * turn)
         if math.hypot(action[0], action[1]) >= step_m or abs(action[2]) >= turn_rad:
             self._last = pose
             return action
         return None
+
+    def keyframes(
+        self, items: Iterable[T], pose_of: Callable[[T], np.ndarray]
+    ) -> Iterator[tuple[T, np.ndarray]]:
+        """``(item, action)`` for each keyframe of a stream of ``items`` (``pose_of(item)``: its
+        odometry pose), holding one item back for a turn in place that began there."""
+        previous: T | None = None
+        for item in items:
+            pose = pose_of(item)
+            action = self.action_if_keyframe(pose)
+            if action is not None and self.at_previous:
+                assert previous is not None
+                yield previous, action
+                action = self.action_if_keyframe(pose)
+            if action is not None:
+                yield item, action
+            previous = item
 
     def anchor(self, odometry_pose: np.ndarray) -> None:
         """The keyframe was taken at ``odometry_pose`` (a frame near the one this test chose): the
@@ -173,14 +222,10 @@ class Estimator:
         self._first_keyframe = 0 if prior is None else prior.keyframes
         self._stamps: list[int] = []
 
-    def keyframe_action(self, odometry_pose: np.ndarray) -> np.ndarray | None:
-        """Keyframe test without the image (so callers decode only keyframes): the action or None."""
-        return self._keyframer.action_if_keyframe(odometry_pose)
-
-    def keyframe_taken_at(self, odometry_pose: np.ndarray) -> None:
-        """A dense stream's keyframe was taken at ``odometry_pose`` (see :meth:`choose_keyframe`):
-        the next keyframe is due a step from the frame taken, not from the odometry's choice."""
-        self._keyframer.anchor(odometry_pose)
+    @property
+    def keyframer(self) -> Keyframer:
+        """This run's keyframe test, from odometry alone (so callers decode only keyframes)."""
+        return self._keyframer
 
     def choose_keyframe(self, actions: list[np.ndarray], observations: list[np.ndarray]) -> int:
         """Which of a dense stream's frames near the odometry's keyframe to take (``actions``: each

@@ -207,7 +207,7 @@ def test_keyframer_uses_the_paper_thresholds_with_slack():
 def test_keyframe_test_needs_odometry_only():
     estimator = Estimator(EstimatorConfig())
     poses = [0.0, 0.3, 0.6, 1.0, 1.2, 2.0]
-    actions = [estimator.keyframe_action(np.array([x, 0.0, 0.0])) for x in poses]
+    actions = [estimator.keyframer.action_if_keyframe(np.array([x, 0.0, 0.0])) for x in poses]
     assert [a is not None for a in actions] == [True, False, False, True, False, True]  # x = 0, 1.0, 2.0
 
 
@@ -259,6 +259,43 @@ def test_a_dense_stream_keyframes_near_the_full_step_and_turn():
     assert round(math.degrees(fired_dense[-1][2])) == 90
     assert [round(p[0], 1) for p in fired_plain[1:4]] == [0.7, 1.4, 2.1]
     assert round(math.degrees(fired_plain[-1][2])) in (63, 72)
+
+
+def _corner(short_m: float, turn_deg: float, frames_per_turn: int) -> list[np.ndarray]:
+    """Frames every 0.1 m to ``short_m`` from the start, a turn in place, then 1.5 m on."""
+    stream = [np.array([0.1 * i, 0.0, 0.0]) for i in range(round(short_m / 0.1) + 1)]
+    stop = stream[-1]
+    for i in range(1, frames_per_turn + 1):
+        stream.append(np.array([stop[0], 0.0, math.radians(turn_deg) * i / frames_per_turn]))
+    for _ in range(15):
+        stream.append(se2.compose(stream[-1], np.array([0.1, 0.0, 0.0])))
+    return stream
+
+
+@pytest.mark.parametrize("short_m", [0.9, 1.0])
+@pytest.mark.parametrize("frames_per_turn", [2, 10])
+def test_a_turn_in_place_is_keyframed_where_it_begins(short_m, frames_per_turn):
+    """A 60° corner (under the turn threshold) reached 0.9 m or 1.0 m from the last keyframe: either
+    way the stop is a keyframe, so two passes agree on where the corner's keyframe is."""
+    dense = Keyframer(step_m=1.0, turn_deg=90.0, slack=0.3, adaptive=True)
+    stream = _corner(short_m, 60.0, frames_per_turn)
+    taken = [(i, a) for i, a in dense.keyframes(range(len(stream)), lambda i: stream[i])]
+    stop = round(short_m / 0.1)
+    assert [i for i, _ in taken[:2]] == [0, stop]
+    np.testing.assert_allclose(taken[1][1], [short_m, 0.0, 0.0], atol=1e-9)
+    assert math.degrees(taken[2][1][2]) == pytest.approx(60.0)  # the turn goes into the next step
+    assert taken[2][0] > stop + frames_per_turn
+
+
+def test_a_curve_and_a_jittering_standstill_are_not_turns_in_place():
+    dense = Keyframer(step_m=1.0, turn_deg=90.0, slack=0.3, adaptive=True)
+    arc = [np.array([math.sin(a), 1.0 - math.cos(a), a]) for a in np.linspace(0.0, 1.5, 31)]  # radius 1 m
+    taken = [i for i, _ in dense.keyframes(range(len(arc)), lambda i: arc[i])]
+    assert len(taken) == 2 and np.hypot(*arc[taken[1]][:2]) >= 0.97 > np.hypot(*arc[taken[1] - 1][:2])
+    still = Keyframer(step_m=1.0, turn_deg=90.0, slack=0.3, adaptive=True)
+    stream = [np.array([0.1 * i, 0.0, 0.0]) for i in range(9)]
+    stream += [np.array([0.8, 0.0, math.radians(0.2 * (-1) ** i)]) for i in range(20)]
+    assert [i for i, _ in still.keyframes(range(len(stream)), lambda i: stream[i])] == [0]
 
 
 @given(st.lists(st.tuples(st.floats(0.8, 1.2), st.sampled_from([0.0, math.pi / 2])), min_size=1, max_size=30))

@@ -29,13 +29,12 @@ def record(folder: Path, name: str, *extra: str) -> Path:
 def estimate(path: Path, config: EstimatorConfig):
     estimator = Estimator(config)
     steps, truth = [], []
-    for sample in Recording(path).samples():
-        action = estimator.keyframe_action(sample.odometry_pose)
-        if action is not None:
-            observation = estimator.observation_model.describe(sample.image.decode_gray())
-            result = estimator.add_keyframe(sample.stamp_ns, action, observation)
-            steps.append((result.keyframe, result.hypotheses))
-            truth.append(sample.ground_truth_pose)
+    samples = Recording(path).samples()
+    for sample, action in estimator.keyframer.keyframes(samples, lambda sample: sample.odometry_pose):
+        observation = estimator.observation_model.describe(sample.image.decode_gray())
+        result = estimator.add_keyframe(sample.stamp_ns, action, observation)
+        steps.append((result.keyframe, result.hypotheses))
+        truth.append(sample.ground_truth_pose)
     return estimator, evaluate(steps, np.array(truth))
 
 

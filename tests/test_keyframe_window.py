@@ -41,20 +41,18 @@ def _frames(increments: list[tuple[float, float]]) -> list[Frame]:
     return [Frame(i, pose, np.array([i], np.float32)) for i, pose in enumerate(_poses(increments))]
 
 
+def _pose(frame: Frame) -> np.ndarray:
+    return frame.odometry_pose
+
+
 class _Chooser:
-    """The three calls ``keyframes_taken`` makes of an estimator, with a real keyframe test and a
-    choice that takes the ``pick``-th option (clipped), recording what it was offered."""
+    """What ``keyframes_taken`` uses of an estimator: a real keyframe test and a choice that takes
+    the ``pick``-th option (clipped), recording what it was offered."""
 
     def __init__(self, pick: int = 0) -> None:
-        self._keyframer = Keyframer(1.0, 90.0, 0.3, adaptive=True)
+        self.keyframer = Keyframer(1.0, 90.0, 0.3, adaptive=True)
         self.pick = pick
         self.offered: list[list[int]] = []
-
-    def keyframe_action(self, pose: np.ndarray) -> np.ndarray | None:
-        return self._keyframer.action_if_keyframe(pose)
-
-    def keyframe_taken_at(self, pose: np.ndarray) -> None:
-        self._keyframer.anchor(pose)
 
     def choose_keyframe(self, actions: list[np.ndarray], observations: list[np.ndarray]) -> int:
         assert len(actions) == len(observations)
@@ -96,11 +94,7 @@ def test_keyframes_are_taken_near_the_odometrys_choice_and_due_a_step_from_the_f
     for (first, _), (second, _) in itertools.pairwise(taken):
         test = Keyframer(1.0, 90.0, 0.3, adaptive=True)
         test.anchor(first.odometry_pose)
-        due = [
-            f.stamp_ns
-            for f in frames[first.stamp_ns + 1 :]
-            if test.action_if_keyframe(f.odometry_pose) is not None
-        ]
+        due = [f.stamp_ns for f, _ in test.keyframes(frames[first.stamp_ns + 1 :], _pose)]
         assert due
         offset = se2.between(frames[due[0]].odometry_pose, second.odometry_pose)
         assert math.hypot(offset[0], offset[1]) <= window_m + 1e-12
@@ -111,7 +105,7 @@ def test_keyframes_are_taken_near_the_odometrys_choice_and_due_a_step_from_the_f
 def test_taking_the_odometrys_choice_gives_the_odometrys_keyframes(steps):
     frames = _frames(steps)
     plain = Keyframer(1.0, 90.0, 0.3, adaptive=True)
-    expected = [f.stamp_ns for f in frames if plain.action_if_keyframe(f.odometry_pose) is not None]
+    expected = [f.stamp_ns for f, _ in plain.keyframes(frames, _pose)]
     taken = keyframes_taken(frames, _Chooser(0), 0.35)  # type: ignore[arg-type]
     assert [frame.stamp_ns for frame, _ in taken] == expected
 
