@@ -2,10 +2,10 @@
 
 The hard cases of issue 9 that today's recorder can make (off-pose revisits with ``--jitter``,
 video-rate keyframes with ``--fps``, odometry noise, aliasing) on the paper, figure-8 and grid
-routes (``--routes`` also takes route files: ``bench/routes/`` holds three that no setting was
-chosen on, for held-out checks). Recordings are rendered once and cached (``--cache``, default
-/tmp/robust/rec); estimates are made and scored through the application layer (``aslam.app``), not
-the CLI.
+routes (``--routes`` also takes route files: ``bench/routes/`` holds three more 90° loops that no
+setting was chosen on, for held-out checks, and six of other turns and steps). Recordings are
+rendered once and cached (``--cache``, default /tmp/robust/rec); estimates are made and scored
+through the application layer (``aslam.app``), not the CLI.
 
     python bench/robust_matrix.py --families jitter30 fps10 --seeds 1 2 3 --estimators default paper
     python bench/robust_matrix.py --render-only ...     # render what is missing, score nothing

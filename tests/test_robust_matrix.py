@@ -12,13 +12,22 @@ sys.path.insert(0, str(BENCH))
 
 from robust_matrix import HELD_OUT_ROUTES, Scenario, main  # noqa: E402
 
+from aslam.recorder.config import RecordConfig  # noqa: E402
+from aslam.recorder.record import plan  # noqa: E402
 from aslam.recorder.routes import resolve_route  # noqa: E402
 
+ROUTE_FILES = sorted(f"bench/routes/{p.name}" for p in (BENCH / "routes").glob("*.json"))
 
-@pytest.mark.parametrize("route", HELD_OUT_ROUTES)
-def test_a_held_out_route_is_closed_and_driven_twice_under_its_own_name(route):
+
+def test_the_held_out_routes_are_route_files():
+    assert set(HELD_OUT_ROUTES) <= set(ROUTE_FILES) and len(ROUTE_FILES) == 9
+
+
+@pytest.mark.parametrize("route", ROUTE_FILES)
+def test_a_route_file_is_closed_renderable_and_driven_twice_under_its_own_name(route):
     path = str(BENCH.parent / route)
     assert resolve_route(path).is_closed
+    plan(RecordConfig(route=path, laps=2, fps=2, seed=1))  # its world is built, the path stays in free space
     scenario = Scenario("lighting50", path, 6)
     stem = Path(route).stem
     assert scenario.name == f"lighting50-{stem}-seed6"
