@@ -263,6 +263,8 @@ class HypothesisTree:
         self._nearest2 = 0.0
         """Squared distance from the prediction to the nearest place the last graph search reached."""
         self._alarms = AlarmCount()
+        self._alarm_chain = (-1, -1, 0)  # keyframe, place, length
+        self._tracked_at = -math.inf
         self._log_map_relocalise = (
             math.log(config.revisit_prior) + math.log(config.map_relocalisation_prior)
             if config.map_relocalisation_prior > 0
@@ -462,6 +464,8 @@ class HypothesisTree:
             leaves.append(node)
         if not self.leaves[0].is_new and leaves[0].is_new and (jumped or self._best_in_map):
             self._lost_at = keyframe
+        if not leaves[0].is_new:
+            self._tracked_at = keyframe
         self.leaves = leaves
         self._commit_shared_history()
         self._record_count(len(leaves))
@@ -587,7 +591,12 @@ class HypothesisTree:
             found += own
             lost = keyframe - self._lost_at <= self.config.lost_window
             self._alarms.close_before(keyframe, lambda k, place: self._best_state_at(k) == place)
-            log_prior = self._log_relocalise_lost if lost else self._log_relocalise
+            # A chain: each keyframe singles out the place after the one the keyframe before did.
+            last_keyframe, last_place, length = self._alarm_chain
+            length = length + 1 if own and (last_keyframe, last_place) == (keyframe - 1, own[0] - 1) else 1
+            self._alarm_chain = (keyframe, own[0], length) if own else (-1, -1, 0)
+            chained = length >= CHAIN_FOR_KIDNAP and keyframe - self._tracked_at <= self.config.lost_window
+            log_prior = self._log_relocalise_lost if lost or chained else self._log_relocalise
             log_prior += self._log_alarm_scale()
             priors += [log_prior] * len(own)
             distinctive = own[0] if own else None
@@ -1049,6 +1058,11 @@ IN_MAP_STEPS = 0.75
 (``step_m``) of where odometry puts it, whatever its heading: a track that fails there is lost (a
 kidnap, a turn the map never saw from there); one stepping a whole step past its last mapped place
 is exploring (docs/estimator.md, "Leaving the map is not losing track")."""
+CHAIN_FOR_KIDNAP = 3
+"""Places singled out at this many keyframes in a row, each the place after the last, soon after the
+robot was tracked, are taken as a kidnap's sign even where odometry says it left the map: their
+jump gets the lost prior (``relocalisation_lost_prior``)."""
+
 JUMP_CONFIRMATIONS = 2
 """Keyframes a jump's line stays under the ceiling while the track it left still explains the view
 with another place, or when it was born while the robot explored without having lost track: born

@@ -362,6 +362,47 @@ def test_after_losing_track_a_weaker_match_relocalises():
     )
 
 
+def _carried_off_the_map(config: EstimatorConfig) -> int | None:
+    """Tracked along lap 2 to the first corner, the robot is carried to the far side where odometry
+    says it drove straight on past the corner, off the map (not lost: exploring), and goes on along
+    the far side under another light. Keyframes from the carry to the first claim (None: never);
+    every claim must name the place truly visited."""
+    world = SyntheticWorld(3)
+    lap = first_lap_poses()
+    estimator = Estimator(config)
+    rng = np.random.default_rng(0)
+    truths = [lap[0]]
+    results = [estimator.add_keyframe(0, np.zeros(3), world.observe(lap[0]))]
+    lap2 = rectangle_actions(1)[:10]  # to the first corner, (10, 0), facing on
+    for action in rectangle_actions(1) + lap2:
+        truths.append(se2.compose(truths[-1], action))
+        measured = action * (1 + 0.03 * rng.standard_normal(3))
+        results.append(estimator.add_keyframe(len(results), measured, world.observe(truths[-1])))
+    carried_at = len(results)
+    world.noise = 0.4
+    far_side = [p for p in lap if round(p[1]) == 5 and round(math.degrees(p[2])) % 360 == 180][:8]
+    for truth in far_side:  # (10, 5) westwards; odometry: straight on, a metre a keyframe
+        truths.append(truth)
+        measured = np.array([1.0, 0.0, 0.0]) * (1 + 0.03 * rng.standard_normal(3))
+        results.append(estimator.add_keyframe(len(results), measured, world.observe(truth)))
+    for t in range(carried_at, len(results)):
+        best = results[t].best
+        if not best.is_new_state:
+            assert math.hypot(*(truths[t][:2] - truths[best.state][:2])) < 0.5
+    claims = [t - carried_at for t in range(carried_at, len(results)) if not results[t].best.is_new_state]
+    return claims[0] if claims else None
+
+
+def test_a_robot_carried_as_odometry_leaves_the_map_relocalises_on_a_chain_of_places():
+    """Exploring, not lost, a jump gets the small prior and is pruned before it can be confirmed;
+    but appearance singling out the first lap's places one after the other at three keyframes in a
+    row, just after the robot was tracked, is a kidnap's sign: that jump gets the lost prior (with
+    it 0, never)."""
+    delay = _carried_off_the_map(synthetic_config())
+    assert delay is not None and delay <= 4
+    assert _carried_off_the_map(synthetic_config(relocalisation_lost_prior=0.0)) is None
+
+
 class ThumbnailWorld:
     """Each place has a random thumbnail-length view; views of it are noisy copies."""
 
