@@ -74,6 +74,12 @@ FRAME_SPACING = 1.0 / 16.0
 nothing, and a window never holds more than about 2 / FRAME_SPACING frames."""
 MAX_WINDOW_FRAMES = 64
 """At most this many frames before a keyframe, and as many after it, are its alternatives."""
+SPARSE_NEIGHBOUR_STEPS = 0.8
+"""On a sparse stream (frames farther apart than the window: two per metre, a frame every 0.75 m)
+the frame before and the frame after a keyframe are its alternatives when within this many steps
+(``step_m``) of it: one pass may keyframe a frame that another skipped (odometry measured it a few
+centimetres short of the step), or a route's curves may shift a pass by half a step. A frame a full
+step away (one frame per step) is the next keyframe, never an alternative."""
 
 
 def _near(a: np.ndarray, b: np.ndarray, window_m: float, heading_rad: float) -> bool:
@@ -105,7 +111,8 @@ def keyframes_taken(
     The odometry decides when a keyframe is due — a step from the frame *taken* before, so the
     windows follow the places the map holds rather than the odometry's own schedule (which drifts
     against a first lap's places by up to half a step). Of the frames within ``window_m`` and
-    ``WINDOW_HEADING_DEG`` of the odometry's keyframe the estimator takes the one most like the places
+    ``WINDOW_HEADING_DEG`` of the odometry's keyframe (on a sparse stream, the frames just before and
+    after it, within ``SPARSE_NEIGHBOUR_STEPS``) the estimator takes the one most like the places
     its hypotheses predict (:meth:`Estimator.choose_keyframe`); the frames after it are tested again from
     there. Runs interleaved with the estimator's steps: each choice sees the map of every keyframe
     before it.
@@ -142,11 +149,20 @@ def keyframes_taken(
                 replay.appendleft(following)
                 break
             after.append(following)
+        # A sparse stream (frames farther apart than the window): the frame just before and the one
+        # just after are the alternatives, when within reach of the keyframe.
+        reach = SPARSE_NEIGHBOUR_STEPS * keyframer.step_m
+        sparse = False
+        if not before and recent and _near(recent[-1].odometry_pose, frame.odometry_pose, reach, heading):
+            before, sparse = [recent[-1]], True
+        if not after and replay and _near(replay[0].odometry_pose, frame.odometry_pose, reach, heading):
+            after, sparse = [replay.popleft()], True
         options = [frame, *before, *after]
         taken = frame
         if len(options) > 1:
             actions = [se2.between(previous.odometry_pose, o.odometry_pose) for o in options]
-            taken = options[estimator.choose_keyframe(actions, [o.histogram for o in options])]
+            histograms = [o.histogram for o in options]
+            taken = options[estimator.choose_keyframe(actions, histograms, sparse=sparse)]
         if taken is not frame:
             keyframer.anchor(taken.odometry_pose)
         later = [f for f in (*before, frame, *after) if f.stamp_ns > taken.stamp_ns]

@@ -54,6 +54,11 @@ class Keyframer:
         """The keyframe just found is the pose tested before this one, where a turn in place began
         (adaptive only): the caller takes that pose, then tests this one again."""
 
+    @property
+    def step_m(self) -> float:
+        """The full step a keyframe is due after (the slack aside)."""
+        return self._full_step_m
+
     def action_if_keyframe(self, odometry_pose: np.ndarray) -> np.ndarray | None:
         """The odometry action since the last keyframe if this pose is a keyframe, else None
         (if :attr:`at_previous`, the action to the pose tested before, which is the keyframe).
@@ -115,6 +120,9 @@ class Keyframer:
 
 WINDOW_LEAF_BELIEF = 0.05
 """Hypotheses with at least this belief (and the best) say where a dense stream's keyframe is taken."""
+SPARSE_CHOICE_ODDS = 10.0
+"""On a sparse stream a neighbour of the odometry's keyframe is taken only when this many times as
+likely (summed over the hypotheses) to be at a predicted place as the keyframe itself."""
 
 
 def keyframer(config: EstimatorConfig) -> Keyframer:
@@ -227,7 +235,9 @@ class Estimator:
         """This run's keyframe test, from odometry alone (so callers decode only keyframes)."""
         return self._keyframer
 
-    def choose_keyframe(self, actions: list[np.ndarray], observations: list[np.ndarray]) -> int:
+    def choose_keyframe(
+        self, actions: list[np.ndarray], observations: list[np.ndarray], *, sparse: bool = False
+    ) -> int:
         """Which of a dense stream's frames near the odometry's keyframe to take (``actions``: each
         frame's odometry since the keyframe taken before, the odometry's keyframe first;
         ``observations``: their vectors): the one most believed to be at a place the hypotheses
@@ -243,10 +253,16 @@ class Estimator:
         places, up to half a step from the nearest: on video-rate recordings that was where the wrong
         claims were (0.50–0.56 m from the place named). Appearance alone is not enough near a wall,
         where a view 0.6 m from the place can look more like it than one at the place.
+
+        ``sparse``: the alternatives are a sparse stream's neighbours of the keyframe, a good part of a
+        step from it (two frames per metre, a frame every 0.75 m). A wrong choice there puts the
+        keyframe half a step from every place, so a neighbour is taken only while the best hypothesis
+        tracks a mapped place and only when ``SPARSE_CHOICE_ODDS`` times as likely as the odometry's
+        keyframe (docs/estimator.md, "A sparse stream's neighbours").
         """
-        if len(observations) < 2:
-            return 0
         tree = self._tree
+        if len(observations) < 2 or (sparse and (not tree.leaves or tree.leaves[0].is_new)):
+            return 0
         weighed = []  # log (belief × P(frame at the leaf's predicted place)) per frame, one row a leaf
         looks: dict[int, np.ndarray] = {}  # log P(frame | place) per predicted place: leaves often share one
         for leaf in tree.leaves:
@@ -265,7 +281,11 @@ class Estimator:
             weighed.append(leaf.log_belief + log_transition + looks[place])
         if not weighed:
             return 0
-        return int(np.argmax(np.logaddexp.reduce(np.array(weighed), axis=0)))
+        total = np.logaddexp.reduce(np.array(weighed), axis=0)
+        best = int(np.argmax(total))
+        if sparse and not total[best] - total[0] >= math.log(SPARSE_CHOICE_ODDS):
+            return 0
+        return best
 
     def add_keyframe(self, stamp_ns: int, action: np.ndarray, observation: np.ndarray) -> StepResult:
         """The SLAM step proper, on an observation vector (``observation_model.describe`` of the image)."""

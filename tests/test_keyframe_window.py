@@ -15,6 +15,7 @@ from test_core_tree import SyntheticWorld, rectangle_actions, run, synthetic_con
 from aslam.app.pipeline import (
     FRAME_SPACING,
     MAX_WINDOW_FRAMES,
+    SPARSE_NEIGHBOUR_STEPS,
     WINDOW_HEADING_DEG,
     Frame,
     PipelineCounts,
@@ -54,7 +55,9 @@ class _Chooser:
         self.pick = pick
         self.offered: list[list[int]] = []
 
-    def choose_keyframe(self, actions: list[np.ndarray], observations: list[np.ndarray]) -> int:
+    def choose_keyframe(
+        self, actions: list[np.ndarray], observations: list[np.ndarray], *, sparse: bool = False
+    ) -> int:
         assert len(actions) == len(observations)
         self.offered.append([int(o[0]) for o in observations])
         return min(self.pick, len(observations) - 1)
@@ -82,11 +85,14 @@ def test_keyframes_are_taken_near_the_odometrys_choice_and_due_a_step_from_the_f
     assert stamps and stamps[0] == 0 and stamps == sorted(set(stamps))  # in time order, never twice
     for (before, _), (frame, action) in itertools.pairwise(taken):
         np.testing.assert_allclose(action, se2.between(before.odometry_pose, frame.odometry_pose), atol=1e-12)
+    reach = SPARSE_NEIGHBOUR_STEPS * chooser.keyframer.step_m
     for options in chooser.offered:  # each option near the odometry's choice (the first one)
-        key = frames[options[0]].odometry_pose
+        key = options[0]
         for stamp in options[1:]:
-            offset = se2.between(key, frames[stamp].odometry_pose)
-            assert math.hypot(offset[0], offset[1]) <= window_m + 1e-12
+            offset = se2.between(frames[key].odometry_pose, frames[stamp].odometry_pose)
+            distance = math.hypot(offset[0], offset[1])
+            # within the window, or (a sparse stream) the frame just before or after, within reach
+            assert distance <= window_m + 1e-12 or (abs(stamp - key) == 1 and distance <= reach + 1e-12)
             assert abs(math.degrees(offset[2])) <= WINDOW_HEADING_DEG + 1e-9
         assert len(options) <= 1 + 2 * MAX_WINDOW_FRAMES
     # The keyframe test runs again from each frame taken: between two keyframes taken, no frame
@@ -97,7 +103,8 @@ def test_keyframes_are_taken_near_the_odometrys_choice_and_due_a_step_from_the_f
         due = [f.stamp_ns for f, _ in test.keyframes(frames[first.stamp_ns + 1 :], _pose)]
         assert due
         offset = se2.between(frames[due[0]].odometry_pose, second.odometry_pose)
-        assert math.hypot(offset[0], offset[1]) <= window_m + 1e-12
+        near = reach if abs(second.stamp_ns - due[0]) == 1 else window_m  # a sparse neighbour, or the window
+        assert math.hypot(offset[0], offset[1]) <= near + 1e-12
 
 
 @settings(max_examples=40, deadline=None)
@@ -142,6 +149,23 @@ def test_a_robot_standing_still_or_creeping_is_described_a_few_centimetres_apart
     assert gaps.min() >= FRAME_SPACING * 0.35 - 1e-9 and len(kept) == 2 + 1.0 // (FRAME_SPACING * 0.35)
 
 
+def test_on_a_sparse_stream_the_frames_either_side_of_a_keyframe_are_its_alternatives():
+    """Frames 0.75 m apart (outside the 0.35 m window): a keyframe's neighbours, 0.75 m away, are
+    offered (one pass keyframes a frame that another, its odometry a few centimetres short, skips);
+    taking the one after skips the keyframe. One frame per step (1 m) offers nothing."""
+    sparse = _frames([(0.75, 0.0)] * 2 + [(0.68, 0.0)] + [(0.75, 0.0)] * 3)  # frame 3 due at 0.68 m: skipped
+    chooser = _Chooser(pick=0)
+    taken = [frame.stamp_ns for frame, _ in keyframes_taken(sparse, chooser, 0.35)]  # type: ignore[arg-type]
+    assert taken == [0, 1, 2, 4, 5, 6]
+    assert chooser.offered == [[1, 2], [2, 3], [4, 3, 5], [5, 6], [6]][: len(chooser.offered)]
+    chooser = _Chooser(pick=1)  # the second option: the frame after, or with none after the one before
+    taken = [frame.stamp_ns for frame, _ in keyframes_taken(sparse, chooser, 0.35)]  # type: ignore[arg-type]
+    assert taken == [0, 2, 3, 5, 6]  # 1 skipped for 2; 4 (the odometry's, 3 skipped) for 3; 4 for 5
+    chooser = _Chooser(pick=1)
+    steps = [frame.stamp_ns for frame, _ in keyframes_taken(_frames([(1.0, 0.0)] * 5), chooser, 0.35)]  # type: ignore[arg-type]
+    assert steps == [0, 1, 2, 3, 4, 5] and chooser.offered == []
+
+
 def test_a_second_lap_keyframe_is_taken_where_the_first_lap_looked_most_alike():
     """On the second lap the best hypothesis predicts lap 1's next place; of three frames near the
     odometry's keyframe the one showing that place is taken, and nothing is chosen without a map."""
@@ -156,6 +180,33 @@ def test_a_second_lap_keyframe_is_taken_where_the_first_lap_looked_most_alike():
     assert estimator.choose_keyframe(steps, [stranger[0], place, stranger[1]]) == 1
     assert estimator.choose_keyframe(steps[:2], [place, stranger[0]]) == 0
     assert run([], world, synthetic_config())[0].choose_keyframe(steps[:2], [stranger[0], place]) == 0
+
+
+def test_a_sparse_neighbour_is_taken_only_while_tracking_and_only_when_far_more_likely():
+    """A sparse stream's neighbour is half a step from the keyframe: taken when it shows the
+    predicted place and the keyframe does not, kept out when the two are near alike (under
+    ``SPARSE_CHOICE_ODDS``) or when the best hypothesis is a new place."""
+    world = SyntheticWorld(5)
+    estimator, results = run(rectangle_actions()[:37], world, synthetic_config())
+    assert not results[-1].best.is_new_state  # tracking lap 1 on lap 2
+    stranger = np.random.default_rng(0).dirichlet(np.ones(16)).astype(np.float32)
+    place = world.observe(np.array([4.0, 0.0, 0.0]))  # lap 1's next place, a step ahead
+    keyframe, neighbour = np.array([0.75, 0.0, 0.0]), np.array([1.0, 0.0, 0.0])
+    assert estimator.choose_keyframe([keyframe, neighbour], [stranger, place], sparse=True) == 1
+    assert estimator.choose_keyframe([keyframe, neighbour], [place, place], sparse=False) == 1
+    assert estimator.choose_keyframe([keyframe, neighbour], [place, place], sparse=True) == 0
+    # The best hypothesis a new place, a revisit with a fifth of the belief: a dense window follows
+    # the revisit, a sparse neighbour waits for the track.
+    actions = rectangle_actions()
+    estimator, _ = run(actions[:33], world, synthetic_config())
+    rng = np.random.default_rng(1)
+    strangers = [rng.dirichlet(np.ones(16)).astype(np.float32) for _ in range(2)]
+    ambiguous = (0.7 * world.observe(np.zeros(3)) + 0.3 * strangers[0]).astype(np.float32)
+    hypotheses = estimator.add_keyframe(34, actions[33], ambiguous).hypotheses
+    assert hypotheses[0].is_new_state and not hypotheses[1].is_new_state and hypotheses[1].belief > 0.1
+    frames = [strangers[1], world.observe(np.array([1.0, 0.0, 0.0]))]  # the neighbour shows place 1
+    assert estimator.choose_keyframe([keyframe, neighbour], frames) == 1
+    assert estimator.choose_keyframe([keyframe, neighbour], frames, sparse=True) == 0
 
 
 def test_where_odometry_puts_a_frame_weighs_with_how_alike_it_looks():
