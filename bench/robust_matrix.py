@@ -63,8 +63,10 @@ FAMILIES: dict[str, dict[str, Any]] = {
 }
 
 #: Mixes of knobs the matrix varies one at a time, each within the range its family's targets
-#: cover: a held-out check that the defaults were not fitted to one knob at a time. Not in the
-#: default ``--families``; name them (``--families mix-fps5-lighting50 …``).
+#: cover: a held-out check that the defaults were not fitted to one knob at a time; and frame rates
+#: between the matrix's (1.5 per metre, 0.67 m apart, where the keyframe rule is a coin toss; 3,
+#: at the keyframe window's edge). Not in the default ``--families``; name them
+#: (``--families mix-fps5-lighting50 …``).
 MIXES: dict[str, dict[str, Any]] = {
     "mix-fps5-lighting50": {"fps": 5.0, "lighting_change": 0.5},
     "mix-fps10-noise5": {"fps": 10.0, "noise": 0.05},
@@ -72,6 +74,9 @@ MIXES: dict[str, dict[str, Any]] = {
     "mix-alias50-lighting50-fps2": {"aliasing": 0.5, "lighting_change": 0.5, "fps": 2.0},
     "mix-jitter5-lighting30": {"jitter_m": 0.05, "jitter_deg": 2.0, "lighting_change": 0.3},
     "mix-wander10-fps5": {"wander_m": 0.1, "wander_deg": 2.0, "fps": 5.0},
+    "fps1p5": {"fps": 1.5},
+    "fps3": {"fps": 3.0},
+    "mix-fps3-lighting50": {"fps": 3.0, "lighting_change": 0.5},
 }
 
 
