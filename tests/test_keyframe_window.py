@@ -23,7 +23,7 @@ from aslam.app.pipeline import (
     keyframes_taken,
 )
 from aslam.core import se2
-from aslam.core.estimator import Keyframer
+from aslam.core.estimator import Estimator, Keyframer
 from aslam.data_formats.pose_sync import Sample
 
 
@@ -182,6 +182,19 @@ def test_a_second_lap_keyframe_is_taken_where_the_first_lap_looked_most_alike():
     assert run([], world, synthetic_config())[0].choose_keyframe(steps[:2], [stranger[0], place]) == 0
 
 
+def _first_revisit_still_new(world: SyntheticWorld) -> tuple[Estimator, np.ndarray]:
+    """An estimator at the first revisit of a rectangle whose view half matches the start: the best
+    hypothesis is still a new place, a revisit holds a fifth of the belief; and a view of nowhere."""
+    actions = rectangle_actions()
+    estimator, _ = run(actions[:33], world, synthetic_config())
+    rng = np.random.default_rng(1)
+    strangers = [rng.dirichlet(np.ones(16)).astype(np.float32) for _ in range(2)]
+    ambiguous = (0.7 * world.observe(np.zeros(3)) + 0.3 * strangers[0]).astype(np.float32)
+    hypotheses = estimator.add_keyframe(34, actions[33], ambiguous).hypotheses
+    assert hypotheses[0].is_new_state and not hypotheses[1].is_new_state and hypotheses[1].belief > 0.1
+    return estimator, strangers[1]
+
+
 def test_a_sparse_neighbour_is_taken_only_while_tracking_and_only_when_far_more_likely():
     """A sparse stream's neighbour is half a step from the keyframe: taken when it shows the
     predicted place and the keyframe does not, kept out when the two are near alike (under
@@ -197,14 +210,8 @@ def test_a_sparse_neighbour_is_taken_only_while_tracking_and_only_when_far_more_
     assert estimator.choose_keyframe([keyframe, neighbour], [place, place], sparse=True) == 0
     # The best hypothesis a new place, a revisit with a fifth of the belief: a dense window follows
     # the revisit, a sparse neighbour waits for the track.
-    actions = rectangle_actions()
-    estimator, _ = run(actions[:33], world, synthetic_config())
-    rng = np.random.default_rng(1)
-    strangers = [rng.dirichlet(np.ones(16)).astype(np.float32) for _ in range(2)]
-    ambiguous = (0.7 * world.observe(np.zeros(3)) + 0.3 * strangers[0]).astype(np.float32)
-    hypotheses = estimator.add_keyframe(34, actions[33], ambiguous).hypotheses
-    assert hypotheses[0].is_new_state and not hypotheses[1].is_new_state and hypotheses[1].belief > 0.1
-    frames = [strangers[1], world.observe(np.array([1.0, 0.0, 0.0]))]  # the neighbour shows place 1
+    estimator, stranger = _first_revisit_still_new(world)
+    frames = [stranger, world.observe(np.array([1.0, 0.0, 0.0]))]  # the neighbour shows place 1
     assert estimator.choose_keyframe([keyframe, neighbour], frames) == 1
     assert estimator.choose_keyframe([keyframe, neighbour], frames, sparse=True) == 0
 
@@ -227,17 +234,11 @@ def test_a_likely_revisit_says_where_to_look_when_the_best_hypothesis_is_a_new_p
     place (the wrong claims of held-out video-rate runs were such keyframes, 0.6 m from every place).
     The tree's own predictions stand in for a case where the new place's map reaches no place."""
     world = SyntheticWorld(5)
-    actions = rectangle_actions()
-    estimator, _ = run(actions[:33], world, synthetic_config())
-    rng = np.random.default_rng(1)
-    stranger = [rng.dirichlet(np.ones(16)).astype(np.float32) for _ in range(2)]
-    ambiguous = (0.7 * world.observe(np.zeros(3)) + 0.3 * stranger[0]).astype(np.float32)
-    hypotheses = estimator.add_keyframe(34, actions[33], ambiguous).hypotheses
-    assert hypotheses[0].is_new_state and not hypotheses[1].is_new_state and hypotheses[1].belief > 0.1
+    estimator, stranger = _first_revisit_still_new(world)
     tree = estimator._tree
     predict = tree.predicted_revisit
     steps = [np.array([x, 0.0, 0.0]) for x in (1.0, 0.9)]
-    frames = [stranger[1], world.observe(np.array([1.0, 0.0, 0.0]))]  # the second shows place 1
+    frames = [stranger, world.observe(np.array([1.0, 0.0, 0.0]))]  # the second shows place 1
     tree.predicted_revisit = lambda actions, leaf=None: (
         None if leaf is None or leaf is tree.leaves[0] else predict(actions, leaf)
     )
