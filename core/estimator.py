@@ -259,10 +259,21 @@ class Estimator:
         keyframe half a step from every place, so a neighbour is taken only while the best hypothesis
         tracks a mapped place and only when ``SPARSE_CHOICE_ODDS`` times as likely as the odometry's
         keyframe (docs/estimator.md, "A sparse stream's neighbours").
+
+        While the robot is lost and the best hypothesis calls it somewhere new (after a kidnap or a
+        reset), the hypotheses predict from the track it lost: a dense window then takes the frame
+        most like any mapped place the relocalisation index finds (docs/estimator.md, "While lost, the
+        window looks for the map").
         """
         tree = self._tree
         if len(observations) < 2 or (sparse and (not tree.leaves or tree.leaves[0].is_new)):
             return 0
+        if not sparse and tree.lost_off_the_map():
+            # Lost, the hypotheses' predictions are the old track's: take the frame that looks most
+            # like somewhere mapped, so the index can single the place out.
+            likeness = np.array([tree.mapped_likeness(o) for o in observations])
+            if np.isfinite(likeness).any():
+                return int(np.argmax(likeness))
         weighed = []  # log (belief × P(frame at the leaf's predicted place)) per frame, one row a leaf
         looks: dict[int, np.ndarray] = {}  # log P(frame | place) per predicted place: leaves often share one
         for leaf in tree.leaves:

@@ -603,6 +603,25 @@ class HypothesisTree:
             self._alarms.add(keyframe, distinctive, lost)
         return np.array(found, dtype=np.int64), priors, distinctive, elsewhere
 
+    def lost_off_the_map(self) -> bool:
+        """Whether the next keyframe comes while the robot is lost (within ``lost_window`` keyframes
+        of losing track) and the best hypothesis still calls it somewhere new."""
+        best = self.leaves[0] if self.leaves else None
+        if best is None or not best.is_new or best.state == SESSION_START:
+            return False
+        return len(self.observations) - self._lost_at <= self.config.lost_window
+
+    def mapped_likeness(self, observation: np.ndarray) -> float:
+        """``log P(observation | place)`` of the committed place most like it that the relocalisation
+        index finds (-inf if it finds none): how much a view looks like somewhere mapped."""
+        top = self._index.search(
+            observation, len(self.committed_state_of_keyframe), self.config.relocalisation_candidates
+        )
+        if not len(top):
+            return -math.inf
+        nearest = float(self._distances(observation, top).min())
+        return float(self.model.log_likelihood(np.array([nearest]))[0])
+
     def _best_state_at(self, keyframe: int) -> int:
         """The state the best hypothesis assigns to ``keyframe``."""
         node = self.leaves[0]

@@ -216,6 +216,30 @@ def test_a_sparse_neighbour_is_taken_only_while_tracking_and_only_when_far_more_
     assert estimator.choose_keyframe([keyframe, neighbour], frames, sparse=True) == 0
 
 
+def test_while_lost_the_window_takes_the_frame_most_like_a_mapped_place():
+    """Carried off on the second lap (two views of nowhere: the best hypothesis is a new place and the
+    robot lost), the hypotheses predict from the lost track; of the frames near the keyframe the one
+    that shows a mapped place elsewhere (lap 1's keyframe 14) is taken. Tracking, it is not."""
+    world = SyntheticWorld(5)
+    actions = rectangle_actions()
+    estimator, _ = run(actions[:37], world, synthetic_config())
+    tree = estimator._tree
+    rng = np.random.default_rng(2)
+    nowhere = [rng.dirichlet(np.ones(16)).astype(np.float32) for _ in range(3)]
+    step = np.array([1.0, 0.0, 0.0])
+    pose = np.zeros(3)
+    for action in actions[:14]:
+        pose = se2.compose(pose, np.asarray(action, dtype=float))
+    mapped = world.observe(pose)
+    frames = [nowhere[2], mapped, nowhere[0]]
+    assert not tree.lost_off_the_map()
+    assert estimator.choose_keyframe([step, 0.9 * step, 1.1 * step], frames) != 1
+    for keyframe, view in ((38, nowhere[0]), (39, nowhere[1])):
+        assert estimator.add_keyframe(keyframe, actions[keyframe - 1], view).best.is_new_state
+    assert tree.lost_off_the_map()
+    assert estimator.choose_keyframe([step, 0.9 * step, 1.1 * step], frames) == 1
+
+
 def test_where_odometry_puts_a_frame_weighs_with_how_alike_it_looks():
     """Of two frames that look equally like the predicted place (lap 1's place 4, a step ahead),
     the one odometry puts at the place is taken, not the one half a step short of it."""
