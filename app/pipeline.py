@@ -119,6 +119,7 @@ def keyframes_taken(
     """
     heading = math.radians(WINDOW_HEADING_DEG)
     keyframer = estimator.keyframer
+    reach = SPARSE_NEIGHBOUR_STEPS * keyframer.step_m
     source = iter(frames)
     replay: deque[Frame] = deque()
     recent: deque[Frame] = deque(maxlen=MAX_WINDOW_FRAMES)
@@ -151,7 +152,6 @@ def keyframes_taken(
             after.append(following)
         # A sparse stream (frames farther apart than the window): the frame just before and the one
         # just after are the alternatives, when within reach of the keyframe.
-        reach = SPARSE_NEIGHBOUR_STEPS * keyframer.step_m
         sparse = False
         if not before and recent and _near(recent[-1].odometry_pose, frame.odometry_pose, reach, heading):
             before, sparse = [recent[-1]], True

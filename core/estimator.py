@@ -271,9 +271,9 @@ class Estimator:
         if not sparse and tree.lost_off_the_map():
             # Lost, the hypotheses' predictions are the old track's: take the frame that looks most
             # like somewhere mapped, so the index can single the place out.
-            likeness = np.array([tree.mapped_likeness(o) for o in observations])
-            if np.isfinite(likeness).any():
-                return int(np.argmax(likeness))
+            distances = np.array([tree.nearest_mapped_distance(o) for o in observations])
+            if np.isfinite(distances).any():
+                return int(np.argmin(distances))
         weighed = []  # log (belief × P(frame at the leaf's predicted place)) per frame, one row a leaf
         looks: dict[int, np.ndarray] = {}  # log P(frame | place) per predicted place: leaves often share one
         for leaf in tree.leaves:

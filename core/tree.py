@@ -559,9 +559,7 @@ class HypothesisTree:
                 self._alarms.close_before(keyframe, lambda k, place: self._best_state_at(k) == place)
                 self._alarms.add(keyframe, None, keyframe - self._lost_at <= self.config.lost_window)
             return none
-        top = self._index.search(
-            observation, len(self.committed_state_of_keyframe), self.config.relocalisation_candidates
-        )
+        top = self._shortlist(observation)
         if not len(top):
             return none
         held = [leaf.state for leaf in self.leaves]  # already hypotheses: nothing to relocalise to
@@ -611,16 +609,17 @@ class HypothesisTree:
             return False
         return len(self.observations) - self._lost_at <= self.config.lost_window
 
-    def mapped_likeness(self, observation: np.ndarray) -> float:
-        """``log P(observation | place)`` of the committed place most like it that the relocalisation
-        index finds (-inf if it finds none): how much a view looks like somewhere mapped."""
-        top = self._index.search(
+    def nearest_mapped_distance(self, observation: np.ndarray) -> float:
+        """Distance from ``observation`` to the most alike committed place the relocalisation index
+        shortlists (inf if none): how much a view looks like somewhere mapped."""
+        top = self._shortlist(observation)
+        return float(self._distances(observation, top).min()) if len(top) else math.inf
+
+    def _shortlist(self, observation: np.ndarray) -> np.ndarray:
+        """The committed places the relocalisation index finds most like ``observation``."""
+        return self._index.search(
             observation, len(self.committed_state_of_keyframe), self.config.relocalisation_candidates
         )
-        if not len(top):
-            return -math.inf
-        nearest = float(self._distances(observation, top).min())
-        return float(self.model.log_likelihood(np.array([nearest]))[0])
 
     def _best_state_at(self, keyframe: int) -> int:
         """The state the best hypothesis assigns to ``keyframe``."""
