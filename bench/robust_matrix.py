@@ -77,6 +77,9 @@ MIXES: dict[str, dict[str, Any]] = {
     "fps1p5": {"fps": 1.5},
     "fps3": {"fps": 3.0},
     "mix-fps3-lighting50": {"fps": 3.0, "lighting_change": 0.5},
+    "mix-fps10-lighting50-noise5": {"fps": 10.0, "lighting_change": 0.5, "noise": 0.05},
+    "mix-fps2-noise5": {"fps": 2.0, "noise": 0.05},
+    "mix-fps5-alias50": {"fps": 5.0, "aliasing": 0.5},
 }
 
 
@@ -91,6 +94,19 @@ EVENT_MIXES = (
     "reset@lighting50",
     "reset@fps5",
     "reset@alias50",
+    "kidnap@fps10",
+    "reset@fps10",
+    "kidnap@mix-fps10-lighting50-noise5",
+    "reset@mix-fps2-noise5",
+    "kidnap@fps2",
+    "reset@fps2",
+    "kidnap@mix-fps2-noise5",
+    "kidnap@mix-alias50-lighting50-fps2",
+    "reset@mix-alias50-lighting50-fps2",
+    "kidnap@fps1p5",
+    "reset@fps1p5",
+    "kidnap@fps3",
+    "reset@fps3",
 )
 
 
@@ -142,6 +158,7 @@ BEFORE: dict[str, Any] = {
     "keyframe_adaptive": "off",
     "place_radius_m": 0.2,
     "place_heading_deg": 10.0,
+    "revisit_radius_m": 0.0,
 }
 """The estimator defaults before issue 9 (commit 2551427), for the before/after table."""
 

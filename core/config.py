@@ -190,6 +190,12 @@ class EstimatorConfig:
     gate_sigma: float = _param(
         4.0, "Candidates whose Mahalanobis distance from the predicted pose exceeds this are unreachable."
     )
+    revisit_radius_m: float = _param(
+        0.5,
+        "A revisit stands within this distance of the place (the score's radius). From a new place,"
+        " where odometry puts the robot to within its own noise, a place farther than this by over"
+        " gate_sigma σ of the chain and odometry is unreachable; 0: no such bound.",
+    )
     revisit_prior: float = _param(
         0.5, "Prior probability that a keyframe revisits some place rather than finding a new one."
     )
@@ -349,6 +355,7 @@ class EstimatorConfig:
             "keyframe_window_m": 0.0,
             "place_radius_m": 0.2,
             "place_heading_deg": 10.0,
+            "revisit_radius_m": 0.0,
             "new_state_coverage": 0.0,
             "appearance_veto": 0.0,
             "contradiction_ratio": 0.0,
@@ -397,6 +404,7 @@ RANGES: dict[str, Bounds] = {
     "visit_sigma_m": Bounds(0, 100),
     "visit_sigma_deg": Bounds(0, 180),
     "gate_sigma": Bounds(1e-3, 100),
+    "revisit_radius_m": Bounds(0, 100),
     "revisit_prior": Bounds(1e-6, 1 - 1e-6),
     "search_sigma_m": Bounds(1e-3, 10_000),
     "search_nearness": Bounds(0, 1000),

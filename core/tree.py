@@ -751,8 +751,10 @@ class HypothesisTree:
         table = np.array(rels)
         poses = table[:, :3]
         covs = table[:, [3, 4, 5, 4, 6, 7, 5, 7, 8]].reshape(-1, 3, 3)
-        log_transition, mahalanobis2 = self._transition(poses, covs, first, first_cov)
+        log_transition, mahalanobis2, beyond = self._transition(poses, covs, first, first_cov)
         keep = mahalanobis2 <= self._gate
+        if leaf.is_new:
+            keep &= ~beyond
         if self._moved(first):
             keep &= np.asarray(states, np.int64) != leaf.state
         if not keep.any():
@@ -767,16 +769,30 @@ class HypothesisTree:
 
     def _transition(
         self, poses: np.ndarray, covariances: np.ndarray, action: np.ndarray, action_cov: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``log P(x = k | x', u)`` of candidates at ``poses`` (with ``covariances``) seen from the
-        previous state, and their squared Mahalanobis distances (which the gate tests)."""
+        previous state, their squared Mahalanobis distances (which the gate tests), and whether each
+        is beyond the revisit radius (which bounds the proposals of a new place's leaf).
+
+        The place term is a Gaussian, whose tail lets appearance claim a place a metre from where
+        odometry puts the robot. From a new place that is no revisit: the robot stood at that place,
+        so the residual is its offset from the candidate but for the chain's and odometry's noise
+        (a zigzag's keyframe, turned in place, claimed the place a metre behind that faced the same
+        way: held-out default render, docs/estimator.md "A revisit is within reach").
+        """
         residual, covariance = revisit_residuals(poses, covariances, action, action_cov)
+        radius = self.config.revisit_radius_m
+        if radius > 0:
+            excess = np.hypot(residual[:, 0], residual[:, 1]) - radius
+            beyond = excess > self.config.gate_sigma * np.sqrt(covariance[:, 0, 0] + covariance[:, 1, 1])
+        else:
+            beyond = np.zeros(len(residual), dtype=bool)
         covariance += self._place_cov
         inverse = np.linalg.inv(covariance)
         mahalanobis2 = np.einsum("ni,nij,nj->n", residual, inverse, residual)
         logdet = np.linalg.slogdet(covariance)[1]
         # Normalised so a perfectly predicted revisit with no chain uncertainty scores log 1.
-        return 0.5 * (self._place_logdet - logdet) - 0.5 * mahalanobis2, mahalanobis2
+        return 0.5 * (self._place_logdet - logdet) - 0.5 * mahalanobis2, mahalanobis2, beyond
 
     def _moved(self, action: np.ndarray) -> bool:
         """A keyframe is taken because the robot moved a step or turned: it is not where it was."""
@@ -804,13 +820,15 @@ class HypothesisTree:
         table = np.array([rel for _, found in searches for rel in found])
         poses = table[:, :3]
         covs = table[:, [3, 4, 5, 4, 6, 7, 5, 7, 8]].reshape(-1, 3, 3)
-        log_transition, mahalanobis2 = self._transition(poses, covs, action, action_cov)
+        log_transition, mahalanobis2, beyond = self._transition(poses, covs, action, action_cov)
         reachable = mahalanobis2 <= self._gate
         moved = self._moved(action)
         proposals = []
         start = 0
         for leaf, (states, _), size in zip(leaves, searches, sizes, strict=True):
             keep = reachable[start : start + size]
+            if leaf.is_new:
+                keep = keep & ~beyond[start : start + size]
             if moved:
                 keep = keep & (np.asarray(states, np.int64) != leaf.state)
             proposals.append((np.asarray(states, np.int64)[keep], log_transition[start : start + size][keep]))

@@ -143,6 +143,24 @@ def test_identical_views_down_a_straight_corridor_never_revisit():
         assert all(h.is_new_state for h in result.hypotheses)
 
 
+@pytest.mark.parametrize("radius_m", [0.5, 0.0])
+def test_from_a_new_place_a_look_alike_a_metre_away_is_no_revisit(radius_m):
+    """A zigzag: a step turned 60° and the turn back in place face the way the place a metre behind
+    faced, and the view is the same. The robot stood at the new place, so odometry says it is a metre
+    from that place: beyond the revisit radius (0 turns the bound off, and the Gaussian place term
+    lets the view claim it)."""
+    estimator = Estimator(synthetic_config(revisit_radius_m=radius_m))
+    world = SyntheticWorld(3)
+    down_the_corridor, aside = world.observe(np.zeros(3)), world.observe(np.array([5.0, 5.0, 1.0]))
+    estimator.add_keyframe(0, np.zeros(3), down_the_corridor)
+    estimator.add_keyframe(1, np.array([1.0, 0.0, math.radians(60)]), aside)
+    result = estimator.add_keyframe(2, np.array([0.0, 0.0, -math.radians(60)]), down_the_corridor)
+    if radius_m > 0:
+        assert all(h.is_new_state for h in result.hypotheses)
+    else:
+        assert result.best.state == 0
+
+
 @settings(max_examples=30, deadline=None)
 @given(
     seed=st.integers(0, 10_000),
@@ -150,7 +168,7 @@ def test_identical_views_down_a_straight_corridor_never_revisit():
     last=st.tuples(st.floats(-3, 3), st.floats(-3, 3), st.floats(-math.pi, math.pi)),
 )
 def test_candidates_are_exactly_the_states_the_motion_model_can_reach(seed, turns, last):
-    """On a chain map, the proposals equal a brute-force gate over every state."""
+    """On a chain map, the proposals equal a brute-force gate (and revisit radius) over every state."""
     config = synthetic_config()
     tree = HypothesisTree(config)
     rng = np.random.default_rng(seed)
@@ -188,7 +206,10 @@ def test_candidates_are_exactly_the_states_the_motion_model_can_reach(seed, turn
             np.array([rel[:3]]), rel_covariance(rel)[None], action, action_cov
         )
         m2 = residual[0] @ np.linalg.inv(covariance[0] + place) @ residual[0]
-        if m2 <= config.gate_sigma**2:
+        # The leaf is a new place: the robot stands there, so a state farther than a revisit can be is out.
+        excess = math.hypot(residual[0][0], residual[0][1]) - config.revisit_radius_m
+        beyond = excess > config.gate_sigma * math.sqrt(covariance[0][0, 0] + covariance[0][1, 1])
+        if m2 <= config.gate_sigma**2 and not beyond:
             expected.append(state)
     assert sorted(proposed.tolist()) == sorted(expected)
 
