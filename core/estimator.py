@@ -263,17 +263,25 @@ class Estimator:
         While the robot is lost and the best hypothesis calls it somewhere new (after a kidnap or a
         reset), the hypotheses predict from the track it lost: a dense window then takes the frame
         most like any mapped place the relocalisation index finds (docs/estimator.md, "While lost, the
-        window looks for the map").
+        window looks for the map"), and a sparse stream its neighbour, if ``SPARSE_CHOICE_ODDS``
+        times as likely as the keyframe by that measure (otherwise a reset's keyframes keep whatever
+        phase odometry gave them, half a step from the places in about half the runs).
         """
         tree = self._tree
-        if len(observations) < 2 or (sparse and (not tree.leaves or tree.leaves[0].is_new)):
+        if len(observations) < 2:
             return 0
-        if not sparse and tree.lost_off_the_map():
+        if tree.lost_off_the_map():
             # Lost, the hypotheses' predictions are the old track's: take the frame that looks most
             # like somewhere mapped, so the index can single the place out.
             distances = np.array([tree.nearest_mapped_distance(o) for o in observations])
             if np.isfinite(distances).any():
-                return int(np.argmin(distances))
+                best = int(np.argmin(distances))
+                if not sparse:
+                    return best
+                looks = self.observation_model.log_likelihood(distances)
+                return best if looks[best] - looks[0] >= math.log(SPARSE_CHOICE_ODDS) else 0
+        if sparse and (not tree.leaves or tree.leaves[0].is_new):
+            return 0
         weighed = []  # log (belief × P(frame at the leaf's predicted place)) per frame, one row a leaf
         looks: dict[int, np.ndarray] = {}  # log P(frame | place) per predicted place: leaves often share one
         for leaf in tree.leaves:

@@ -240,6 +240,30 @@ def test_while_lost_the_window_takes_the_frame_most_like_a_mapped_place():
     assert estimator.choose_keyframe([step, 0.9 * step, 1.1 * step], frames) == 1
 
 
+def test_while_lost_a_sparse_stream_takes_a_neighbour_only_if_far_more_like_a_mapped_place():
+    """On a sparse stream the alternatives are the keyframe's neighbours, half a step off: lost, the
+    one showing a mapped place is taken over a view of nowhere, but not over a keyframe that shows
+    a mapped place itself nearly as well (a brief loss of track must not shift the keyframes' phase)."""
+    world = SyntheticWorld(5)
+    actions = rectangle_actions()
+    estimator, _ = run(actions[:37], world, synthetic_config())
+    tree = estimator._tree
+    rng = np.random.default_rng(2)
+    nowhere = [rng.dirichlet(np.ones(16)).astype(np.float32) for _ in range(3)]
+    pose = np.zeros(3)
+    for action in actions[:14]:
+        pose = se2.compose(pose, np.asarray(action, dtype=float))
+    mapped = world.observe(pose)
+    steps = [np.array([1.0, 0.0, 0.0]), np.array([0.5, 0.0, 0.0])]
+    assert estimator.choose_keyframe(steps, [nowhere[2], mapped], sparse=True) == 0  # tracking
+    for keyframe, view in ((38, nowhere[0]), (39, nowhere[1])):
+        assert estimator.add_keyframe(keyframe, actions[keyframe - 1], view).best.is_new_state
+    assert tree.lost_off_the_map()
+    assert estimator.choose_keyframe(steps, [nowhere[2], mapped], sparse=True) == 1
+    also_mapped = world.observe(pose)  # another view of the same place, as alike within noise
+    assert estimator.choose_keyframe(steps, [also_mapped, mapped], sparse=True) == 0
+
+
 def test_where_odometry_puts_a_frame_weighs_with_how_alike_it_looks():
     """Of two frames that look equally like the predicted place (lap 1's place 4, a step ahead),
     the one odometry puts at the place is taken, not the one half a step short of it."""
