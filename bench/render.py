@@ -39,14 +39,19 @@ ROBUST_TABLES = {
     "robust_held_out_19_20": "robust_matrix_seeds_19_20.md",
     "robust_route_shapes": "robust_matrix_route_shapes.md",
     "robust_route_curves": "robust_matrix_route_curves.md",
+    "robust_seeds_23_24": "robust_matrix_seeds_23_24.md",
+    "robust_sparse_events": "robust_matrix_sparse_events.md",
+    "robust_recorder_settings": "robust_matrix_recorder_settings.md",
 }
 """The robust-revisit matrix's tables (``bench/robust_matrix.py --markdown``), beside the results,
 by the template's name for each: the matrix; the same families on held-out seeds and routes (seeds
 6–8); mixes of its knobs, held out; seeds 9–10; seeds 11–12 with a sixth route
 (``bench/routes/notch.json``); seeds 13–14 with jitter and wander too, and the mixes on them; the
 events and aliasing on seeds 15–16; the events, the families with targets and six mixes on seeds 19–20,
-held out; the route files with other turns and steps; those with arcs, zigzags and 0.75 m steps. A table
-not made is left out of the page."""
+held out; the route files with other turns and steps; those with arcs, zigzags and 0.75 m steps; seeds
+23–24 on eight routes with three-knob mixes and events on dense and noisy streams; kidnaps and resets on
+sparse streams; recorder settings the families never vary (image size, JPEG, lens, laps, camera height).
+A table not made is left out of the page."""
 TEMPLATES = Path(__file__).resolve().parent / "templates"
 DRIFT_PLOT = "long-run-drift.png"
 

@@ -80,6 +80,15 @@ MIXES: dict[str, dict[str, Any]] = {
     "mix-fps10-lighting50-noise5": {"fps": 10.0, "lighting_change": 0.5, "noise": 0.05},
     "mix-fps2-noise5": {"fps": 2.0, "noise": 0.05},
     "mix-fps5-alias50": {"fps": 5.0, "aliasing": 0.5},
+    # Recorder settings the families never vary: image size, compression, lens, laps, camera height.
+    "size640": {"size": "640x480"},
+    "size160": {"size": "160x120"},
+    "jpeg70": {"jpeg_quality": 70},
+    "fov90": {"fov_deg": 90.0},
+    "fov45": {"fov_deg": 45.0},
+    "laps3": {"laps": 3},
+    "camera06": {"camera_height_m": 0.6},
+    "mix-jpeg70-fps5-lighting50": {"jpeg_quality": 70, "fps": 5.0, "lighting_change": 0.5},
 }
 
 
@@ -186,14 +195,28 @@ class Scenario:
         return MIXES[self.family] if self.family in MIXES else FAMILIES[self.family]
 
     def record_config(self):  # -> RecordConfig
-        from aslam.recorder.config import NoiseParams, RecordConfig
+        from aslam.recorder.config import CameraSpec, NoiseParams, RecordConfig
 
         settings = dict(self.settings)
         noise_keys = ("noise", "jitter_m", "jitter_deg", "wander_m", "wander_deg", "model")
         noise_fields = {k: settings.pop(k) for k in noise_keys if k in settings}
+        camera = {}
+        if "size" in settings:
+            width, height = settings.pop("size").split("x")
+            camera.update(width_px=int(width), height_px=int(height))
+        if "fov_deg" in settings:
+            camera["fov_deg"] = settings.pop("fov_deg")
+        if "camera_height_m" in settings:
+            camera["height_m"] = settings.pop("camera_height_m")
         if is_route_file(self.route):  # a route file is driven once unless told: twice, as the presets
             settings.setdefault("laps", 2)
-        return RecordConfig(route=self.route, seed=self.seed, noise=NoiseParams(**noise_fields), **settings)
+        return RecordConfig(
+            route=self.route,
+            seed=self.seed,
+            noise=NoiseParams(**noise_fields),
+            camera=CameraSpec(**camera),
+            **settings,
+        )
 
     def command(self) -> str:
         if is_derived(self.family):
@@ -202,7 +225,8 @@ class Scenario:
         for key, value in self.settings.items():
             name = "noise-model" if key == "model" else key.replace("_", "-")
             flags.append(f"--{name} {value:g}" if isinstance(value, float) else f"--{name} {value}")
-        route = self.portable_route + (" --laps 2" if is_route_file(self.route) else "")
+        laps = " --laps 2" if is_route_file(self.route) and "laps" not in self.settings else ""
+        route = self.portable_route + laps
         return f"aslam record --route {route} --seed {self.seed} {' '.join(flags)}".strip()
 
     @property
