@@ -216,52 +216,53 @@ def test_a_sparse_neighbour_is_taken_only_while_tracking_and_only_when_far_more_
     assert estimator.choose_keyframe([keyframe, neighbour], frames, sparse=True) == 0
 
 
+class _SecondLap:
+    """Lap 2 of the synthetic rectangle, tracked; views of nowhere, and ``mapped``: a view of lap 1's
+    keyframe 14, a mapped place elsewhere. ``carry_off`` shows two views of nowhere: the best
+    hypothesis is then a new place and the robot lost."""
+
+    def __init__(self) -> None:
+        self.world = SyntheticWorld(5)
+        self.actions = rectangle_actions()
+        self.estimator, _ = run(self.actions[:37], self.world, synthetic_config())
+        self.tree = self.estimator._tree
+        rng = np.random.default_rng(2)
+        self.nowhere = [rng.dirichlet(np.ones(16)).astype(np.float32) for _ in range(3)]
+        self.pose = np.zeros(3)
+        for action in self.actions[:14]:
+            self.pose = se2.compose(self.pose, np.asarray(action, dtype=float))
+        self.mapped = self.world.observe(self.pose)
+
+    def carry_off(self) -> None:
+        for keyframe, view in ((38, self.nowhere[0]), (39, self.nowhere[1])):
+            assert self.estimator.add_keyframe(keyframe, self.actions[keyframe - 1], view).best.is_new_state
+        assert self.tree.lost_off_the_map()
+
+
 def test_while_lost_the_window_takes_the_frame_most_like_a_mapped_place():
-    """Carried off on the second lap (two views of nowhere: the best hypothesis is a new place and the
-    robot lost), the hypotheses predict from the lost track; of the frames near the keyframe the one
-    that shows a mapped place elsewhere (lap 1's keyframe 14) is taken. Tracking, it is not."""
-    world = SyntheticWorld(5)
-    actions = rectangle_actions()
-    estimator, _ = run(actions[:37], world, synthetic_config())
-    tree = estimator._tree
-    rng = np.random.default_rng(2)
-    nowhere = [rng.dirichlet(np.ones(16)).astype(np.float32) for _ in range(3)]
+    """Carried off on the second lap, the hypotheses predict from the lost track; of the frames near
+    the keyframe the one that shows a mapped place elsewhere is taken. Tracking, it is not."""
+    lap = _SecondLap()
     step = np.array([1.0, 0.0, 0.0])
-    pose = np.zeros(3)
-    for action in actions[:14]:
-        pose = se2.compose(pose, np.asarray(action, dtype=float))
-    mapped = world.observe(pose)
-    frames = [nowhere[2], mapped, nowhere[0]]
-    assert not tree.lost_off_the_map()
-    assert estimator.choose_keyframe([step, 0.9 * step, 1.1 * step], frames) != 1
-    for keyframe, view in ((38, nowhere[0]), (39, nowhere[1])):
-        assert estimator.add_keyframe(keyframe, actions[keyframe - 1], view).best.is_new_state
-    assert tree.lost_off_the_map()
-    assert estimator.choose_keyframe([step, 0.9 * step, 1.1 * step], frames) == 1
+    frames = [lap.nowhere[2], lap.mapped, lap.nowhere[0]]
+    assert not lap.tree.lost_off_the_map()
+    assert lap.estimator.choose_keyframe([step, 0.9 * step, 1.1 * step], frames) != 1
+    lap.carry_off()
+    assert lap.estimator.choose_keyframe([step, 0.9 * step, 1.1 * step], frames) == 1
 
 
 def test_while_lost_a_sparse_stream_takes_a_neighbour_only_if_far_more_like_a_mapped_place():
     """On a sparse stream the alternatives are the keyframe's neighbours, half a step off: lost, the
     one showing a mapped place is taken over a view of nowhere, but not over a keyframe that shows
     a mapped place itself nearly as well (a brief loss of track must not shift the keyframes' phase)."""
-    world = SyntheticWorld(5)
-    actions = rectangle_actions()
-    estimator, _ = run(actions[:37], world, synthetic_config())
-    tree = estimator._tree
-    rng = np.random.default_rng(2)
-    nowhere = [rng.dirichlet(np.ones(16)).astype(np.float32) for _ in range(3)]
-    pose = np.zeros(3)
-    for action in actions[:14]:
-        pose = se2.compose(pose, np.asarray(action, dtype=float))
-    mapped = world.observe(pose)
+    lap = _SecondLap()
     steps = [np.array([1.0, 0.0, 0.0]), np.array([0.5, 0.0, 0.0])]
-    assert estimator.choose_keyframe(steps, [nowhere[2], mapped], sparse=True) == 0  # tracking
-    for keyframe, view in ((38, nowhere[0]), (39, nowhere[1])):
-        assert estimator.add_keyframe(keyframe, actions[keyframe - 1], view).best.is_new_state
-    assert tree.lost_off_the_map()
-    assert estimator.choose_keyframe(steps, [nowhere[2], mapped], sparse=True) == 1
-    also_mapped = world.observe(pose)  # another view of the same place, as alike within noise
-    assert estimator.choose_keyframe(steps, [also_mapped, mapped], sparse=True) == 0
+    choose = lap.estimator.choose_keyframe
+    assert choose(steps, [lap.nowhere[2], lap.mapped], sparse=True) == 0  # tracking
+    lap.carry_off()
+    assert choose(steps, [lap.nowhere[2], lap.mapped], sparse=True) == 1
+    also_mapped = lap.world.observe(lap.pose)  # another view of the same place, as alike within noise
+    assert choose(steps, [also_mapped, lap.mapped], sparse=True) == 0
 
 
 def test_where_odometry_puts_a_frame_weighs_with_how_alike_it_looks():
