@@ -195,15 +195,14 @@ class Scenario:
         return MIXES[self.family] if self.family in MIXES else FAMILIES[self.family]
 
     def record_config(self):  # -> RecordConfig
-        from aslam.recorder.config import CameraSpec, NoiseParams, RecordConfig
+        from aslam.recorder.config import CameraSpec, NoiseParams, RecordConfig, parse_size
 
         settings = dict(self.settings)
         noise_keys = ("noise", "jitter_m", "jitter_deg", "wander_m", "wander_deg", "model")
         noise_fields = {k: settings.pop(k) for k in noise_keys if k in settings}
         camera = {}
         if "size" in settings:
-            width, height = settings.pop("size").split("x")
-            camera.update(width_px=int(width), height_px=int(height))
+            camera["width_px"], camera["height_px"] = parse_size(settings.pop("size"))
         if "fov_deg" in settings:
             camera["fov_deg"] = settings.pop("fov_deg")
         if "camera_height_m" in settings:

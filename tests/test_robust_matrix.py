@@ -56,3 +56,19 @@ def test_mixes_and_events_on_other_renders_are_scenarios():
     assert kidnap.command().endswith("derive kidnap@noise5")
     assert Scenario("reset@fps5", "paper", 6).base.name == "fps5-paper-seed6"
     assert Scenario("kidnap", "paper", 6).base.name == "default-paper-seed6"
+
+
+def test_recorder_settings_families_set_the_camera_and_their_command_says_so():
+    """Size, lens and camera height go to the camera; every such family is a valid recording whose
+    command names the flags it was rendered with (and a route file's own laps win over the default 2)."""
+    for family in ("size640", "size160", "jpeg70", "fov90", "fov45", "laps3", "camera06"):
+        Scenario(family, "paper", 25).record_config().validate()
+    camera = Scenario("size640", "paper", 25).record_config().camera
+    assert (camera.width_px, camera.height_px) == (640, 480)
+    assert Scenario("fov45", "grid", 25).record_config().camera.fov_deg == 45.0
+    assert Scenario("camera06", "grid", 25).record_config().camera.height_m == 0.6
+    assert "--size 640x480" in Scenario("size640", "paper", 25).command()
+    route = str(BENCH / "routes" / "ell.json")
+    assert Scenario("laps3", route, 25).record_config().laps == 3
+    assert "--laps 3" in Scenario("laps3", route, 25).command()
+    assert "--laps 2" not in Scenario("laps3", route, 25).command()
