@@ -123,6 +123,12 @@ WINDOW_LEAF_BELIEF = 0.05
 SPARSE_CHOICE_ODDS = 10.0
 """On a sparse stream a neighbour of the odometry's keyframe is taken only when this many times as
 likely (summed over the hypotheses) to be at a predicted place as the keyframe itself."""
+WINDOW_MOTION_SHARPNESS = 4.0
+"""A dense window's frames are centimetres apart, and the question is which of them is *at* the
+predicted place, not whether the place is revisited: each hypothesis ranks them by its motion model
+this many times as sharply as the tree weighs a claim (its σ halved about its best frame), while its
+best frame's fit still weighs it against the other hypotheses (docs/estimator.md, "Which frame is at
+the place")."""
 
 
 def keyframer(config: EstimatorConfig) -> Keyframer:
@@ -241,8 +247,9 @@ class Estimator:
         """Which of a dense stream's frames near the odometry's keyframe to take (``actions``: each
         frame's odometry since the keyframe taken before, the odometry's keyframe first;
         ``observations``: their vectors): the one most believed to be at a place the hypotheses
-        predict — by appearance and by where odometry puts the frame, summed over the best hypothesis
-        and those holding ``WINDOW_LEAF_BELIEF`` of the belief, each weighed by its belief — or the
+        predict — by appearance and by where odometry puts the frame (ranked ``WINDOW_MOTION_SHARPNESS``
+        times as sharply as a claim), summed over the best hypothesis and those holding
+        ``WINDOW_LEAF_BELIEF`` of the belief, each weighed by its belief — or the
         first (the odometry's) when none predicts a place. Not the best hypothesis's alone: at the
         first revisit after new ground it is often still a new place, whose map predicts a place
         vaguely or not at all, while a revisit with a fifth of the belief knows where the next place
@@ -291,6 +298,9 @@ class Estimator:
             if predicted is None:
                 continue
             place, log_transition = predicted
+            if not sparse:
+                peak = float(np.max(log_transition))
+                log_transition = peak + WINDOW_MOTION_SHARPNESS * (log_transition - peak)
             if place not in looks:
                 view = tree.observations.view[place][None, :]
                 distances = np.array(
