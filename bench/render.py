@@ -42,6 +42,7 @@ ROBUST_TABLES = {
     "robust_seeds_23_24": "robust_matrix_seeds_23_24.md",
     "robust_sparse_events": "robust_matrix_sparse_events.md",
     "robust_seeds_27_28": "robust_matrix_seeds_27_28.md",
+    "robust_seeds_29_30": "robust_matrix_seeds_29_30.md",
     "robust_recorder_settings": "robust_matrix_recorder_settings.md",
 }
 """The robust-revisit matrix's tables (``bench/robust_matrix.py --markdown``), beside the results,
@@ -51,7 +52,8 @@ by the template's name for each: the matrix; the same families on held-out seeds
 events and aliasing on seeds 15–16; the events, the families with targets and six mixes on seeds 19–20,
 held out; the route files with other turns and steps; those with arcs, zigzags and 0.75 m steps; seeds
 23–24 on eight routes with three-knob mixes and events on dense and noisy streams; kidnaps and resets on
-sparse streams; seeds 27–28, rendered after that day's changes; recorder settings the families never
+sparse streams; seeds 27–28, rendered after that day's changes; seeds 29–30 on video-rate streams,
+rendered after the window's sharper motion term; recorder settings the families never
 vary (image size, JPEG, lens, laps, camera height). A table not made is left out of the page."""
 TEMPLATES = Path(__file__).resolve().parent / "templates"
 DRIFT_PLOT = "long-run-drift.png"
