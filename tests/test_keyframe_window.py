@@ -300,8 +300,8 @@ def test_a_likely_revisit_says_where_to_look_when_the_best_hypothesis_is_a_new_p
 def test_of_two_frames_near_alike_the_one_at_the_predicted_place_is_taken(monkeypatch):
     """A frame 0.4 m past the predicted place that looks a little more like it (near a wall a view
     changes quickly) is not taken over the frame at the place: within a window odometry ranks the
-    frames ``WINDOW_MOTION_SHARPNESS`` times as sharply as a claim (the figure-8's and hexagon's
-    video-rate wrong claims were keyframes 0.5 m past their place). Ranked like a claim, it was."""
+    frames ``WINDOW_MOTION_SHARPNESS`` times as sharply as a claim (the hexagon's last keyframe at
+    10 frames per metre was such a frame, 0.52 m from the place it named). Ranked like a claim, it was."""
     world = SyntheticWorld(5)
     estimator, _ = run(rectangle_actions()[:37], world, synthetic_config())
     stranger = np.random.default_rng(0).dirichlet(np.ones(16)).astype(np.float32)
