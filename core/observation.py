@@ -1,9 +1,10 @@
 """Observation models: how an image becomes a vector, how two vectors differ, what that is worth.
 
-The tree only needs three things from an observation model (:class:`ObservationModel`): describe
-a grey image as a fixed-length float32 vector, measure the distance of one vector to many stored
-ones at once (a matrix: the candidates of a step, or the whole map for relocalisation), and turn
-a distance into a log-likelihood. Two implementations:
+At heart an observation model (:class:`ObservationModel`) does three things: describe a grey
+image as a fixed-length float32 vector, measure the distance of one vector to many stored ones at
+once (a matrix: the candidates of a step, or the whole map for relocalisation), and turn a
+distance into a log-likelihood; the rest of the protocol is what the tree needs to calibrate the
+new-place reference and index the views. Two implementations:
 
 * :class:`HistogramModel` — the paper's gradient-orientation histogram compared with χ²
   (``aslam.core.features``), with the project's soft spatial cells;
