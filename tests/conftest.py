@@ -198,6 +198,16 @@ SIDE_STEPS = 3
 LAPS = 2
 
 
+def long_recording(path: Path, frames: int = 600) -> None:
+    """Enough images that an estimate runs for a while (a straight corridor, back and forth)."""
+    rng = np.random.default_rng(0)
+    with RecordingWriter(path, camera=CameraIntrinsics(64, 48, 60.0), metadata={}) as writer:
+        for i in range(frames):
+            x = float(i % 40)
+            image = encode_image(rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
+            writer.write(1_000_000_000 * (i + 1), image, np.array([x, 0.0, 0.0]), None)
+
+
 def square_route() -> list[np.ndarray]:
     """True poses: per side 3 one-metre steps then a 90° turn in place; twice round."""
     poses = [np.zeros(3)]

@@ -681,6 +681,24 @@ def test_the_alarm_scale_is_one_until_alarms_outrun_their_expected_rate(keyframe
     assert tree._log_alarm_scale() <= scale + 1e-12
 
 
+@pytest.mark.parametrize(
+    "keyframes, alarms, rate, power, expected",
+    [
+        (100, 0, 0.02, 1.0, 0.0),  # no alarm: the prior's 1 in 150 is under the expected 1 in 50
+        (100, 2, 0.02, 1.0, 0.0),  # 3 in 150 = 0.02 exactly: as expected, no weakening
+        (100, 9, 0.02, 1.0, math.log(0.3)),  # 10 in 150, 3⅓ × the expected rate: jumps × 0.3
+        (100, 9, 0.02, 2.0, 2.0 * math.log(0.3)),  # the same at power 2: × 0.09
+        (1000, 99, 0.05, 1.0, math.log(0.05 / (100 / 1020))),  # 100 in 1,020 against 1 in 20
+    ],
+)
+def test_the_alarm_scale_by_hand(keyframes, alarms, rate, power, expected):
+    """Worked by hand: share = (alarms + 1) / (keyframes + 1/rate), scale = power × log(rate/share)
+    when that is negative, else 0."""
+    tree = HypothesisTree(synthetic_config(jump_alarm_rate=rate, jump_alarm_power=power))
+    tree._alarms.keyframes, tree._alarms.count = keyframes, alarms
+    assert tree._log_alarm_scale() == pytest.approx(expected, abs=1e-12)
+
+
 @pytest.mark.parametrize("blank_at_carry", [False, True])
 def test_a_jump_is_born_below_the_new_place_and_nearer_it_once_lost(blank_at_carry):
     """A jump by appearance is never the best at birth: ``JUMP_CEILING`` of the best leaf's "new

@@ -3,6 +3,7 @@ and checked against Foxglove's published schema package."""
 
 from __future__ import annotations
 
+import errno
 import itertools
 import json
 import math
@@ -20,6 +21,7 @@ from mcap_protobuf.schema import build_file_descriptor_set
 
 from aslam.app.metric_view import EmbedOptions, Kernel, embed, metric_scene
 from aslam.core import se2
+from aslam.data_formats import foxglove
 from aslam.data_formats.foxglove import (
     GROWTH_STEPS,
     ODOMETRY_TOPIC,
@@ -188,6 +190,23 @@ def test_scene_file_refuses_to_overwrite_and_leaves_nothing_on_failure(tmp_path:
     with pytest.raises(ValueError, match="NaN"):
         MetricScene(stamps_ns=stamps, poses=embedding.poses * np.nan, assignment=embedding.assignment)
     assert [p.name for p in tmp_path.iterdir()] == ["scene.mcap"]  # no partial file left behind
+
+
+def test_a_scene_failing_halfway_leaves_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """The keyframes are written (to the temporary file, or the writer's chunk for it), then the disk
+    fills: nothing stays."""
+    embedding, stamps = square_run()
+    partial: list[str] = []
+
+    def disk_full(_channels, _scene, _stamp_ns) -> None:
+        partial.extend(p.name for p in tmp_path.iterdir())
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(foxglove.SceneChannels, "write_map", disk_full)
+    with pytest.raises(OSError, match="No space left"):
+        write_scene(tmp_path / "scene.mcap", metric_scene(embedding, stamps))
+    assert len(partial) == 1 and partial[0].startswith(".scene.mcap.partial-")  # the temporary file
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_large_map_grows_in_bounded_steps(tmp_path: Path):

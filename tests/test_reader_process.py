@@ -4,10 +4,11 @@ overlaps the reading; the same steps as reading in-process; stopped by ``close()
 from __future__ import annotations
 
 import multiprocessing
+import threading
 from pathlib import Path
 
 import pytest
-from conftest import write_square_recording, write_with_corrupt_image
+from conftest import long_recording, write_square_recording, write_with_corrupt_image
 
 from aslam.app.pipeline import can_fork, run_estimate
 from aslam.core.config import EstimatorConfig
@@ -47,19 +48,35 @@ def test_the_reader_process_gives_the_steps_of_reading_in_process(square):
     assert len(in_child) > 10
 
 
-def test_the_reader_starts_at_once_and_close_stops_it_unread(square):
-    steps = run_estimate(Recording(square).samples(), Estimator(EstimatorConfig()))
-    assert readers() == ["aslam-reader"]
-    steps.close()
+@pytest.fixture(scope="module")
+def long(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """1,500 keyframes, far more than the pipe holds: the reader cannot finish while unread."""
+    path = tmp_path_factory.mktemp("reader") / "long.mcap"
+    long_recording(path, frames=1500)
+    return path
+
+
+def closed_unfinished(steps) -> None:
+    """``steps.close()``, which must stop a reader that is still reading (blocked on the full pipe)
+    rather than wait for it to finish: waiting would never end."""
+    closing = threading.Thread(target=steps.close, daemon=True)
+    closing.start()
+    closing.join(timeout=60)
+    assert not closing.is_alive(), "close() waited for a reader that cannot finish"
     assert readers() == []
 
 
-def test_close_after_some_steps_stops_the_reader(square):
-    steps = run_estimate(Recording(square).samples(), Estimator(EstimatorConfig()))
+def test_the_reader_starts_at_once_and_close_stops_it_unread(long):
+    steps = run_estimate(Recording(long).samples(), Estimator(EstimatorConfig()))
+    assert readers() == ["aslam-reader"]
+    closed_unfinished(steps)
+
+
+def test_close_after_some_steps_stops_the_reader(long):
+    steps = run_estimate(Recording(long).samples(), Estimator(EstimatorConfig()))
     first = next(iter(steps))
     assert first.keyframe == 0
-    steps.close()
-    assert readers() == []
+    closed_unfinished(steps)
 
 
 def test_an_error_in_the_reader_is_raised_in_the_parent(tmp_path):

@@ -7,6 +7,7 @@ subprocesses where it is the process's (signals, closed pipes, what C libraries 
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import math
@@ -23,9 +24,10 @@ from typing import Any
 
 import numpy as np
 import pytest
-from conftest import ASLAM, FRAME_NS, T0_NS, ForeignRecording, write_with_corrupt_image
+from conftest import ASLAM, FRAME_NS, T0_NS, ForeignRecording, long_recording, write_with_corrupt_image
 
 from aslam.cli.app import main
+from aslam.core.errors import InputError
 from aslam.data_formats import ros_msgs
 from aslam.data_formats.images import ImageFormat, encode_image
 
@@ -172,19 +174,6 @@ def test_closed_stdout_ends_quietly_with_141(estimate_file: Path, tmp_path: Path
 
 
 # --- leftovers and signals -----------------------------------------------------------------------
-
-
-def long_recording(path: Path, frames: int = 600) -> None:
-    """Enough images that an estimate runs for a while (a straight corridor, back and forth)."""
-    from aslam.data_formats.camera import CameraIntrinsics
-    from aslam.data_formats.recording_writer import RecordingWriter
-
-    rng = np.random.default_rng(0)
-    with RecordingWriter(path, camera=CameraIntrinsics(64, 48, 60.0), metadata={}) as writer:
-        for i in range(frames):
-            x = float(i % 40)
-            image = encode_image(rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
-            writer.write(1_000_000_000 * (i + 1), image, np.array([x, 0.0, 0.0]), None)
 
 
 @pytest.mark.parametrize("signum, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
@@ -501,7 +490,8 @@ def test_decoder_messages_never_reach_the_terminal(tmp_path: Path, fmt: ImageFor
 
 @pytest.fixture
 def full_disk(tmp_path: Path):
-    """A 64 KiB tmpfs, nearly full; skipped where mounting is not permitted."""
+    """A 64 KiB tmpfs, nearly full; skipped where mounting is not permitted (not root: the
+    write-failure cleanup is then covered by ``test_a_write_failing_halfway_leaves_nothing``)."""
     folder = tmp_path / "disk"
     folder.mkdir()
     done = subprocess.run(
@@ -600,24 +590,33 @@ def test_every_single_bit_flip_of_a_definition_is_caught(datatype, message, use)
 
 @pytest.fixture
 def read_only_folder(tmp_path: Path):
-    """A read-only tmpfs (root cannot be kept out of a folder by its mode bits); skipped where mounting is
-    not permitted."""
+    """A folder nothing may be written into, and the error that says so: for root (whom mode bits
+    do not keep out) a read-only tmpfs, skipped where mounting is not permitted; for anyone else a
+    folder without write permission."""
     folder = tmp_path / "ro"
     folder.mkdir()
+    if os.geteuid() != 0:
+        folder.chmod(0o500)
+        try:
+            yield folder, "Permission denied"
+        finally:
+            folder.chmod(0o700)
+        return
     done = subprocess.run(
         ["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", str(folder)], capture_output=True
     )
     if done.returncode != 0:
-        pytest.skip("cannot mount a tmpfs here (needs root)")
+        pytest.skip("cannot mount a tmpfs here")
     try:
-        yield folder
+        yield folder, "Read-only file system"
     finally:
         subprocess.run(["umount", str(folder)], check=False)
 
 
-def test_plots_into_an_unwritable_folder_are_one_line(estimate_file: Path, read_only_folder: Path, capsys):
-    assert main(["report", str(estimate_file), "-q", "--plots", str(read_only_folder / "plots")]) == 2
-    one_error_line(capsys, "Read-only file system")
+def test_plots_into_an_unwritable_folder_are_one_line(estimate_file: Path, read_only_folder, capsys):
+    folder, problem = read_only_folder
+    assert main(["report", str(estimate_file), "-q", "--plots", str(folder / "plots")]) == 2
+    one_error_line(capsys, problem)
 
 
 def test_plots_under_a_file_are_one_line(estimate_file: Path, tmp_path: Path, capsys):
@@ -646,3 +645,28 @@ def test_outside_a_command_writes_land_at_once_and_may_be_rewritten(tmp_path: Pa
         write_atomically(path, lambda temporary: temporary.write_text("3"))
         assert path.read_text() == "2"  # staged until the command ends
     assert path.read_text() == "3"
+
+
+@pytest.mark.parametrize("failure", [OSError(errno.ENOSPC, "No space left on device"), KeyboardInterrupt()])
+def test_a_write_failing_halfway_leaves_nothing(tmp_path: Path, failure: BaseException):
+    """The temporary file exists and holds bytes when the writer fails: it is removed, the target
+    never appears, and a full disk is one error naming the file while an interrupt goes on up."""
+    from aslam.data_formats.files import write_atomically
+
+    path = tmp_path / "out.tum"
+    written: list[Path] = []
+
+    def write(temporary: Path) -> None:
+        temporary.write_text("0 0 0 0 0 0 0 1\n" * 100)
+        written.append(temporary)
+        raise failure
+
+    if isinstance(failure, OSError):
+        with pytest.raises(InputError, match="cannot write: No space left on device") as err:
+            write_atomically(path, write)
+        assert err.value.path == str(path)
+    else:
+        with pytest.raises(KeyboardInterrupt):
+            write_atomically(path, write)
+    assert written and not written[0].exists()
+    assert list(tmp_path.iterdir()) == []
