@@ -20,10 +20,12 @@ from aslam.app.score import Report
 from aslam.core.metrics import Evaluation
 from aslam.core.se2 import dead_reckoning
 from aslam.data_formats.estimate import EstimateGraph
-from aslam.data_formats.files import write_atomically
+from aslam.data_formats.files import make_output_folder, write_atomically
 from aslam.data_formats.graph_json import is_loop_closure_link
 
 DPI = 120
+PLOT_NAMES = ("hypotheses.png", "errors.png", "map.png", "pr.png", "trajectory.png")
+"""The figures ``write_plots`` may write (the last only where the map has a metric view)."""
 
 
 def _save(fig: Any, path: Path) -> None:
@@ -44,14 +46,14 @@ def write_plots(folder: Path, report: Report) -> list[Path]:
 
     matplotlib.use("Agg")
     title = report.estimate_path.name
-    folder.mkdir(parents=True, exist_ok=True)
-    paths = [folder / name for name in ("hypotheses.png", "errors.png", "map.png", "pr.png")]
+    make_output_folder(folder)
+    paths = [folder / name for name in PLOT_NAMES[:4]]
     _save(_hypotheses_figure(report.evaluation, title), paths[0])
     _save(_errors_figure(report.evaluation, title), paths[1])
     _save(_map_figure(report.estimate.graph, report.actions, report.true_poses, title), paths[2])
     _save(_pr_figure(report.evaluation, report.summary["committed"], title), paths[3])
     if report.embedding is not None:
-        paths.append(folder / "trajectory.png")
+        paths.append(folder / PLOT_NAMES[4])
         _save(_trajectory_figure(report, title), paths[-1])
     return paths
 

@@ -23,6 +23,7 @@ import gc
 import hashlib
 import json
 import os
+import shutil
 import socket
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -60,7 +61,7 @@ LOCAL_CLUSTER_SETTINGS = {
 #: Columns of every row besides the parameters (``param.NAME``) and the figures (summary keys).
 TIMING_COLUMNS = ("estimate_wall_s", "keyframes_per_second", "task_cpu_s")
 #: Columns that legitimately differ between two runs of the same sweep.
-VARYING_COLUMNS = (*TIMING_COLUMNS, "timing.keyframes_per_second", "worker")
+VARYING_COLUMNS = (*TIMING_COLUMNS, "timing.keyframes_per_second", "timing.slam_ms_per_keyframe", "worker")
 
 
 class TasksFailed(AslamError):
@@ -437,10 +438,35 @@ def run_sweep(
     results_dir = Path(results_dir).absolute()
     if results_dir.exists() and not results_dir.is_dir():
         raise InputError("is not a folder", path=results_dir)
+    created = not results_dir.exists()
     try:
         (results_dir / TASKS_FOLDER).mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise InputError(f"cannot create: {err.strerror or err}", path=results_dir) from err
+    try:
+        return _run_in(
+            sweep, results_dir, workers, scheduler, force, extra_figures, client, on_plan, on_result
+        )
+    except BaseException:
+        # A sweep that made its folder and then failed before any work was kept (a scheduler out of
+        # reach, a bad recording, an early interrupt) leaves nothing; renders or results stay, to resume.
+        kept = {entry.name for entry in results_dir.iterdir()} - {HASHES_FILE, TASKS_FOLDER}
+        if created and not kept and not any((results_dir / TASKS_FOLDER).iterdir()):
+            shutil.rmtree(results_dir, ignore_errors=True)
+        raise
+
+
+def _run_in(
+    sweep: Sweep,
+    results_dir: Path,
+    workers: int | None,
+    scheduler: str | None,
+    force: bool,
+    extra_figures: Sequence[str],
+    client: Any | None,
+    on_plan: Callable[[Sequence[Task], Sequence[Task]], None] | None,
+    on_result: Callable[[Task, TaskResult, bool], None] | None,
+) -> SweepRun:
     hashes = HashCache(results_dir / HASHES_FILE, use=not force)
     tasks = plan_tasks(sweep, results_dir, hashes=hashes)
     hashes.save()

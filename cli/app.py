@@ -283,6 +283,9 @@ def _dispatch(argv: list[str] | None, files: CommandFiles | None) -> int:
         error_line(str(err))
         return err.exit_code
     except AslamError as err:
+        interrupt = _interrupt_behind(err)  # a library swallowed the signal, then failed for it
+        if interrupt is not None:
+            raise interrupt from err
         error_line(str(err))
         raise _Failed(err.exit_code) from err
     except typer.Abort as err:
@@ -312,7 +315,9 @@ def _dispatch(argv: list[str] | None, files: CommandFiles | None) -> int:
 def _interrupt_behind(err: Exception) -> Interrupted | None:
     """The interrupt an error stands for, if a signal arrived: raised inside a native module's
     initialisation (GTSAM's pybind11, protobuf), Ctrl-C comes out as ``ImportError:
-    initialization failed``, which is no internal error."""
+    initialization failed``, which is no internal error; swallowed by a library's own ``except
+    BaseException`` (trimesh's import of networkx), it comes out as the error of what then failed
+    (pyrender not loading)."""
     signals = _Signals.active
     if signals is None or signals.received is None:
         return None

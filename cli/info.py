@@ -30,6 +30,7 @@ def info(
     image_topic: output.ImageTopicOption = None,
     odometry_topic: output.OdometryTopicOption = None,
     ground_truth_topic: output.GroundTruthTopicOption = None,
+    force: output.ForceOption = False,
     quiet: output.QuietOption = False,
     verbose: output.VerboseOption = False,
 ) -> None:
@@ -38,14 +39,15 @@ def info(
     Exit code 0 when the whole recording reads (warnings, e.g. a truncated file, go to stderr),
     2 when it cannot be used.
     """
+    from aslam.data_formats.files import check_output_path, write_text_output
     from aslam.data_formats.sources import TopicChoice, open_input
 
     terminal = output.Terminal(quiet=quiet, verbose=verbose)
+    if json_out is not None and json_out != "-":  # before reading the whole recording
+        check_output_path(Path(json_out), force=force, inputs=[recording])
     topics = TopicChoice(image=image_topic, odometry=odometry_topic, ground_truth=ground_truth_topic)
     result = open_input(recording, topics, on_warning=terminal.warning).describe()
     if json_out is not None:
-        from aslam.data_formats.files import write_text_output
-
         written = write_text_output(json_out, json.dumps(result.as_dict(), indent=2, sort_keys=False) + "\n")
         if written is not None:
             terminal.info(f"wrote {written}")

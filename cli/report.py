@@ -97,10 +97,19 @@ def report(
     if graph == "-" and json_out == "-":
         raise InputError("--graph and --json cannot both write to stdout")
     outputs = [Path(p) for p in (graph, json_out) if p not in (None, "-")]
-    for path in outputs:
-        _check_output(path, force=force)
+    if trajectory is not None:
+        from aslam.data_formats.trajectory import sibling_paths
+
+        outputs += sibling_paths(trajectory)
+    for i, path in enumerate(outputs):  # before any work: a bad path, or two outputs that are one file
+        _check_output(path, force=force, others=outputs[:i])
     if plots is not None and plots.exists() and not plots.is_dir():
         raise InputError("exists and is not a folder", path=plots)
+    if plots is not None and plots.is_dir():
+        from aslam.app.plots import PLOT_NAMES
+
+        for name in PLOT_NAMES:
+            _check_output(plots / name, force=force, others=outputs)
 
     if truth_by_index and recording is not None:
         raise InputError("--truth-by-index reads no recording; leave out --recording")
@@ -143,10 +152,10 @@ def _write_trajectories(result: Any, path: Path, fmt: TrajectoryFormat, *, force
     return list(paths.values())
 
 
-def _check_output(path: Path, *, force: bool) -> None:
+def _check_output(path: Path, *, force: bool, others: list[Path]) -> None:
     from aslam.data_formats.files import check_output_path
 
-    check_output_path(path, force=force)
+    check_output_path(path, force=force, outputs=others)
 
 
 def _write_json(target: str, document: dict[str, Any], *, indent: int) -> list[Path]:

@@ -95,6 +95,8 @@ class CommandFiles:
     temporaries: list[Path] = field(default_factory=list)
     """Every temporary name handed out, registered before the file is created: whatever an
     interrupt skips, the end of the command removes."""
+    folders: list[Path] = field(default_factory=list)
+    """Folders the command created for its outputs, deepest first: a failed command removes them."""
     owner_pid: int = field(default_factory=os.getpid)
 
     def warn(self, line: str) -> None:
@@ -119,6 +121,7 @@ class CommandFiles:
                 self.rollback()
                 raise item.error(f"cannot write: {err.strerror or err}", path=item.shown) from err
         self._remove_temporaries()
+        self.folders = []
 
     def rollback(self) -> None:
         """Remove every staged output; nothing appears under their final names."""
@@ -128,6 +131,10 @@ class CommandFiles:
         for item in staged:
             item.partial.unlink(missing_ok=True)
         self._remove_temporaries()
+        folders, self.folders = self.folders, []
+        for folder in folders:
+            with contextlib.suppress(OSError):  # not empty: something else put a file there
+                folder.rmdir()
 
     def _remove_temporaries(self) -> None:
         temporaries, self.temporaries = self.temporaries, []
@@ -165,6 +172,20 @@ def command_files(*, on_warning: Callable[[str], None] | None = None) -> Iterato
         raise
     finally:
         _current = previous
+
+
+def make_output_folder(folder: Path) -> None:
+    """Create ``folder`` and its missing parents for a command's outputs; if the command then
+    fails, or is interrupted, the folders it created go with its files."""
+    missing = []
+    probe = Path(folder).absolute()
+    while not os.path.lexists(probe):
+        missing.append(probe)
+        probe = probe.parent
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    files = current()
+    if files is not None:
+        files.folders.extend(missing)
 
 
 def note_force(force: bool) -> None:

@@ -163,6 +163,32 @@ def test_ctrl_c_inside_a_native_import_is_an_interrupt(recording: Path, tmp_path
     assert err.strip().endswith("aslam: error: interrupted")
 
 
+def test_an_interrupt_a_library_swallowed_is_no_input_error(
+    recording: Path, tmp_path: Path, monkeypatch, capsys
+):
+    """trimesh imports networkx inside ``except BaseException``: a Ctrl-C there is swallowed and the
+    next import fails, which the recorder reports as an input error. The signal arrived, so the
+    command ends as interrupted (130), without that error's line."""
+    import aslam.app.metric_view
+    from aslam.core.errors import InputError
+
+    def swallowing_import() -> None:
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1.0)
+        except BaseException:  # what trimesh does
+            pass
+        raise InputError("cannot load a library: 'Algorithm already exists'")
+
+    monkeypatch.setattr(aslam.app.metric_view, "preload", swallowing_import)
+    out = tmp_path / "e.mcap"
+    assert main(["estimate", str(recording), "-o", str(out)]) == 130
+    assert os.listdir(tmp_path) == []
+    err = capsys.readouterr().err
+    assert "cannot load" not in err
+    assert err.strip().endswith("aslam: error: interrupted")
+
+
 @pytest.mark.parametrize(
     ("extra", "needle"),
     [

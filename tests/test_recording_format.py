@@ -346,6 +346,18 @@ def test_info_json_describes_the_recording(tmp_path, capsys):
     assert report["truncated"] is False and report["warnings"] == []
 
 
+def test_info_json_output_is_checked_first_and_obeys_force(tmp_path, capsys):
+    path = write_recording(tmp_path / "r.mcap", random_frames(3))
+    out = tmp_path / "info.json"
+    out.write_text("keep")
+    assert main(["info", str(path), "--json", str(out)]) == 2
+    assert "already exists" in capsys.readouterr().err and out.read_text() == "keep"
+    assert main(["info", str(path), "--json", str(tmp_path / "missing" / "i.json")]) == 2
+    assert "folder" in capsys.readouterr().err
+    assert main(["info", str(path), "--json", str(out), "--force"]) == 0
+    assert json.loads(out.read_text())["samples"] == 3
+
+
 def test_info_prints_tables(tmp_path, capsys):
     path = write_recording(tmp_path / "r.mcap", random_frames(2))
     assert main(["info", str(path)]) == 0

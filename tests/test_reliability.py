@@ -88,12 +88,26 @@ def test_report_output_that_is_its_estimate_is_refused_and_writes_nothing(
     assert not graph.exists()  # the command failed: none of its outputs
 
 
-def test_two_outputs_resolving_to_one_file_are_refused(estimate_file: Path, tmp_path: Path, capsys):
+@pytest.mark.parametrize(
+    "outputs, problem",
+    [
+        (["--graph", "out.json", "--json", "sub/../out.json"], "another output of this command"),
+        (["--json", "run.odometry.tum", "--trajectory", "run.tum"], "another output of this command"),
+        (["--trajectory", "missing/run.tum"], "folder missing does not exist"),
+    ],
+)
+def test_report_outputs_are_checked_before_any_work(
+    estimate_file: Path, tmp_path: Path, monkeypatch, capsys, outputs, problem
+):
+    """Two outputs that are one file, or a trajectory with nowhere to go: refused before scoring
+    (no tables printed), nothing written."""
     (tmp_path / "sub").mkdir()
-    a, b = tmp_path / "out.json", tmp_path / "sub" / ".." / "out.json"
-    assert main(["report", str(estimate_file), "-q", "--graph", str(a), "--json", str(b)]) == 2
-    one_error_line(capsys, "another output of this command")
-    assert not a.exists()
+    monkeypatch.chdir(tmp_path)
+    assert main(["report", str(estimate_file), *outputs]) == 2
+    assert capsys.readouterr().out == ""
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["sub"]
+    assert main(["report", str(estimate_file), *outputs]) == 2
+    one_error_line(capsys, problem)
 
 
 def test_every_report_output_obeys_force(estimate_file: Path, tmp_path: Path, capsys):
@@ -102,6 +116,8 @@ def test_every_report_output_obeys_force(estimate_file: Path, tmp_path: Path, ca
     first = {p.name: sha(p) for p in plots.iterdir()}
     capsys.readouterr()
     graph = tmp_path / "g.json"
+    assert main(["report", str(estimate_file), "--plots", str(plots), "--graph", str(graph)]) == 2
+    assert capsys.readouterr().out == ""  # refused before scoring: no tables
     assert main(["report", str(estimate_file), "-q", "--plots", str(plots), "--graph", str(graph)]) == 2
     one_error_line(capsys, "already exists", "--force")
     assert {p.name: sha(p) for p in plots.iterdir()} == first
@@ -670,3 +686,26 @@ def test_a_write_failing_halfway_leaves_nothing(tmp_path: Path, failure: BaseExc
             write_atomically(path, write)
     assert written and not written[0].exists()
     assert list(tmp_path.iterdir()) == []
+
+
+def test_an_interrupted_report_leaves_no_plots_folder(
+    estimate_file: Path, tmp_path: Path, monkeypatch, capsys
+):
+    """The folders ``--plots`` made go with the figures when the command does not finish; a folder
+    that was there before stays."""
+    import aslam.app.plots
+
+    saved = aslam.app.plots._save
+    calls: list[Path] = []
+
+    def interrupted_after_one(fig, path: Path) -> None:
+        saved(fig, path)
+        calls.append(path)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(aslam.app.plots, "_save", interrupted_after_one)
+    assert main(["report", str(estimate_file), "-q", "--plots", str(tmp_path / "new" / "plots")]) == 130
+    assert calls and list(tmp_path.iterdir()) == []
+    (tmp_path / "kept").mkdir()
+    assert main(["report", str(estimate_file), "-q", "--plots", str(tmp_path / "kept")]) == 130
+    assert [p.name for p in tmp_path.iterdir()] == ["kept"] and list((tmp_path / "kept").iterdir()) == []

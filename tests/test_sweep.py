@@ -350,6 +350,7 @@ def test_a_bad_scheduler_address_is_exit_2(recordings, tmp_path, capsys):
     (tmp_path / "corrupt.mcap").symlink_to(recordings / "corrupt.mcap")
     assert main(["sweep", str(sweep), "-o", str(tmp_path / "out"), "--scheduler", "nonsense", "-q"]) == 2
     assert "cannot reach the Dask scheduler at nonsense" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()  # the folder it made for the run is gone with it
     code = main(
         ["sweep", str(sweep), "-o", str(tmp_path / "out"), "--scheduler", "tcp://x:1", "--workers", "2"]
     )
