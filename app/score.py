@@ -223,6 +223,7 @@ def score(
     heading_deg: float = 45.0,
     truth_by_index: bool = False,
     on_warning: Callable[[str], None] | None = None,
+    on_stage: Callable[[str], None] | None = None,
 ) -> Report:
     """Score ``estimate`` against the ground truth of ``recording`` (default: the one it names).
 
@@ -230,11 +231,14 @@ def score(
     warning line saying why. A run in a prior map (``estimate --map``) is scored against the prior
     map's places too, with the truth of the recordings each map session names. ``truth_by_index``:
     for datasets whose sessions are aligned frame by frame (Nordland), the k-th keyframe of every
-    session is at x = k, so ``radius_m`` counts keyframes; no recording is read.
+    session is at x = k, so ``radius_m`` counts keyframes; no recording is read. ``on_stage(text)``
+    says what it is doing (a progress display: a long run's report takes a while).
     """
     check_report_tolerances(radius_m, heading_deg)
     warn = on_warning or (lambda _line: None)
+    stage = on_stage or (lambda _text: None)
     estimate = Path(estimate)
+    stage("reading the estimate")
     info = read_estimate(estimate)
     steps = []
     stamps: list[int] = []
@@ -245,16 +249,19 @@ def score(
             stamps.append(keyframe.stamp_ns)
             actions.append(keyframe.action)
     first = info.graph.first_keyframe
+    stage("reading the ground truth")
     # every keyframe of the map: the prior map's, then this run's
     true_poses, recording_path = _session_truth(info, stamps, truth_by_index, recording, warn)
     if true_poses is not None and first:
         earlier = _map_truth(info, estimate, truth_by_index, warn)
         true_poses = None if earlier is None else np.concatenate([earlier, true_poses])
+    stage("scoring the claims")
     evaluation = evaluate(steps, true_poses, radius_m=radius_m, heading_deg=heading_deg, first_keyframe=first)
     if not evaluation.has_ground_truth:
         true_poses = None
     run_truth = None if true_poses is None or truth_by_index else true_poses[first:]
     action_array = np.array(actions, dtype=float).reshape(-1, 3)
+    stage("the metric view (GTSAM)")
     try:
         embedding = embed_run(
             action_array,

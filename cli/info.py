@@ -46,7 +46,24 @@ def info(
     if json_out is not None and json_out != "-":  # before reading the whole recording
         check_output_path(Path(json_out), force=force, inputs=[recording])
     topics = TopicChoice(image=image_topic, odometry=odometry_topic, ground_truth=ground_truth_topic)
-    result = open_input(recording, topics, on_warning=terminal.warning).describe()
+    source = open_input(recording, topics, on_warning=terminal.warning)
+    if terminal.shows_progress:  # every image is decoded: a large bag takes minutes
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+        progress = Progress(
+            TextColumn("info"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("images"),
+            TimeRemainingColumn(),
+            console=terminal.console,
+            transient=True,
+        )
+        task = progress.add_task("info", total=source.image_count())
+        with progress:
+            result = source.describe(on_sample=lambda n: progress.update(task, completed=n))
+    else:
+        result = source.describe()
     if json_out is not None:
         written = write_text_output(json_out, json.dumps(result.as_dict(), indent=2, sort_keys=False) + "\n")
         if written is not None:

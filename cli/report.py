@@ -5,8 +5,10 @@ The work is :func:`aslam.app.score.score`; this module parses, prints and writes
 
 from __future__ import annotations
 
+import contextlib
 import json
 import sys
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -113,14 +115,16 @@ def report(
 
     if truth_by_index and recording is not None:
         raise InputError("--truth-by-index reads no recording; leave out --recording")
-    result = score(
-        estimate,
-        recording=recording,
-        radius_m=radius_m,
-        heading_deg=heading_deg,
-        truth_by_index=truth_by_index,
-        on_warning=terminal.warning,
-    )
+    with _status(terminal) as on_stage:
+        result = score(
+            estimate,
+            recording=recording,
+            radius_m=radius_m,
+            heading_deg=heading_deg,
+            truth_by_index=truth_by_index,
+            on_warning=terminal.warning,
+            on_stage=on_stage,
+        )
     stdout_taken = "-" in (graph, json_out)
     if not quiet or not stdout_taken:
         print_report(Console(file=sys.stderr if stdout_taken else sys.stdout, soft_wrap=False), result)
@@ -150,6 +154,16 @@ def _write_trajectories(result: Any, path: Path, fmt: TrajectoryFormat, *, force
         raise InputError("fewer than two keyframes: no trajectory to write", path=path)
     paths = export_trajectories(path, result.embedding, result.stamps_ns, result.true_poses, fmt, force=force)
     return list(paths.values())
+
+
+@contextlib.contextmanager
+def _status(terminal: Terminal) -> Iterator[Callable[[str], None] | None]:
+    """A spinner naming the stage the scoring is at (only on a terminal, never with --quiet)."""
+    if not terminal.shows_progress:
+        yield None
+        return
+    with terminal.console.status("report", spinner="dots") as status:
+        yield lambda text: status.update(f"report: {text}")
 
 
 def _check_output(path: Path, *, force: bool, others: list[Path]) -> None:

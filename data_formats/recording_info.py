@@ -119,9 +119,14 @@ class SampleStats:
 
 
 def describe_recording(
-    recording: Recording, topics: RecordingTopics = RecordingTopics(), *, warn: Callable[[str], None]
+    recording: Recording,
+    topics: RecordingTopics = RecordingTopics(),
+    *,
+    warn: Callable[[str], None],
+    on_sample: Callable[[int], None] | None = None,
 ) -> RecordingInfo:
-    """Read the whole recording, decoding every image, and say what it holds.
+    """Read the whole recording, decoding every image, and say what it holds; ``on_sample(n)``
+    after each of the n samples read (a progress display).
 
     Any problem ``Recording.samples`` would meet raises here too (RecordingError). ``warnings`` in
     the result is empty: the caller, who made ``recording`` with its warning callback, fills it.
@@ -135,6 +140,8 @@ def describe_recording(
     stats = SampleStats()
     for sample in recording.samples(topics):
         stats.add(sample)
+        if on_sample is not None:
+            on_sample(stats.samples)
     sizes = stats.sizes
 
     if camera is not None and sizes:

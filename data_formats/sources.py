@@ -101,8 +101,9 @@ class RecordingInput:
         """False for an image folder imported without odometry (equal steps assumed, ``aslam import``)."""
         return self.recording.metadata().get("odometry_known") != "false"
 
-    def describe(self) -> RecordingInfo:
-        info = describe_recording(self.recording, self.topics, warn=self._warnings)
+    def describe(self, on_sample: Callable[[int], None] | None = None) -> RecordingInfo:
+        """Read it all (``aslam info``); ``on_sample(n)`` after each sample."""
+        info = describe_recording(self.recording, self.topics, warn=self._warnings, on_sample=on_sample)
         return replace(info, warnings=tuple(self._warnings.lines))
 
 
@@ -136,8 +137,9 @@ class BagInput:
     odometry_known = True
     """A bag's odometry is measured (an ``Odometry`` topic or ``/tf``)."""
 
-    def describe(self) -> RecordingInfo:
-        info = describe_bag(self.path, self.topics, on_warning=self._warnings)
+    def describe(self, on_sample: Callable[[int], None] | None = None) -> RecordingInfo:
+        """Read it all (``aslam info``); ``on_sample(n)`` after each sample."""
+        info = describe_bag(self.path, self.topics, on_warning=self._warnings, on_sample=on_sample)
         return replace(info, warnings=tuple(self._warnings.lines))
 
 
