@@ -81,9 +81,15 @@ def _trajectory_figure(report: Report, title: str) -> Any:
     if truth is not None and known is not None and known.sum() >= 2:
         stamps = np.asarray(report.stamps_ns, dtype=np.int64)[known]
         ax.plot(truth[known, 0], truth[known, 1], "-", color="0.6", linewidth=2.5, label="ground truth")
-        odometry_xy = _aligned(odometry[known], truth[known], stamps)
-        optimised_xy = _aligned(optimised[known], truth[known], stamps)
-        frame = "aligned to the ground truth (evo, Umeyama SE(3))"
+        from evo.core.geometry import GeometryException
+
+        try:
+            odometry_xy = _aligned(odometry[known], truth[known], stamps)
+            optimised_xy = _aligned(optimised[known], truth[known], stamps)
+            frame = "aligned to the ground truth (evo, Umeyama SE(3))"
+        except GeometryException:  # every position on one line: no unique rotation to align by
+            odometry_xy, optimised_xy = odometry[:, :2], optimised[:, :2]
+            frame = "in the frame of the first keyframe (a straight run cannot be aligned)"
     else:
         odometry_xy, optimised_xy = odometry[:, :2], optimised[:, :2]
         frame = "in the frame of the first keyframe (no ground truth)"

@@ -379,6 +379,12 @@ def _find_recording(given: Path | None, info: EstimateFile, warn: Callable[[str]
     if given is not None:
         if not given.exists():
             raise InputError("no such recording", path=given)
+        size = sum(file.stat().st_size for file in source_files(given))
+        if size != info.metadata.recording.size_bytes:  # another file: a bag with the truth, or a mistake
+            warn(
+                f"{given} is not the recording the estimate was made from ({size} bytes, that one"
+                f" {info.metadata.recording.size_bytes}): its ground truth is taken at the keyframes' stamps"
+            )
         return given.absolute()
     named, size_bytes = info.metadata.recording.path, info.metadata.recording.size_bytes
     path = Path(named)

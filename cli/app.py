@@ -84,10 +84,18 @@ def _register_commands(name: str | None = None) -> None:
         importlib.import_module(f"aslam.cli.{module}")
 
 
+def one_line(message: str) -> str:
+    """``message`` as one line of plain text: whitespace runs made one space, and every other
+    control character (an escape sequence in a bag's frame name, say) shown as its code, never
+    sent to the terminal to act on."""
+    text = " ".join(message.split())
+    return "".join(ch if ch.isprintable() else f"\\x{ord(ch):02x}" for ch in text)
+
+
 def error_line(message: str) -> None:
     """One line on stderr, the only thing a user sees of an error."""
     try:
-        sys.stderr.write(f"aslam: error: {' '.join(message.split())}\n")
+        sys.stderr.write(f"aslam: error: {one_line(message)}\n")
         sys.stderr.flush()
     except (OSError, ValueError):  # stderr itself closed: nothing left to tell
         pass
@@ -247,7 +255,7 @@ def main(argv: list[str] | None = None, *, startup_signals: list[int] | None = N
 
 def _warning_line(message: str) -> None:
     try:
-        sys.stderr.write(f"aslam: warning: {' '.join(message.split())}\n")
+        sys.stderr.write(f"aslam: warning: {one_line(message)}\n")
         sys.stderr.flush()
     except (OSError, ValueError):
         pass

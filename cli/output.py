@@ -87,7 +87,9 @@ class Terminal:
 
     def warning(self, message: str) -> None:
         if not self.quiet:
-            self._line(f"aslam: warning: {' '.join(message.split())}")
+            from aslam.cli.app import one_line
+
+            self._line(f"aslam: warning: {one_line(message)}")
 
     def info(self, message: str) -> None:
         """A line about the run (what was written, how fast); not with --quiet."""

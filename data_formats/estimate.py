@@ -149,6 +149,9 @@ PLACE_VIEWS_SCHEMA: dict[str, Any] = {
 #: Any number in an estimate file (actions, covariances, tree statistics) lies within this; the
 #: recording reader refuses poses beyond 1e7 m, so larger values are damage, not data.
 MAX_ABS_NUMBER = 1e15
+MAX_ABS_COVARIANCE = 1e40
+"""A covariance grows with the square of a step's length squared (the lateral drift term): a
+carry or an odometry jump of 10⁷ m, which odometry may report, gives entries near 10²⁹."""
 MAX_INTEGER = 2**63 - 1
 _COVARIANCE_ROW = {"type": "array", "minItems": 3, "maxItems": 3}
 
@@ -167,7 +170,8 @@ def _bounded(schema: Any) -> Any:
     elif kind == "integer" or kind == ["integer", "null"]:
         out.update(minimum=0, maximum=MAX_INTEGER)
     if out.get("description", "").startswith("3×3"):
-        out.update(minItems=3, maxItems=3, items={**out["items"], **_COVARIANCE_ROW})
+        entry = {"type": "number", "minimum": -MAX_ABS_COVARIANCE, "maximum": MAX_ABS_COVARIANCE}
+        out.update(minItems=3, maxItems=3, items={**out["items"], **_COVARIANCE_ROW, "items": entry})
     return out
 
 

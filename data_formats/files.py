@@ -479,6 +479,8 @@ def source_sha256(path: Path, stop: threading.Event | None = None) -> str:
     sha = hashlib.sha256()
     try:
         for file in source_files(path):
+            if not stat.S_ISREG(os.stat(file).st_mode):  # a FIFO would block, /dev/zero never end
+                raise InputError("is not a regular file (a FIFO, socket or device)", path=file)
             with file.open("rb") as f:
                 while not (stop is not None and stop.is_set()):
                     block = f.read(4 * 1024 * 1024)

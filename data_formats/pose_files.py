@@ -28,6 +28,7 @@ import numpy as np
 from aslam.core.errors import InputError
 from aslam.data_formats import ros_msgs
 from aslam.data_formats.format_names import PoseFormat
+from aslam.data_formats.pose_limits import implausible
 
 
 class PoseFileError(InputError):
@@ -46,7 +47,7 @@ class PoseRow(NamedTuple):
 def _lines(path: Path) -> Iterator[tuple[int, str]]:
     """``(line number, stripped text)`` of every line that is not blank or a comment."""
     try:
-        with path.open(encoding="utf-8") as f:
+        with path.open(encoding="utf-8-sig") as f:  # a byte-order mark (Windows editors) is no text
             for number, raw in enumerate(f, start=1):
                 text = raw.strip()
                 if text and not text.startswith("#"):
@@ -129,6 +130,7 @@ def iter_poses(path: Path, fmt: PoseFormat | str | None = None) -> Iterator[Pose
 def _iter_poses(path: Path, fmt: PoseFormat) -> Iterator[PoseRow]:
     expected = _FIELDS[fmt]
     previous: int | None = None
+    previous_pose: np.ndarray | None = None
     first = True
     for number, text in _lines(path):
         fields = _split(text) if fmt is PoseFormat.CSV else text.split()
@@ -157,7 +159,12 @@ def _iter_poses(path: Path, fmt: PoseFormat) -> Iterator[PoseRow]:
             previous = stamp
         if fmt is PoseFormat.TUM and math.isclose(sum(v * v for v in values[4:]), 0.0):
             raise PoseFileError(f"line {number}: the quaternion is zero", path=path)
-        yield PoseRow(number, stamp, _planar(fmt, values))
+        pose = _planar(fmt, values)
+        problem = implausible(pose, previous_pose)  # as a recording's reader would refuse it
+        if problem is not None:
+            raise PoseFileError(f"line {number}: the pose {problem}", path=path)
+        previous_pose = pose
+        yield PoseRow(number, stamp, pose)
 
 
 def count_poses(path: Path, fmt: PoseFormat | str | None = None) -> int:

@@ -103,6 +103,11 @@ def _header_stamp_ns(msg: Any, log_time: int) -> int:
     return stamp if stamp != 0 else log_time
 
 
+def negative_stamp(what: str, topic: str, stamp_ns: int) -> str:
+    """The problem of a stamp before 1970, which no MCAP file (unsigned times) can hold."""
+    return f"{what} stamp on '{topic}' is {stamp_ns} ns, before 1970: not a time a recording can hold"
+
+
 def _topic_list(channels: Mapping[str, str]) -> str:
     return ", ".join(f"{topic} ({kind})" for topic, kind in sorted(channels.items())) or "none"
 
@@ -182,6 +187,8 @@ class _Stream:
         _check_type(self.path, self.what, channel.topic, datatype, self.accepted)
         msg = self.decode(schema, channel, message)
         stamp_ns = _header_stamp_ns(msg, message.log_time)
+        if stamp_ns < 0:
+            raise RecordingError(negative_stamp(self.what, channel.topic, stamp_ns), path=self.path)
         if self.last_ns is not None and stamp_ns < self.last_ns:
             topic, previous = channel.topic, self.last_ns
             raise RecordingError(
@@ -336,13 +343,17 @@ class Recording:
                     return None
                 msg = decode(schema, channel, message)
                 fx = float(msg.k[0])
+                problem = RecordingError(
+                    f"camera info on '{topics.camera_info}' has no usable intrinsics "
+                    f"({msg.width}x{msg.height}, fx={fx})",
+                    path=path,
+                )
                 if not (msg.width > 0 and msg.height > 0 and math.isfinite(fx) and fx > 0):
-                    raise RecordingError(
-                        f"camera info on '{topics.camera_info}' has no usable intrinsics "
-                        f"({msg.width}x{msg.height}, fx={fx})",
-                        path=path,
-                    )
-                return CameraIntrinsics.from_camera_info(int(msg.width), int(msg.height), fx)
+                    raise problem
+                try:  # a focal length so short the field of view rounds to 180°
+                    return CameraIntrinsics.from_camera_info(int(msg.width), int(msg.height), fx)
+                except ValueError as err:
+                    raise problem from err
         finally:
             messages.close()  # type: ignore[attr-defined]
         return None

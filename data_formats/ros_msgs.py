@@ -148,7 +148,14 @@ def yaw_quaternion(yaw_rad: float) -> dict[str, float]:
 
 
 def yaw_of_quaternion(x: float, y: float, z: float, w: float) -> float:
-    """Yaw (rotation about +z) of a quaternion, in (-π, π]."""
+    """Yaw (rotation about +z) of a quaternion, in (-π, π]. One that is not of unit length (a driver's
+    rounding aside) is normalised first; a zero one is ValueError: it is no rotation."""
+    norm2 = x * x + y * y + z * z + w * w
+    if not norm2 > 1e-12:
+        raise ValueError("the orientation quaternion is zero")
+    if abs(norm2 - 1.0) > 1e-6:
+        scale = 1.0 / math.sqrt(norm2)
+        x, y, z, w = x * scale, y * scale, z * scale, w * scale
     return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 

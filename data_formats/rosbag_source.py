@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
@@ -30,8 +30,9 @@ from aslam.data_formats.camera import CameraIntrinsics
 from aslam.data_formats.errors import BagError
 from aslam.data_formats.files import check_input_file, source_files
 from aslam.data_formats.mcap_file import McapFile
+from aslam.data_formats.pose_limits import implausible
 from aslam.data_formats.pose_sync import Sample, SampleAssembler
-from aslam.data_formats.recording import _header_stamp_ns, _lazy_image
+from aslam.data_formats.recording import _header_stamp_ns, _lazy_image, negative_stamp
 from aslam.data_formats.recording_info import TopicInfo
 
 TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
@@ -204,7 +205,10 @@ def resolve_topics(path: Path, types: dict[str, str], topics: BagTopics) -> Reso
 # --- reading ------------------------------------------------------------------------------------
 
 
-def _pose(path: Path, what: str, topic: str, datatype: str, msg: Any, stamp_ns: int) -> np.ndarray:
+def _pose(
+    path: Path, what: str, topic: str, datatype: str, msg: Any, stamp_ns: int, previous: np.ndarray | None
+) -> np.ndarray:
+    """The planar pose of a pose message, finite and plausible after ``previous`` (as a recording's)."""
     try:
         pose = ros_msgs.pose_of_message(datatype, msg)
     except (AttributeError, TypeError, ValueError) as err:
@@ -213,7 +217,18 @@ def _pose(path: Path, what: str, topic: str, datatype: str, msg: Any, stamp_ns: 
         raise BagError(
             f"{what} pose on '{topic}' at stamp {stamp_ns} ns is not finite (NaN or infinite)", path=path
         )
+    problem = implausible(pose, previous)
+    if problem is not None:
+        raise BagError(f"{what} pose on '{topic}' at stamp {stamp_ns} ns {problem}", path=path)
     return pose
+
+
+def _stamp(path: Path, what: str, topic: str, msg: Any, log_time: int) -> int:
+    """The message's header stamp (its log time if unset), refused before 1970."""
+    stamp_ns = _header_stamp_ns(msg, log_time)
+    if stamp_ns < 0:
+        raise BagError(negative_stamp(what, topic, stamp_ns), path=path)
+    return stamp_ns
 
 
 def _backwards(path: Path, what: str, topic: str, stamp_ns: int, previous_ns: int) -> BagError:
@@ -343,38 +358,46 @@ def _iter_bag_samples(path: Path, topics: BagTopics, warn: Callable[[str], None]
         tf = _TfOdometry(topics.odom_frame, topics.base_frame, warn, path) if resolved.tf else None
         last_odometry_ns: int | None = None
         last_truth_ns: int | None = None
+        last_odometry: np.ndarray | None = None
+        last_truth: np.ndarray | None = None
         wanted = {t for t in (resolved.image, resolved.odometry, resolved.ground_truth, resolved.tf) if t}
         for topic, datatype, log_time, msg in _messages(path, reader, wanted):
             if topic == resolved.image:
-                stamp_ns = _header_stamp_ns(msg, log_time)
+                stamp_ns = _stamp(path, "image", topic, msg, log_time)
                 if assembler.last_image_ns is not None and stamp_ns < assembler.last_image_ns:
                     raise _backwards(path, "image", topic, stamp_ns, assembler.last_image_ns)
                 yield from assembler.add_image(stamp_ns, _lazy_image(path, topic, datatype, msg, stamp_ns))
             elif topic == resolved.odometry:
-                stamp_ns = _header_stamp_ns(msg, log_time)
+                stamp_ns = _stamp(path, "odometry", topic, msg, log_time)
                 if last_odometry_ns is not None and stamp_ns < last_odometry_ns:
                     raise _backwards(path, "odometry", topic, stamp_ns, last_odometry_ns)
                 last_odometry_ns = stamp_ns
-                yield from assembler.add_odometry(
-                    stamp_ns, _pose(path, "odometry", topic, datatype, msg, stamp_ns)
-                )
+                last_odometry = _pose(path, "odometry", topic, datatype, msg, stamp_ns, last_odometry)
+                yield from assembler.add_odometry(stamp_ns, last_odometry)
             elif topic == resolved.tf and tf is not None:
                 for stamp_ns, pose in tf.poses(msg, log_time):
+                    if stamp_ns < 0:
+                        raise BagError(negative_stamp("odometry", topic, stamp_ns), path=path)
                     if last_odometry_ns is not None and stamp_ns <= last_odometry_ns:
                         if stamp_ns == last_odometry_ns:
                             continue  # the same transform published twice
                         raise _backwards(
                             path, "odometry", f"{topic} {tf.odom_frame}", stamp_ns, last_odometry_ns
                         )
-                    last_odometry_ns = stamp_ns
+                    problem = implausible(pose, last_odometry)
+                    if problem is not None:
+                        raise BagError(
+                            f"odometry pose on '{topic}' at stamp {stamp_ns} ns {problem}", path=path
+                        )
+                    last_odometry_ns, last_odometry = stamp_ns, pose
                     yield from assembler.add_odometry(stamp_ns, pose)
             else:
-                stamp_ns = _header_stamp_ns(msg, log_time)
+                stamp_ns = _stamp(path, "ground-truth", topic, msg, log_time)
                 if last_truth_ns is not None and stamp_ns < last_truth_ns:
                     raise _backwards(path, "ground-truth", topic, stamp_ns, last_truth_ns)
                 last_truth_ns = stamp_ns
-                pose = _pose(path, "ground-truth", topic, datatype, msg, stamp_ns)
-                yield from assembler.add_ground_truth(stamp_ns, pose)
+                last_truth = _pose(path, "ground-truth", topic, datatype, msg, stamp_ns, last_truth)
+                yield from assembler.add_ground_truth(stamp_ns, last_truth)
         if tf is not None and last_odometry_ns is None:
             pairs = ", ".join(f"{p} → {c}" for p, c in sorted(tf.pairs_seen)) or "none"
             raise BagError(
@@ -410,12 +433,14 @@ def _iter_bag_ground_truth(path: Path, topic: str) -> Iterator[tuple[int, np.nda
                 path=path,
             )
         last: int | None = None
+        pose: np.ndarray | None = None
         for _topic, datatype, log_time, msg in _messages(path, reader, {topic}):
-            stamp_ns = _header_stamp_ns(msg, log_time)
+            stamp_ns = _stamp(path, "ground-truth", topic, msg, log_time)
             if last is not None and stamp_ns < last:
                 raise _backwards(path, "ground-truth", topic, stamp_ns, last)
             last = stamp_ns
-            yield stamp_ns, _pose(path, "ground-truth", topic, datatype, msg, stamp_ns)
+            pose = _pose(path, "ground-truth", topic, datatype, msg, stamp_ns, pose)
+            yield stamp_ns, pose
 
 
 # --- describing ---------------------------------------------------------------------------------
@@ -578,6 +603,7 @@ def read_bag_camera_intrinsics(path: Path) -> CameraIntrinsics | None:
             k = msg.k if hasattr(msg, "k") else msg.K  # ROS 1 spells it K
             fx = float(k[0])
             if msg.width > 0 and msg.height > 0 and math.isfinite(fx) and fx > 0:
-                return CameraIntrinsics.from_camera_info(int(msg.width), int(msg.height), fx)
+                with suppress(ValueError):  # a field of view that rounds to 180°: none
+                    return CameraIntrinsics.from_camera_info(int(msg.width), int(msg.height), fx)
             return None
     return None

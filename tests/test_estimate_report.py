@@ -474,3 +474,14 @@ def test_report_trajectory_files_score_the_same_with_evo_ape(estimate_file: Path
         == 0
     )
     assert len((tmp_path / "k.txt").read_text().splitlines()) == summary["keyframes"]
+
+
+def test_report_against_another_recording_says_so(estimate_file: Path, tmp_path: Path, capsys):
+    """A ground truth from another file is allowed (a bag with the truth beside an imported
+    folder), but not silently: a different file is named in a warning."""
+    from conftest import write_square_recording
+
+    other = tmp_path / "other.mcap"
+    write_square_recording(other, seed=8)
+    assert main(["report", str(estimate_file), "--recording", str(other)]) == 0
+    assert "is not the recording the estimate was made from" in capsys.readouterr().err

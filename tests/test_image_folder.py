@@ -342,3 +342,32 @@ def test_import_refuses_to_overwrite(tmp_path):
     assert out.read_text() == "keep me"
     import_image_folder(tmp_path / "imgs", out, force=True)
     assert len(list(Recording(out).samples())) == 1
+
+
+def test_a_byte_order_mark_is_not_part_of_the_first_number(tmp_path: Path):
+    path = tmp_path / "poses.txt"
+    path.write_bytes("\ufeff0.5 1 2 0 0 0 0 1\n".encode())
+    (row,) = iter_poses(path)
+    assert row.stamp_ns == 500_000_000 and row.pose[0] == 1.0
+
+
+def test_an_implausible_pose_is_refused_at_import(tmp_path: Path):
+    """The recording reader would refuse it at `estimate`: the pose file names the line now."""
+    path = tmp_path / "poses.txt"
+    path.write_text("0 0 0 0 0 0 0 1\n1 1e300 0 0 0 0 0 1\n")
+    with pytest.raises(PoseFileError, match=r"line 2: the pose is at x=1e\+300 m"):
+        list(iter_poses(path))
+    path.write_text("0 0 0 0 0 0 0 1\n1 50000 0 0 0 0 0 1\n")
+    with pytest.raises(PoseFileError, match=r"line 2: the pose jumps 50000 m"):
+        list(iter_poses(path))
+
+
+@pytest.mark.parametrize("scale", [1.0, 1.1, 2.0, 0.5])
+def test_a_quaternion_not_of_unit_length_gives_its_rotation(scale: float):
+    from aslam.data_formats.ros_msgs import yaw_of_quaternion
+
+    half = math.radians(90.0) / 2
+    yaw = yaw_of_quaternion(0.0, 0.0, scale * math.sin(half), scale * math.cos(half))
+    assert yaw == pytest.approx(math.radians(90.0), abs=1e-12)
+    with pytest.raises(ValueError, match="zero"):
+        yaw_of_quaternion(0.0, 0.0, 0.0, 0.0)

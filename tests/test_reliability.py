@@ -709,3 +709,29 @@ def test_an_interrupted_report_leaves_no_plots_folder(
     (tmp_path / "kept").mkdir()
     assert main(["report", str(estimate_file), "-q", "--plots", str(tmp_path / "kept")]) == 130
     assert [p.name for p in tmp_path.iterdir()] == ["kept"] and list((tmp_path / "kept").iterdir()) == []
+
+
+def test_plots_of_a_straight_run_are_drawn(tmp_path: Path, capsys):
+    """A train or a corridor: every true position on one line, which evo's Umeyama alignment
+    cannot rotate onto (a degenerate covariance). The trajectory plot is then drawn unaligned."""
+    from conftest import random_frames, write_recording
+
+    frames = [
+        (stamp, rgb, np.array([float(i), 0.0, 0.0]), np.array([float(i), 0.0, 0.0]))
+        for i, (stamp, rgb, _odometry, _truth) in enumerate(random_frames(10))
+    ]
+    recording = write_recording(tmp_path / "line.mcap", frames)
+    estimate = tmp_path / "e.mcap"
+    assert main(["estimate", str(recording), "-o", str(estimate), "-q"]) == 0
+    assert main(["report", str(estimate), "-q", "--plots", str(tmp_path / "plots")]) == 0
+    assert (tmp_path / "plots" / "trajectory.png").stat().st_size > 0
+
+
+def test_control_characters_never_reach_the_terminal(capsys):
+    """A bag's frame names or topics end up in error lines: an escape sequence in one must not
+    erase the line or write over the terminal."""
+    from aslam.cli.app import error_line
+
+    error_line("no transform from frame '\x1b[2K\x1b[1Gfake' to 'base'\r\n(seen: x\x07)")
+    err = capsys.readouterr().err
+    assert err == "aslam: error: no transform from frame '\\x1b[2K\\x1b[1Gfake' to 'base' (seen: x\\x07)\n"

@@ -653,3 +653,46 @@ def test_ground_truth_stream(bags):
         list(iter_bag_ground_truth(bags["rosbag1"], "/gps"))
     with pytest.raises(BagError, match="ground-truth topic '/camera/color/image_raw' has type"):
         list(iter_bag_ground_truth(bags["rosbag1"], IMAGE_TOPIC))
+
+
+def test_implausible_bag_poses_are_refused_as_in_a_recording(tmp_path):
+    """A bag's odometry and ground truth get a recording's plausibility bounds: a 10⁶ m jump or a
+    pose at 10³⁰⁰ m would overflow the pose arithmetic (or the JSON of a report) downstream."""
+
+    def jump(msgs):
+        for msg in msgs[20:]:
+            msg.pose.pose.position.x += 1e6
+
+    with pytest.raises(BagError, match=r"odometry pose on '/odom' at stamp \d+ ns jumps 1e\+06 m"):
+        list(iter_bag_samples(_damaged(tmp_path / "jump", "/odom", jump)))
+
+    def far(msgs):
+        msgs[5].pose.position.x = 1e300
+
+    from aslam.data_formats.rosbag_source import iter_bag_ground_truth
+
+    path = _damaged(tmp_path / "far", "/ground_truth", far)
+    with pytest.raises(BagError, match=r"ground-truth pose on '/ground_truth' .* beyond the plausible"):
+        list(iter_bag_ground_truth(path, "/ground_truth"))
+
+
+def test_stamps_before_1970_are_refused(tmp_path):
+    """An MCAP time is unsigned: a stamp before 1970 could never be written to the estimate file."""
+
+    def before_1970(msgs):
+        for msg in msgs:
+            msg.header.stamp.sec -= 1_700_000_005
+
+    path = _damaged(tmp_path, "/odom", before_1970)
+    with pytest.raises(BagError, match=r"odometry stamp on '/odom' is -\d+ ns, before 1970"):
+        list(iter_bag_samples(path))
+
+
+def test_a_focal_length_too_short_for_a_field_of_view_is_no_camera(tmp_path):
+    from aslam.data_formats.rosbag_source import read_bag_camera_intrinsics
+
+    def tiny(msgs):
+        for msg in msgs:
+            msg.k = np.array([1e-300, 0, 11.5, 0, 1e-300, 7.5, 0, 0, 1])
+
+    assert read_bag_camera_intrinsics(_damaged(tmp_path, "/camera/color/camera_info", tiny)) is None

@@ -435,3 +435,16 @@ def test_pareto_prints_the_undominated_tasks_on_stdout(local_run, recordings, ca
     )
     listed = {int(line.split("│")[1]) for line in out.splitlines() if line.startswith("│")}
     assert listed == {r.index for r in expected} and 1 not in listed and listed
+
+
+@pytest.mark.parametrize("special", ["fifo", "/dev/zero"])
+def test_a_recording_that_is_no_regular_file_is_refused_not_hashed_forever(tmp_path, capsys, special):
+    """A sweep hashes its recordings before anything runs: a FIFO would block that, /dev/zero never end."""
+    if special == "fifo":
+        os.mkfifo(tmp_path / "fifo.mcap")
+        special = str(tmp_path / "fifo.mcap")
+    sweep = tmp_path / "s.toml"
+    sweep.write_text(f'[recordings]\npaths = ["{special}"]\n')
+    assert main(["sweep", str(sweep), "-o", str(tmp_path / "out"), "--workers", "1", "-q"]) == 2
+    assert "is not a regular file" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
