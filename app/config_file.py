@@ -64,7 +64,12 @@ def read_config_file(path: Path) -> dict[str, Any]:
     values: dict[str, Any] = {}
     for key, value in table.items():
         kind = types[key]
-        if isinstance(value, bool) or not isinstance(value, int | float):
+        if kind is str:
+            if isinstance(value, str):
+                values[key] = value  # its allowed values are checked with the rest of the configuration
+            else:
+                problems.append(f"{key} must be a string, got {value!r}")
+        elif isinstance(value, bool) or not isinstance(value, int | float):
             problems.append(f"{key} must be a number, got {value!r}")
         elif kind is int and not isinstance(value, int):
             problems.append(f"{key} must be a whole number, got {value!r}")

@@ -110,8 +110,17 @@ class Task:
 
 
 def render_path(results_dir: Path, config: RecordConfig) -> tuple[Path, str]:
-    """Where a render of ``config`` goes, and its identity (the configuration's SHA-256)."""
-    identity = _digest({"render": asdict(config), "version": tool_version()})
+    """Where a render of ``config`` goes, and its identity: the SHA-256 of the configuration and of
+    the files it names (a route or world file edited since is another render, not a stale one)."""
+    from aslam.recorder.routes import PRESETS
+
+    files = {}
+    if config.route not in PRESETS and Path(config.route).is_file():
+        files["route"] = source_sha256(Path(config.route))
+    if config.world is not None and Path(config.world).is_file():
+        files["world"] = source_sha256(Path(config.world))
+    named = {"files": files} if files else {}  # a preset's render keeps the identity it always had
+    identity = _digest({"render": asdict(config), **named, "version": tool_version()})
     name = f"{Path(config.route).stem}-seed{config.seed}-{identity[:12]}.mcap"
     return results_dir / RENDERS_FOLDER / name, identity
 

@@ -148,7 +148,7 @@ class RecordConfig:
             raise ConfigError(problems[0] + more)
 
 
-_SIZE = re.compile(r"^\s*(\d{1,5})\s*[xX×]\s*(\d{1,5})\s*$")
+_SIZE = re.compile(r"^\s*(\d{1,9})\s*[xX×]\s*(\d{1,9})\s*$")
 
 
 def parse_size(text: str) -> tuple[int, int]:

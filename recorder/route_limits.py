@@ -99,6 +99,19 @@ def _check_values(doc: dict[str, Any], path: Path | str) -> None:
         if not isinstance(entry, dict) or len(entry) != 1:
             continue
         (key, raw), value = next(iter(entry.items())), _finite(next(iter(entry.values())))
+        if key == "kidnap" and isinstance(raw, dict):  # carried to an absolute pose: it must be mapped ground
+            to_x, to_y = _finite(raw.get("x_m", 0.0)), _finite(raw.get("y_m", 0.0))
+            if to_x is not None and to_y is not None:
+                if not (abs(to_x) <= MAX_COORDINATE_M and abs(to_y) <= MAX_COORDINATE_M):
+                    raise RouteError(
+                        f"actions[{i}]: kidnap to x={to_x:g} m, y={to_y:g} m is beyond "
+                        f"±{MAX_COORDINATE_M:g} m of the origin",
+                        path=path,
+                    )
+                x_m, y_m = to_x, to_y
+                yaw = _finite(raw.get("yaw_deg", 0.0))
+                heading_rad = math.radians(yaw) if yaw is not None else heading_rad
+            continue
         if value is None:
             continue
         if key == "turn_deg":

@@ -28,7 +28,7 @@ import numpy as np
 
 from aslam.core import se2
 from aslam.recorder.errors import RouteError
-from aslam.recorder.route_limits import read_route_text
+from aslam.recorder.route_limits import MAX_ACTIONS, read_route_text
 
 #: A route is closed when its last commanded pose is its start pose within these tolerances.
 CLOSE_TOL_M = 1e-6
@@ -108,6 +108,11 @@ class Route:
         """The route driven ``laps`` times; refused for an open route when ``laps > 1``."""
         if laps < 1:
             raise RouteError(f"--laps must be at least 1, got {laps}")
+        if laps * len(self.actions) > MAX_ACTIONS:  # a recording that would never end
+            raise RouteError(
+                f"--laps {laps} drives route '{self.name}' ({len(self.actions)} actions a lap) for "
+                f"{laps * len(self.actions):,} actions; at most {MAX_ACTIONS:,}"
+            )
         if laps > 1 and not self.is_closed:
             end = self.poses()[-1]
             raise RouteError(

@@ -102,7 +102,7 @@ def test_no_timing_gives_identical_bytes_and_timing_only_changes_metadata(record
 
 def test_config_file_and_options_precedence(recording: Path, tmp_path: Path):
     config = tmp_path / "c.toml"
-    config.write_text("[estimator]\nbeta = 3\nmax_hypotheses = 20\n")
+    config.write_text('[estimator]\nbeta = 3\nmax_hypotheses = 20\nobservation_model = "thumbnail"\n')
     out = tmp_path / "e.mcap"
     args = ["estimate", str(recording), "-o", str(out), "--config", str(config), "--paper-faithful"]
     assert main([*args, "--max-hypotheses", "10", "--no-timing"]) == 0
@@ -110,6 +110,7 @@ def test_config_file_and_options_precedence(recording: Path, tmp_path: Path):
     assert used["beta"] == 3.0  # file over default
     assert used["max_hypotheses"] == 10  # option over file
     assert used["cells_x"] == 1 and used["cells_y"] == 1  # --paper-faithful base
+    assert used["observation_model"] == "thumbnail"  # a word, from the file over --paper-faithful
 
 
 def test_refuses_to_overwrite_without_force(recording: Path, tmp_path: Path, capsys):
@@ -207,6 +208,8 @@ def test_bad_option_values_are_one_line_exit_2(recording: Path, tmp_path: Path, 
         ("step_m = 1\n", "step_m"),
         ("[estimator\nstep_m = 1\n", "not valid TOML"),
         ('[estimator]\nstep_m = "far"\n', "step_m must be a number"),
+        ("[estimator]\nobservation_model = 5\n", "observation_model must be a string"),
+        ('[estimator]\nobservation_model = "nope"\n', "observation_model must be 'histogram' or"),
         ("[estimator]\nstep_m = -1.0\nbeta = 0\n", "beta must be a number in [0.001, 50]"),
     ],
 )

@@ -399,6 +399,9 @@ def test_extreme_report_options_are_one_line(estimate_file: Path, capsys, option
         ('{"actions": [' + '{"forward_m": 900}, {"turn_deg": 180},' * 3 + '{"turn_deg": 1}]}',
          "more than 2000 m"),
         ('{"actions": [{"turn_deg": 1e308}]}', "turn_deg"),
+        ('{"actions": [{"forward_m": 1}, {"kidnap": {"x_m": 1e300}}, {"forward_m": 1}]}',
+         "kidnap to x=1e+300 m, y=0 m is beyond ±1000 m"),
+        ('{"actions": [{"kidnap": {"x_m": 900}}, {"forward_m": 1000}]}', "beyond ±1000 m"),
     ],
 )  # fmt: skip
 def test_hostile_route_files_are_one_line_before_any_rendering(tmp_path: Path, capsys, text, needle):
@@ -407,6 +410,13 @@ def test_hostile_route_files_are_one_line_before_any_rendering(tmp_path: Path, c
     assert main(["record", "--route", str(route), "-o", str(tmp_path / "r.mcap")]) == 2
     one_error_line(capsys, str(route), needle)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["route.json"]
+
+
+@pytest.mark.parametrize("laps", ["1000000", "9223372036854775808"])
+def test_laps_beyond_any_recording_are_one_line(tmp_path: Path, capsys, laps):
+    assert main(["record", "--laps", laps, "-o", str(tmp_path / "r.mcap")]) == 2
+    one_error_line(capsys, f"--laps {laps}", "at most 100,000")
+    assert list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.parametrize("sheet", ["same", "route", "existing"])

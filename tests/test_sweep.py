@@ -27,6 +27,7 @@ from aslam.app.sweep import (
     open_client,
     pareto_front,
     plan_tasks,
+    render_path,
     resolve_objectives,
     rows,
     run_sweep,
@@ -448,3 +449,18 @@ def test_a_recording_that_is_no_regular_file_is_refused_not_hashed_forever(tmp_p
     assert main(["sweep", str(sweep), "-o", str(tmp_path / "out"), "--workers", "1", "-q"]) == 2
     assert "is not a regular file" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_an_edited_route_file_is_another_render(tmp_path):
+    """A render's identity holds the route file's bytes: edited, it is rendered again, never the
+    old recording reused under the same name."""
+    route = tmp_path / "route.json"
+    route.write_text(
+        '{"actions": [{"forward_m": 2}, {"turn_deg": 180}, {"forward_m": 2}, {"turn_deg": 180}]}'
+    )
+    first = render_path(tmp_path, RecordConfig(route=str(route)))
+    assert render_path(tmp_path, RecordConfig(route=str(route))) == first
+    route.write_text(
+        '{"actions": [{"forward_m": 3}, {"turn_deg": 180}, {"forward_m": 3}, {"turn_deg": 180}]}'
+    )
+    assert render_path(tmp_path, RecordConfig(route=str(route)))[1] != first[1]
