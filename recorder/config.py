@@ -48,6 +48,14 @@ class NoiseModel(StrEnum):
 DEFAULT_JITTER = {NoiseModel.DEFAULT: (0.05, 1.5), NoiseModel.PAPER: (0.0, 0.0)}
 
 
+MAX_OFFSET_SIGMA_M = 10.0
+"""σ of a true pose's offset from the route. The camera is always held in free space, so offsets
+of metres already press it against the walls; a σ of 1e300 was recorded in the metadata while
+what was rendered moved 0.7 m."""
+MAX_ANGLE_SIGMA_DEG = 180.0
+MAX_WANDER_LENGTH_M = 1000.0
+
+
 @dataclass(frozen=True)
 class NoiseParams:
     """Parameters of :mod:`aslam.recorder.noise` (see its docstring for why the model is split)."""
@@ -75,6 +83,17 @@ class NoiseParams:
                 continue
             if not math.isfinite(value) or value < 0:
                 out.append(f"--{f.name.replace('_', '-')} must be a finite number ≥ 0, got {value}")
+        for name, limit, unit in (
+            ("jitter_m", MAX_OFFSET_SIGMA_M, "m"),
+            ("wander_m", MAX_OFFSET_SIGMA_M, "m"),
+            ("jitter_deg", MAX_ANGLE_SIGMA_DEG, "°"),
+            ("wander_deg", MAX_ANGLE_SIGMA_DEG, "°"),
+            ("drift_deg_per_m", MAX_ANGLE_SIGMA_DEG, "° per m"),
+            ("wander_length_m", MAX_WANDER_LENGTH_M, "m"),
+        ):
+            value = getattr(self, name)
+            if math.isfinite(value) and value > limit:  # the metadata would record what was not rendered
+                out.append(f"--{name.replace('_', '-')} must be at most {limit:g} {unit}, got {value:g}")
         if math.isfinite(self.noise) and self.noise >= 1:
             out.append(f"--noise is a relative error and must be < 1, got {self.noise}")
         if math.isfinite(self.wander_length_m) and self.wander_length_m < 0.1:

@@ -351,6 +351,9 @@ def test_bad_scene_file_is_one_line(tmp_path, capsys):
         (["--route", "missing.json"], "missing.json"),
         (["--camera-height-m", "3"], "--camera-height-m"),
         (["--laps", "0"], "--laps"),
+        (["--jitter-m", "1e300"], "--jitter-m must be at most 10 m"),
+        (["--wander-deg", "1e9"], "--wander-deg must be at most 180"),
+        (["--size", "100000x1"], "between 8x8 and 4096x4096"),
     ],
 )
 def test_bad_options_exit_2_with_one_line(tmp_path, capsys, option, needle):
