@@ -343,17 +343,16 @@ class Recording:
                     return None
                 msg = decode(schema, channel, message)
                 fx = float(msg.k[0])
-                problem = RecordingError(
-                    f"camera info on '{topics.camera_info}' has no usable intrinsics "
-                    f"({msg.width}x{msg.height}, fx={fx})",
-                    path=path,
-                )
-                if not (msg.width > 0 and msg.height > 0 and math.isfinite(fx) and fx > 0):
-                    raise problem
-                try:  # a focal length so short the field of view rounds to 180°
+                try:  # ValueError also for a focal length so short the field of view rounds to 180°
+                    if not (msg.width > 0 and msg.height > 0 and math.isfinite(fx) and fx > 0):
+                        raise ValueError("not a camera")
                     return CameraIntrinsics.from_camera_info(int(msg.width), int(msg.height), fx)
                 except ValueError as err:
-                    raise problem from err
+                    raise RecordingError(
+                        f"camera info on '{topics.camera_info}' has no usable intrinsics "
+                        f"({msg.width}x{msg.height}, fx={fx})",
+                        path=path,
+                    ) from err
         finally:
             messages.close()  # type: ignore[attr-defined]
         return None
