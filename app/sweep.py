@@ -167,7 +167,8 @@ class HashCache:
 
 
 def plan_tasks(sweep: Sweep, results_dir: Path, *, hashes: HashCache | None = None) -> list[Task]:
-    """Every task of ``sweep``, in the stable order the rows take.
+    """Every task of ``sweep``, in the stable order the rows take; a task two grids both name (the
+    same recording and configuration) once, where it first comes.
 
     Hashes each recording file (one sequential read), or takes its hash from ``hashes``.
     """
@@ -179,7 +180,8 @@ def plan_tasks(sweep: Sweep, results_dir: Path, *, hashes: HashCache | None = No
     for config in sweep.renders:
         path, identity = render_path(results_dir, config)
         sources.append(Source(path, identity, config))
-    tasks = []
+    tasks: list[Task] = []
+    planned: set[str] = set()
     for source in sources:
         for parameters in sweep.parameter_sets():
             config = EstimatorConfig(**dict(parameters))
@@ -191,6 +193,9 @@ def plan_tasks(sweep: Sweep, results_dir: Path, *, hashes: HashCache | None = No
                     "version": tool_version(),
                 }
             )
+            if key in planned:
+                continue
+            planned.add(key)
             tasks.append(
                 Task(
                     index=len(tasks),

@@ -283,7 +283,8 @@ def _grid(value: dict[str, Any], where: str, problems: list[str]) -> Grid:
     lists = _typed_lists(_table(value, "grid", types, problems), types, where, problems)
     if lists is None:  # the problems are raised before any grid is used
         return ()
-    grid = [(key, tuple(types[key](v) for v in values)) for key, values in lists.items()]
+    # A value listed twice (``[1, 1.0]``) is one value: every combination runs once.
+    grid = [(key, tuple(dict.fromkeys(types[key](v) for v in values))) for key, values in lists.items()]
     names = [name for name, _values in grid]
     for combination in itertools.product(*(values for _name, values in grid)):
         try:

@@ -274,6 +274,33 @@ def test_render_lists_multiply_and_grids_multiply_in_file_order(tmp_path):
     assert len(plan_tasks(sweep, tmp_path)) == 16
 
 
+def test_a_combination_named_twice_runs_once(tmp_path):
+    """A value listed twice, or two grids naming the same configuration (``step_m`` at its
+    default is the defaults), plan one task each, in first-come order: no duplicate rows, and no
+    two workers writing one estimate file."""
+    path = tmp_path / "s.toml"
+    path.write_text(
+        "[[render]]\nseeds = [1]\nsize = '64x48'\n"
+        "[[grid]]\ncells_x = [1, 2, 1]\nbeta = [2, 2.0]\n"
+        "[[grid]]\ncells_x = [2]\nbeta = [2.0, 3]\n"
+    )
+    sweep = read_sweep_file(path)
+    assert [dict(p) for p in sweep.parameter_sets()] == [
+        {"cells_x": 1, "beta": 2.0},
+        {"cells_x": 2, "beta": 2.0},
+        {"cells_x": 2, "beta": 2.0},
+        {"cells_x": 2, "beta": 3.0},
+    ]
+    tasks = plan_tasks(sweep, tmp_path)
+    assert [dict(t.parameters) for t in tasks] == [
+        {"cells_x": 1, "beta": 2.0},
+        {"cells_x": 2, "beta": 2.0},
+        {"cells_x": 2, "beta": 3.0},
+    ]
+    assert [t.index for t in tasks] == [0, 1, 2]
+    assert len({t.estimate_path for t in tasks}) == 3
+
+
 def test_pareto_names_map_to_summary_keys_with_a_direction():
     objectives = resolve_objectives(
         "precision,recall,keyframes_per_second,first_delay_keyframes,best.x_m.max"
