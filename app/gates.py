@@ -9,7 +9,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from aslam.app.score import leaves, summary_keys
+from aslam.app.score import leaves, summary_key, summary_keys
 from aslam.core.errors import ConfigError
 
 _OPERATORS: dict[str, Callable[[Any, Any], bool]] = {
@@ -51,19 +51,21 @@ class Condition:
 
 
 def parse_condition(text: str, keys: set[str] | None = None) -> Condition:
-    """``'loop_closure.precision<0.99'`` → Condition; ConfigError naming the problem otherwise."""
+    """``'loop_closure.precision<0.99'`` → Condition; ConfigError naming the problem otherwise. The
+    key may be short as in ``sweep --pareto`` (``'precision<0.99'``: :func:`aslam.app.score.summary_key`)."""
     match = _CONDITION.match(text)
     if match is None:
         raise ConfigError(
             f"malformed --fail-on condition {text!r} (expected KEY OP NUMBER, e.g. "
             f"'loop_closure.precision<0.99'; OP is one of < <= > >= == !=)"
         )
-    key, op, raw = match.groups()
+    name, op, raw = match.groups()
     keys = summary_keys() if keys is None else keys
-    if key not in keys:
-        raise ConfigError(
-            f"--fail-on {text!r}: unknown summary key '{key}' (known: {', '.join(sorted(keys))})"
-        )
+    try:
+        key = summary_key(name, keys)
+    except ValueError as err:
+        raise ConfigError(f"--fail-on {text!r}: '{name}' {err} (known: {', '.join(sorted(keys))})") from None
+    text = f"{key}{op}{raw}"  # as the failure names it: the key in full
     if raw == "null":
         if op not in ("==", "!="):
             raise ConfigError(f"--fail-on {text!r}: null can only be compared with == or !=")

@@ -154,6 +154,29 @@ def _trajectory_summary(embedding: Embedding | None, metric: MetricScores | None
     }
 
 
+PREFERRED_SECTIONS = ("loop_closure.", "timing.", "trajectory.")
+"""Where a short name several sections share resolves (``precision``: the online best hypothesis's,
+not the final map's ``committed.precision``)."""
+
+
+def summary_key(name: str, known: set[str]) -> str:
+    """The summary key ``name`` stands for: the key itself or its tail (``precision``,
+    ``first_delay_keyframes``, ``best.x_m.max``), a tail several keys share resolving to the first of
+    ``PREFERRED_SECTIONS`` that has it. ValueError saying why there is none (unknown, ambiguous).
+    One rule for every command taking figure names (``report --fail-on``, ``sweep --pareto``)."""
+    matches = [key for key in sorted(known) if key == name] or [
+        key for key in sorted(known) if key.endswith("." + name)
+    ]
+    for section in PREFERRED_SECTIONS if len(matches) > 1 else ():
+        in_section = [key for key in matches if key.startswith(section)]
+        if len(in_section) == 1:
+            matches = in_section
+            break
+    if len(matches) != 1:
+        raise ValueError(f"is ambiguous ({', '.join(matches)})" if matches else "is not a summary key")
+    return matches[0]
+
+
 def summary_keys() -> set[str]:
     """Every dotted leaf key of the summary (what ``--fail-on`` may test)."""
     empty = Evaluation(

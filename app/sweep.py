@@ -685,40 +685,30 @@ def lower_is_better(key: str) -> bool:
 
 
 #: Where a tail shared by several summary keys resolves to (``precision`` → loop_closure.precision).
-PREFERRED_SECTIONS = ("loop_closure.", "timing.", "trajectory.")
-
-
 def resolve_objectives(text: str) -> list[Objective]:
-    """``precision,recall,-hypotheses.max`` → objectives; a name is a summary key or its tail, a tail
-    shared by several keys resolving to the first of ``PREFERRED_SECTIONS`` that has it.
+    """``precision,recall,-hypotheses.max`` → objectives; a name is a summary key or its tail
+    (:func:`aslam.app.score.summary_key`).
 
     ``+NAME``/``-NAME`` force maximising/minimising; otherwise :func:`lower_is_better` decides.
     """
-    from aslam.app.score import summary_keys
+    from aslam.app.score import summary_key, summary_keys
 
-    known = sorted(summary_keys())
+    known = summary_keys()
     objectives = []
     problems = []
     for raw in (part.strip() for part in text.split(",")):
         if not raw:
             continue
         sign, name = (raw[0], raw[1:]) if raw[0] in "+-" else ("", raw)
-        matches = [key for key in known if key == name] or [key for key in known if key.endswith("." + name)]
-        for section in PREFERRED_SECTIONS if len(matches) > 1 else ():
-            # e.g. precision: the online best hypothesis's, not the final map's (committed.precision)
-            in_section = [key for key in matches if key.startswith(section)]
-            if len(in_section) == 1:
-                matches = in_section
-                break
-        if len(matches) != 1:
-            what = f"is ambiguous ({', '.join(matches)})" if matches else "is not a summary key"
-            problems.append(f"--pareto: '{name}' {what}")
+        try:
+            key = summary_key(name, known)
+        except ValueError as err:
+            problems.append(f"--pareto: '{name}' {err}")
             continue
-        key = matches[0]
         maximise = sign == "+" if sign else not lower_is_better(key)
         objectives.append(Objective(key, maximise))
     if problems:
-        raise InputError("; ".join(problems) + f" (keys: {', '.join(known)})")
+        raise InputError("; ".join(problems) + f" (keys: {', '.join(sorted(known))})")
     if not objectives:
         raise InputError("--pareto needs at least one figure name")
     return objectives

@@ -16,6 +16,7 @@ import pytest
 from conftest import one_error_line, square_route
 from mcap.reader import make_reader
 
+from aslam.app.gates import parse_condition
 from aslam.cli.app import main
 from aslam.core.estimator import Estimator, MapLink, MapState
 from aslam.data_formats.estimate import (
@@ -305,12 +306,26 @@ def test_fail_on_both_ways(estimate_file: Path, capsys):
     assert f"keyframes>={n}" in err and "links<1" not in err
 
 
+def test_fail_on_takes_the_short_names_of_sweep_pareto(estimate_file: Path, capsys):
+    """``final`` is ``hypotheses.final``, as ``sweep --pareto`` reads it; the failure names the key
+    in full. A tail several sections share resolves as there (``precision``: the online best's)."""
+    assert main(["report", str(estimate_file), "--fail-on", "final<1"]) == 0
+    capsys.readouterr()
+    assert main(["report", str(estimate_file), "--fail-on", "final>=1"]) == 1
+    err = capsys.readouterr().err
+    one_error_line(err)
+    assert "hypotheses.final>=1 (is 1)" in err
+    assert parse_condition("precision<0.99").key == "loop_closure.precision"
+    assert parse_condition("committed.precision<0.99").key == "committed.precision"
+
+
 @pytest.mark.parametrize(
     ("condition", "needle"),
     [
         ("loop_closure.precision", "malformed"),
         ("loop_closure.precision<<0.9", "malformed"),
-        ("loop_closure.prec<0.9", "unknown summary key"),
+        ("loop_closure.prec<0.9", "'loop_closure.prec' is not a summary key"),
+        ("max<1", "'max' is ambiguous"),
         ("keyframes>abc", "not a number"),
         ("keyframes<null", "null"),
     ],
