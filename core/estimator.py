@@ -302,7 +302,7 @@ class Estimator:
                 peak = float(np.max(log_transition))
                 log_transition = peak + WINDOW_MOTION_SHARPNESS * (log_transition - peak)
             if place not in looks:
-                view = tree.observations.view[place][None, :]
+                view = tree.views[place][None, :]
                 distances = np.array(
                     [float(self.observation_model.distances(o, view)[0]) for o in observations]
                 )
@@ -356,4 +356,4 @@ class Estimator:
     def place_views(self, states: tuple[MapState, ...]) -> np.ndarray:
         """(len(states), length) float32: the view stored with each place (its first keyframe's)."""
         ids = np.array([state.id for state in states], dtype=np.int64)
-        return self._tree.observations.view[ids].copy()
+        return self._tree.views[ids].copy()

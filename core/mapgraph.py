@@ -123,3 +123,52 @@ class GrowableArray:
     @property
     def view(self) -> np.ndarray:
         return self._data[: self._size]
+
+
+class KeyframeViews:
+    """The view of every keyframe a hypothesis may still call a place; a place's view for good.
+
+    A state is the keyframe of a place's first visit, so a keyframe's view is needed while some
+    hypothesis may make it a new place. Once committed as a revisit it is no place in any
+    hypothesis, and its row is reused: the views held grow with the places, not with the keyframes
+    (the thumbnail's 768 bytes a keyframe were a long run's largest per-keyframe cost).
+    """
+
+    def __init__(self, length: int) -> None:
+        self._rows = GrowableArray((length,), np.float32)
+        self._row_of_keyframe = GrowableArray((), np.int64)
+        self._free: list[int] = []
+
+    def append(self, view: np.ndarray | None) -> int:
+        """Store the next keyframe's view (None: a keyframe that is no place, as a prior map's
+        revisits); returns its keyframe index."""
+        if view is None:
+            return self._row_of_keyframe.append(-1)
+        if self._free:
+            row = self._free.pop()
+            self._rows.view[row] = view
+        else:
+            row = self._rows.append(view)
+        return self._row_of_keyframe.append(row)
+
+    def release(self, keyframe: int) -> None:
+        """``keyframe`` was committed as a revisit: its view is never asked for again."""
+        row = int(self._row_of_keyframe.view[keyframe])
+        if row >= 0:
+            self._row_of_keyframe.view[keyframe] = -1
+            self._free.append(row)
+
+    def __len__(self) -> int:
+        return len(self._row_of_keyframe)
+
+    def __getitem__(self, keyframes: int | np.ndarray) -> np.ndarray:
+        """The views of ``keyframes`` (an index: one row; an array: one row each, a copy)."""
+        rows = self._row_of_keyframe.view[keyframes]
+        if np.any(rows < 0):
+            raise KeyError(f"no view is kept of keyframe(s) {np.asarray(keyframes)[rows < 0].tolist()}")
+        return self._rows.view[rows]
+
+    @property
+    def rows(self) -> int:
+        """Views held (for tests: they follow the places)."""
+        return len(self._rows) - len(self._free)

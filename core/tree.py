@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from aslam.core.config import EstimatorConfig
-from aslam.core.mapgraph import GrowableArray, PriorMap, SharedMap
+from aslam.core.mapgraph import GrowableArray, KeyframeViews, PriorMap, SharedMap
 from aslam.core.motion import (
     IDENTITY_REL,
     Rel,
@@ -214,7 +214,8 @@ class HypothesisTree:
         self.model = model if model is not None else observation_model(config)
         observation_length = self.model.length
         self.shared = SharedMap()
-        self.observations = GrowableArray((observation_length,), np.float32)
+        self.views = KeyframeViews(observation_length)
+        self._previous_view: np.ndarray | None = None
         self.committed_state_of_keyframe = GrowableArray((), np.int64)
         self.committed_rel_of_keyframe = GrowableArray((9,), np.float64)
         """The link each committed keyframe arrived by: the path, for ``candidate_search="path"``."""
@@ -306,9 +307,9 @@ class HypothesisTree:
                 f"the map's views have length {prior.views.shape[1]},"
                 f" this observation model's {self.model.length}"
             )
-        views = np.zeros((prior.keyframes, self.model.length), np.float32)
-        views[prior.states] = prior.views
-        self.observations.extend(views)
+        view_of_state = dict(zip(prior.states.tolist(), prior.views, strict=True))
+        for keyframe in range(prior.keyframes):
+            self.views.append(view_of_state.get(keyframe))
         self.committed_state_of_keyframe.extend(prior.state_of_keyframe)
         self.committed_rel_of_keyframe.extend(np.tile(np.array(UNKNOWN_REL), (prior.keyframes, 1)))
         for state, view in zip(prior.states.tolist(), prior.views, strict=True):
@@ -326,7 +327,8 @@ class HypothesisTree:
     # ------------------------------------------------------------------ the step
     def add_keyframe(self, action: np.ndarray, observation: np.ndarray) -> list[Hypothesis]:
         """Advance every hypothesis by one keyframe; returns the surviving leaves, best first."""
-        keyframe = self.observations.append(observation)
+        keyframe = self.views.append(observation)
+        previous, self._previous_view = self._previous_view, np.array(observation, dtype=np.float32)
         if keyframe == 0:
             self._index_place(0)
             root = self._new_node(0, 0, None, 0.0, True, IDENTITY_REL)
@@ -340,7 +342,7 @@ class HypothesisTree:
         if self.leaves[0].state == SESSION_START:
             return self._start_session(observation, keyframe)
 
-        self.reference.observe(float(self.model.distances(observation, self.observations.view[-2:-1])[0]))
+        self.reference.observe(float(self.model.distances(observation, previous[None, :])[0]))
         log_new = self._log_new_prior + float(self.model.log_likelihood(self.reference.value))
         action = np.asarray(action, dtype=float)
         action_cov = action_covariance(action, self._noise)
@@ -607,7 +609,7 @@ class HypothesisTree:
         best = self.leaves[0] if self.leaves else None
         if best is None or not best.is_new or best.state == SESSION_START:
             return False
-        return len(self.observations) - self._lost_at <= self.config.lost_window
+        return len(self.views) - self._lost_at <= self.config.lost_window
 
     def nearest_mapped_distance(self, observation: np.ndarray) -> float:
         """Distance from ``observation`` to the most alike committed place the relocalisation index
@@ -666,7 +668,7 @@ class HypothesisTree:
     def _distances(self, observation: np.ndarray, states: np.ndarray) -> np.ndarray:
         """Distances of ``observation`` to ``states``' views; a prior map's judged across sessions
         when ``map_reference_scale`` is set (:meth:`_across_sessions`)."""
-        distances = self.model.distances(observation, self.observations.view[states])
+        distances = self.model.distances(observation, self.views[states])
         if not len(self._map_states):
             return distances
         in_map = states < self._first_keyframe
@@ -700,7 +702,7 @@ class HypothesisTree:
         low = np.clip(np.searchsorted(self._map_states, states) - window, 0, count - width)
         slots = low[:, None] + np.arange(width)[None, :]
         around, inverse = np.unique(slots, return_inverse=True)
-        near = self.model.distances(observation, self.observations.view[self._map_states[around]])
+        near = self.model.distances(observation, self.views[self._map_states[around]])
         levels = near[inverse.reshape(slots.shape)].mean(axis=1)
         reference = self.reference.value
         scaled = distances * np.minimum(
@@ -711,7 +713,7 @@ class HypothesisTree:
 
     def _index_place(self, state: int) -> None:
         """Add a committed place (its first view) to the relocalisation index, if it can be recognised."""
-        view = self.observations.view[state]
+        view = self.views[state]
         if self.model.recognisable(view):
             self._index.add(state, view)
 
@@ -1023,6 +1025,8 @@ class HypothesisTree:
                 self.shared.add_traversal(node.parent.state, node.state, node.rel)
             self.committed_state_of_keyframe.append(node.state)
             self.committed_rel_of_keyframe.append(node.rel)
+            if not node.is_new and node.state != SESSION_START:
+                self.views.release(node.keyframe)
         if path:
             ancestor.parent = None  # frees the committed nodes
             self.commit_root = ancestor
@@ -1054,7 +1058,7 @@ class HypothesisTree:
         return nodes[::-1]
 
     def stats(self) -> TreeStats:
-        keyframes = len(self.observations) - self._first_keyframe
+        keyframes = len(self.views) - self._first_keyframe
         return TreeStats(
             keyframes=keyframes,
             nodes_created=self._next_id,

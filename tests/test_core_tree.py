@@ -13,6 +13,7 @@ from aslam.core import se2
 from aslam.core.config import EstimatorConfig
 from aslam.core.errors import ConfigError
 from aslam.core.estimator import Estimator, Keyframer
+from aslam.core.mapgraph import KeyframeViews
 from aslam.core.motion import compose_rel, inverse_rel, link_weight, rel_covariance, revisit_residuals, to_rel
 from aslam.core.tree import ALARM_EPISODE_GAP, AlarmCount, HypothesisTree, WindowMedian
 
@@ -876,7 +877,7 @@ def test_the_index_is_searched_only_where_the_track_does_not_explain_the_view(mo
         return search(self, observation, keyframes, count)
 
     def stepping(self, action, observation):
-        current[0] = len(self.observations)
+        current[0] = len(self.views)
         return add_keyframe(self, action, observation)
 
     monkeypatch.setattr(PlaceIndex, "search", counting)
@@ -890,3 +891,41 @@ def test_the_index_is_searched_only_where_the_track_does_not_explain_the_view(mo
     delay, _ = _kidnap(synthetic_config())
     assert delay is not None and delay <= 3
     assert set(range(34 + 5, 34 + 5 + delay + 1)) <= set(searched)  # from the carry until relocalised
+
+
+def test_the_views_held_follow_the_places_not_the_keyframes():
+    """A keyframe committed as a revisit is no place in any hypothesis: its view is let go. Four
+    laps hold about one lap of views (the places, and the keyframes still uncommitted), and every
+    place still has its first visit's view."""
+    estimator, results = run(rectangle_actions(4), SyntheticWorld(1, noise=0.02), synthetic_config())
+    tree = estimator._tree
+    result = estimator.result()
+    assert len(results) > 130 and len(result.states) < 40
+    assert tree.views.rows <= len(result.states) + tree.stats().max_uncommitted + 1
+    places = np.array([state.id for state in result.states])
+    assert estimator.place_views(result.states).shape == (len(places), tree.model.length)
+    revisit = next(k for k, state in enumerate(tree.committed_state_of_keyframe.view) if state != k)
+    with pytest.raises(KeyError, match="no view is kept"):
+        tree.views[revisit]
+
+
+@given(st.lists(st.booleans(), min_size=1, max_size=60), st.integers(0, 2**32 - 1))
+def test_keyframe_views_give_back_what_was_stored_whatever_was_released(release, seed):
+    """Released rows are reused for later keyframes; a kept keyframe's view never changes."""
+    rng = np.random.default_rng(seed)
+    views = KeyframeViews(4)
+    stored = {}
+    for keyframe, let_go in enumerate(release):
+        view = rng.random(4).astype(np.float32)
+        assert views.append(view) == keyframe
+        stored[keyframe] = view
+        if let_go and keyframe > 0:
+            gone = int(rng.integers(0, keyframe))
+            views.release(gone)
+            stored.pop(gone, None)
+    for keyframe, view in stored.items():
+        assert np.array_equal(views[keyframe], view)
+    assert views.rows == len(stored)
+    if stored:
+        kept = np.array(sorted(stored))
+        assert np.array_equal(views[kept], np.stack([stored[k] for k in kept.tolist()]))
