@@ -489,6 +489,24 @@ def test_the_camera_stays_in_free_space(name, model):
         check_path_in_world(p.world, moved, [a.to_json() for a in p.route.actions])
 
 
+def test_the_path_check_in_blocks_finds_the_first_bad_point(monkeypatch):
+    """Checked a few poses at a time (bounded memory on a 100,000-step route), the same first
+    failure as checked at once, and a good path still passes."""
+    import aslam.recorder.world as world_module
+
+    p = plan(RecordConfig(route="grid", seed=3))
+    actions = [a.to_json() for a in p.route.actions]
+    bad = p.truth.copy()
+    bad[len(bad) // 2 :, 1] += 1.5  # the second half off the corridor
+    with pytest.raises(WorldError) as at_once:
+        check_path_in_world(p.world, bad, actions)
+    monkeypatch.setattr(world_module, "PATH_CHECK_BLOCK", 3)
+    with pytest.raises(WorldError) as in_blocks:
+        check_path_in_world(p.world, bad, actions)
+    assert str(in_blocks.value) == str(at_once.value)
+    check_path_in_world(p.world, p.truth, actions)
+
+
 def test_a_true_path_that_wanders_out_of_a_scene_is_refused(tmp_path, capsys):
     scene = _box_room(tmp_path / "room.glb")  # walls at ±3 m
     near_wall = _write_json(
