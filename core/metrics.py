@@ -17,7 +17,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -240,25 +240,26 @@ def ground_truth_revisits(true_poses: np.ndarray, radius_m: float, heading_deg: 
 
 
 def evaluate(
-    steps: Sequence[tuple[int, Sequence[Hypothesis]]],
+    steps: Iterable[tuple[int, Sequence[Hypothesis]]],
     true_poses: np.ndarray | None,
     *,
     radius_m: float = 0.5,
     heading_deg: float = 45.0,
     first_keyframe: int = 0,
+    count: int | None = None,
 ) -> Evaluation:
     """Score a run: ``steps`` are (keyframe, hypotheses best first); ``true_poses`` (first + n, 3) or None.
 
     Rows of ``true_poses`` may be NaN where the truth is unknown for that keyframe. A run in a
     prior map starts at keyframe ``first_keyframe``: the rows before are the prior map's keyframes,
-    which its claims may name and which count as earlier visits.
+    which its claims may name and which count as earlier visits. ``steps`` is read once, in order:
+    a stream (``count`` then says how many), so a long run's hypotheses need not all be held.
     """
-    n = len(steps)
+    n = len(steps) if count is None else count  # type: ignore[arg-type]
     first = first_keyframe
-    counts = np.array([len(h) for _, h in steps], dtype=np.int64)
-    claims = np.array([bool(h) and not h[0].is_new_state for _, h in steps], dtype=bool)
-    confidence = np.array([h[0].belief if bool(h) and not h[0].is_new_state else np.nan for _, h in steps])
-    confidence = confidence.reshape(n)
+    counts = np.zeros(n, dtype=np.int64)
+    claims = np.zeros(n, dtype=bool)
+    confidence = np.full(n, np.nan)
     best_error = np.full((n, 3), np.nan)
     weighted_error = np.full((n, 3), np.nan)
     correct = np.zeros(n, dtype=bool)
@@ -267,14 +268,22 @@ def evaluate(
         and len(true_poses) == first + n
         and bool(np.isfinite(true_poses[first:]).any())
     )
-    if not has_truth:
-        return Evaluation(
-            n, counts, claims, False, np.zeros(n, bool), correct, best_error, weighted_error, (), confidence
-        )
-    assert true_poses is not None
-    true_revisit = ground_truth_revisits(true_poses, radius_m, heading_deg)[first:]
+    if has_truth:
+        assert true_poses is not None
+        true_revisit = ground_truth_revisits(true_poses, radius_m, heading_deg)[first:]
     heading_rad = math.radians(heading_deg)
+    seen = 0
     for t, (_, hypotheses) in enumerate(steps):
+        if t >= n:
+            raise ValueError(f"more steps than the {n} counted")
+        seen += 1
+        counts[t] = len(hypotheses)
+        if hypotheses and not hypotheses[0].is_new_state:
+            claims[t] = True
+            confidence[t] = hypotheses[0].belief
+        if not has_truth:
+            continue
+        assert true_poses is not None
         revisits = [h for h in hypotheses if not h.is_new_state and 0 <= h.state < first + n]
         if not revisits or not np.isfinite(true_poses[first + t]).all():
             continue
@@ -289,6 +298,12 @@ def evaluate(
             best_error[t] = errors[0]
             distance = math.hypot(errors[0, 0], errors[0, 1])
             correct[t] = distance <= radius_m and abs(math.radians(errors[0, 2])) <= heading_rad
+    if seen != n:
+        raise ValueError(f"{seen} steps, {n} counted")
+    if not has_truth:
+        return Evaluation(
+            n, counts, claims, False, np.zeros(n, bool), correct, best_error, weighted_error, (), confidence
+        )
     return Evaluation(
         n,
         counts,

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -171,3 +172,38 @@ def test_summary_reports_the_curve_and_the_committed_map():
     assert summary["loop_closure"]["recall_at_full_precision"] == 0.5
     assert summary["loop_closure"]["precision"] == 2 / 3
     assert summary["committed"]["precision"] == 1.0 and summary["committed"]["recall"] == 1.0
+
+
+@given(
+    st.lists(
+        st.lists(st.tuples(st.integers(0, 7), st.floats(0.01, 1.0), st.booleans()), max_size=4),
+        min_size=8,
+        max_size=8,
+    )
+)
+def test_a_stream_of_steps_scores_as_the_list_does(raw):
+    """``report`` streams the keyframes into ``evaluate`` (their hypotheses never all held): the
+    same evaluation, array for array, as from a list."""
+    steps = [
+        (
+            t,
+            [
+                Hypothesis(i, None, min(state, t), belief, is_new)
+                for i, (state, belief, is_new) in enumerate(hs)
+            ],
+        )
+        for t, hs in enumerate(raw)
+    ]
+    listed = evaluate(steps, SQUARE)
+    streamed = evaluate((step for step in steps), SQUARE, count=len(steps))
+    for name in ("hypothesis_counts", "claims", "true_revisit", "correct", "best_error", "weighted_error"):
+        assert np.array_equal(getattr(listed, name), getattr(streamed, name), equal_nan=True), name
+    assert np.array_equal(listed.confidence, streamed.confidence, equal_nan=True)
+    assert listed.episodes == streamed.episodes
+
+
+@pytest.mark.parametrize("count", [3, 5])
+def test_a_stream_of_another_length_than_counted_is_refused(count):
+    steps = [(t, [new(t)]) for t in range(4)]
+    with pytest.raises(ValueError, match="counted"):
+        evaluate(iter(steps), SQUARE[:count], count=count)
