@@ -18,6 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from aslam.core.errors import InputError
 from aslam.data_formats.image_folder import (
     SYNTHETIC_STEP_M,
     ImageFolderError,
@@ -66,11 +67,13 @@ def import_image_folder(
     for the order, stamps and pose pairing). Every input problem is an ``InputError`` naming the
     file (and line); nothing appears under ``output`` unless the import completes.
     """
-    from aslam.data_formats.camera import CameraIntrinsics
+    from aslam.data_formats.camera import CameraIntrinsics, fov_option_problem
     from aslam.data_formats.files import check_output_path
     from aslam.data_formats.images import EncodedImage, ImageFormat
     from aslam.data_formats.recording_writer import RecordingWriter
 
+    if fov_deg is not None and (problem := fov_option_problem(fov_deg)) is not None:
+        raise InputError(problem)
     started = time.perf_counter()
     output = Path(output)
     check_output_path(output, force=force)

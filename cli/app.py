@@ -32,6 +32,7 @@ EXIT_INTERNAL = 70
 EXIT_INTERRUPTED = 130
 EXIT_CLOSED_PIPE = 141  # 128 + SIGPIPE, what a shell reports for a tool killed by a closed pipe
 EXIT_TERMINATED = 143  # 128 + SIGTERM
+EXIT_HUNG_UP = 129  # 128 + SIGHUP: the terminal or ssh session went away
 
 app = typer.Typer(
     name="aslam",
@@ -57,8 +58,9 @@ def _root(
     """Appearance-based SLAM with a tree of path hypotheses, over MCAP recordings.
 
     record → estimate → report.  Exit codes: 0 success, 1 a `report --fail-on` gate failed,
-    2 bad input or usage, 3 some `sweep` tasks failed, 70 internal error (a bug), 130 interrupted
-    (Ctrl-C), 141 stdout closed (e.g. piped into `head`), 143 terminated (SIGTERM).
+    2 bad input or usage, 3 some `sweep` tasks failed, 70 internal error (a bug), 129 hung up
+    (SIGHUP), 130 interrupted (Ctrl-C), 141 stdout closed (e.g. piped into `head`), 143 terminated
+    (SIGTERM).
     """
 
 
@@ -102,18 +104,18 @@ def error_line(message: str) -> None:
 
 
 class Interrupted(KeyboardInterrupt):
-    """SIGINT or SIGTERM arrived; unwinds like Ctrl-C so every ``finally`` cleans up."""
+    """SIGINT, SIGTERM or SIGHUP arrived; unwinds like Ctrl-C so every ``finally`` cleans up."""
 
 
 class _Signals:
-    """SIGINT and SIGTERM raise :class:`Interrupted` in the main thread and are remembered.
+    """SIGINT, SIGTERM and SIGHUP raise :class:`Interrupted` in the main thread and are remembered.
 
     Remembered because a library may swallow the exception (a bare ``except`` in an import, a
     ``__del__``): the command still ends as interrupted, with its outputs removed. A forked child
     (the estimate's reader) just exits.
     """
 
-    HANDLED = (signal.SIGINT, signal.SIGTERM)
+    HANDLED = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     active: _Signals | None = None
     """The command's, while it runs: whether an error was the interrupt's doing."""
 
@@ -145,7 +147,14 @@ class _Signals:
 
     @property
     def exit_code(self) -> int:
-        return EXIT_TERMINATED if self.received == signal.SIGTERM else EXIT_INTERRUPTED
+        return {signal.SIGTERM: EXIT_TERMINATED, signal.SIGHUP: EXIT_HUNG_UP}.get(
+            self.received,  # type: ignore[call-overload]
+            EXIT_INTERRUPTED,
+        )
+
+
+def _ended_by(code: int) -> str:
+    return {EXIT_TERMINATED: "terminated", EXIT_HUNG_UP: "hung up"}.get(code, "interrupted")
 
 
 class _QuietNativeStderr:
@@ -222,12 +231,14 @@ def main(argv: list[str] | None = None, *, startup_signals: list[int] | None = N
     succeeds (or only a gate failed); every other ending removes them
     (``aslam.data_formats.files.command_files``).
     """
+    from aslam.cli.output import QUIET
     from aslam.data_formats.files import command_files
 
+    QUIET[0] = False  # until this command's --quiet is parsed
     with _Signals() as signals, _QuietNativeStderr(), warnings.catch_warnings():
         if startup_signals:  # arrived while the console script was importing us
             signals.received = startup_signals[0]
-            error_line("terminated" if signals.exit_code == EXIT_TERMINATED else "interrupted")
+            error_line(_ended_by(signals.exit_code))
             return signals.exit_code
         warnings.simplefilter("ignore")  # numpy, matplotlib, mcap: never extra lines on the terminal
         try:
@@ -240,7 +251,7 @@ def main(argv: list[str] | None = None, *, startup_signals: list[int] | None = N
             code = failed.code
         except KeyboardInterrupt:
             code = signals.exit_code
-            error_line("terminated" if code == EXIT_TERMINATED else "interrupted")
+            error_line(_ended_by(code))
         except AslamError as err:  # raised while renaming the outputs into place
             error_line(str(err))
             code = err.exit_code
@@ -254,6 +265,10 @@ def main(argv: list[str] | None = None, *, startup_signals: list[int] | None = N
 
 
 def _warning_line(message: str) -> None:
+    from aslam.cli.output import QUIET
+
+    if QUIET[0]:
+        return
     try:
         sys.stderr.write(f"aslam: warning: {one_line(message)}\n")
         sys.stderr.flush()

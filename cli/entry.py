@@ -1,4 +1,4 @@
-"""The `aslam` console script: Ctrl-C and SIGTERM are honoured from the first line of our code.
+"""The `aslam` console script: Ctrl-C, SIGTERM and SIGHUP are honoured from the first line of our code.
 
 Importing the command line (typer, rich) takes a moment; a signal arriving then is remembered
 here and :func:`aslam.cli.app.main` ends at once with the interrupted exit code, instead of a
@@ -8,6 +8,8 @@ traceback out of some import or a signal lost in a library.
 from __future__ import annotations
 
 import contextlib
+import errno
+import io
 import os
 import signal
 import sys
@@ -24,9 +26,23 @@ def _remember(signum: int, _frame: object) -> None:
     _received.append(signum)
 
 
-for _signum in (signal.SIGINT, signal.SIGTERM):
+for _signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
     if signal.getsignal(_signum) is not signal.SIG_IGN:  # nohup, a background job: stay ignored
         signal.signal(_signum, _remember)
+
+
+class _ClosedStdout(io.TextIOBase):
+    """stdout closed before we started (``>&-``): writing a result to it is writing into a closed
+    pipe (exit 141, as with ``| head``); a command with no result on stdout succeeds."""
+
+    def write(self, _text: str) -> int:
+        raise BrokenPipeError(errno.EPIPE, "stdout is closed")
+
+
+if sys.stdout is None:
+    sys.stdout = _ClosedStdout()
+if sys.stderr is None:  # nothing can be told: messages go nowhere, the exit code still says it
+    sys.stderr = open(os.devnull, "w")  # noqa: SIM115 (the process's own stderr, kept to the end)
 
 
 def run() -> None:

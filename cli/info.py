@@ -73,11 +73,11 @@ def info(
 
 
 def _print_tables(result: RecordingInfo) -> None:
-    from rich.console import Console
     from rich.table import Table
 
-    console = Console()
-    topics = Table(title=f"{result.path} ({result.size_bytes:,} bytes)", title_justify="left")
+    console = output.table_console()
+    console.print(f"{result.path} ({result.size_bytes:,} bytes)", soft_wrap=True)  # a path, never wrapped
+    topics = Table()
     topics.add_column("topic")
     topics.add_column("type")
     topics.add_column("messages", justify="right")
@@ -112,5 +112,16 @@ def _print_tables(result: RecordingInfo) -> None:
         meta.add_column("key")
         meta.add_column("value", overflow="fold")
         for key, value in result.metadata.items():
-            meta.add_row(key, value)
+            meta.add_row(key, _shortened(value))
         console.print(meta)
+
+
+METADATA_SHOWN_CHARS = 400
+"""A metadata value longer than this is cut in the table (a long recording's route holds every
+action of every lap: 260 kB at 14,401 keyframes); ``info --json`` has it in full."""
+
+
+def _shortened(value: str) -> str:
+    if len(value) <= METADATA_SHOWN_CHARS:
+        return value
+    return f"{value[:METADATA_SHOWN_CHARS]}… ({len(value):,} characters; info --json has them all)"

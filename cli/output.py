@@ -15,8 +15,24 @@ import typer
 if TYPE_CHECKING:
     from rich.console import Console
 
+QUIET = [False]
+"""Set by ``--quiet`` as it is parsed: the warnings the command's output handling gives before the
+command's own ``Terminal`` exists (a temporary file an interrupted run left) are silenced too."""
+
+
+def _note_quiet(value: bool) -> bool:
+    QUIET[0] = value
+    return value
+
+
 QuietOption = Annotated[
-    bool, typer.Option("--quiet", "-q", help="Print errors only: no progress, no warnings, no summary line.")
+    bool,
+    typer.Option(
+        "--quiet",
+        "-q",
+        help="Print errors only: no progress, no warnings, no summary line.",
+        callback=_note_quiet,
+    ),
 ]
 
 
@@ -42,15 +58,34 @@ GroundTruthTopicOption = Annotated[
 ]
 
 
-def _surely_not_a_terminal() -> bool:
-    """stderr is a file or a pipe and no variable tells rich otherwise: decided without importing
-    rich's console (20 ms of an estimate's start-up, before its reader starts); rich decides the rest."""
-    if "TTY_COMPATIBLE" in os.environ or "FORCE_COLOR" in os.environ:
-        return False
+def _live_display_wanted() -> bool:
+    """A progress bar redraws itself: only on an interactive terminal, decided without importing
+    rich's console (20 ms of an estimate's start-up, before its reader starts). stderr must be a
+    real terminal: ``FORCE_COLOR`` and ``TTY_COMPATIBLE``, which CI logs set for colour, ask for
+    colour, not for a bar redrawn eight times a second into a log. ``TTY_INTERACTIVE`` (rich's own
+    variable) decides outright: 1 shows the bar, 0 never."""
+    wanted = os.environ.get("TTY_INTERACTIVE")
+    if wanted in ("0", "1"):
+        return wanted == "1"
     try:
-        return not sys.stderr.isatty()
+        return sys.stderr.isatty() and os.environ.get("TERM", "").lower() not in ("dumb", "unknown")
     except (AttributeError, ValueError):  # no stderr, or a closed one
         return False
+
+
+def table_console(*, stderr: bool = False) -> Console:
+    """The console a command's tables (its result) are printed on: no markup or emoji codes read
+    in the text (a path or topic ``a[/x]b`` is printed as it is, never parsed), and in a pipe or a
+    file full width, so a log never holds a name or a number cut at 80 columns."""
+    from rich.console import Console
+
+    stream = sys.stderr if stderr else sys.stdout
+    try:
+        terminal = stream.isatty()  # the stream itself: FORCE_COLOR asks for colour, not a width
+    except (AttributeError, ValueError):
+        terminal = False
+    width = None if terminal else 10_000
+    return Console(stderr=stderr, markup=False, emoji=False, highlight=False, width=width)
 
 
 class Terminal:
@@ -75,8 +110,9 @@ class Terminal:
 
     @property
     def shows_progress(self) -> bool:
-        """A live bar only on a terminal, and never with --quiet (logs and pipes get the summary line)."""
-        return not self.quiet and not _surely_not_a_terminal() and self.console.is_terminal
+        """A live bar only on an interactive terminal (:func:`_live_display_wanted`), and never with
+        --quiet: logs and pipes get the summary line."""
+        return not self.quiet and _live_display_wanted()
 
     def _line(self, text: str) -> None:
         if self._console is not None and self._console.is_terminal:

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Annotated, Any
@@ -15,7 +14,7 @@ from typing import Annotated, Any
 import typer
 
 from aslam.cli.app import app
-from aslam.cli.output import ForceOption, QuietOption, Terminal, VerboseOption
+from aslam.cli.output import ForceOption, QuietOption, Terminal, VerboseOption, table_console
 from aslam.core.errors import InputError, QualityGateFailed
 from aslam.data_formats.format_names import TrajectoryFormat
 
@@ -87,7 +86,6 @@ def report(
 
     Exit 1 when a --fail-on condition holds; a null value (not measurable) fails the gate.
     """
-    from rich.console import Console
 
     from aslam.app.gates import failed_conditions, parse_condition
     from aslam.app.score import score, summary_keys
@@ -127,7 +125,7 @@ def report(
         )
     stdout_taken = "-" in (graph, json_out)
     if not quiet or not stdout_taken:
-        print_report(Console(file=sys.stderr if stdout_taken else sys.stdout, soft_wrap=False), result)
+        print_report(table_console(stderr=stdout_taken), result)
     written: list[Path] = []
     if graph is not None:
         written += _write_json(graph, result.graph_json(), indent=1)

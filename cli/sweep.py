@@ -13,7 +13,7 @@ from typing import Annotated, Any
 import typer
 
 from aslam.cli.app import app
-from aslam.cli.output import QuietOption, Terminal, VerboseOption
+from aslam.cli.output import QuietOption, Terminal, VerboseOption, table_console
 from aslam.cli.sweep_display import LiveDisplay, PlainDisplay, figure_text, parameters_text
 
 
@@ -90,7 +90,6 @@ def sweep(
 
 def _print_pareto(run: Any, objectives: list[Any]) -> None:
     """The Pareto set as a table on stdout (plain text when stdout is not a terminal)."""
-    from rich.console import Console
     from rich.table import Table
 
     from aslam.app.sweep import pareto_front
@@ -105,7 +104,4 @@ def _print_pareto(run: Any, objectives: list[Any]) -> None:
         task = run.tasks[result.index]
         values = [figure_text(result.summary.get(o.key)) for o in objectives]
         table.add_row(str(task.index), task.source.label, parameters_text(task), *values)
-    console = Console()
-    if not console.is_terminal:  # a pipe or a file: full names, never cut to 80 columns
-        console = Console(width=10_000)
-    console.print(table)
+    table_console().print(table)

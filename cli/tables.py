@@ -51,7 +51,8 @@ def print_report(console: Console, report: Report) -> None:
 
     s = report.summary
     estimate, recording = report.estimate_path, report.recording_path
-    table = Table(title=f"aslam report — {estimate.name}", show_header=False, title_justify="left")
+    console.print(f"aslam report — {estimate.name}", soft_wrap=True)  # a name, never wrapped
+    table = Table(show_header=False)
     table.add_column("measure", style="bold")
     table.add_column("value", justify="right")
     loop = s["loop_closure"]

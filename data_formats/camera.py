@@ -6,6 +6,14 @@ import math
 from dataclasses import dataclass
 
 
+def fov_option_problem(fov_deg: float) -> str | None:
+    """Why ``--fov-deg`` (``record``'s and ``import``'s) is refused, or None: 1–170 degrees, the
+    lenses a pinhole model describes usefully."""
+    if math.isfinite(fov_deg) and 1.0 <= fov_deg <= 170.0:
+        return None
+    return f"--fov-deg must be between 1 and 170 degrees, got {fov_deg}"
+
+
 @dataclass(frozen=True)
 class CameraIntrinsics:
     """A pinhole camera with square pixels, centred principal point and no distortion.

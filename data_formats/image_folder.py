@@ -260,6 +260,11 @@ def open_image_folder(
     elif rate_hz is not None:
         start = START_STAMP_NS if interpolated is None else interpolated.first_stamp_ns
         assert start is not None
+        if start + (n - 1) * 1e9 / rate_hz >= 2**63:
+            raise ImageFolderError(
+                f"--rate {rate_hz:g} Hz is too slow: {n} images would run past the last nanosecond stamp"
+                " (the year 2262)"
+            )
         image_stamps = tuple(start + round(i * 1e9 / rate_hz) for i in range(n))
         how = f"rate {rate_hz:g} Hz" + (
             "" if interpolated is None else f" from the first stamp of {interpolated.path.name}"

@@ -13,6 +13,7 @@ from enum import StrEnum
 from pathlib import Path
 
 from aslam.core.errors import ConfigError
+from aslam.data_formats.camera import fov_option_problem
 
 DEFAULT_FOV_DEG = 60.0
 DEFAULT_SIZE = (320, 240)
@@ -144,8 +145,8 @@ class RecordConfig:
         if self.odometry_reset_at is not None and self.odometry_reset_at < 0:
             out.append(f"--odometry-reset-at must be a keyframe index ≥ 0, got {self.odometry_reset_at}")
         cam = self.camera
-        if not (math.isfinite(cam.fov_deg) and 1.0 <= cam.fov_deg <= 170.0):
-            out.append(f"--fov-deg must be between 1 and 170 degrees, got {cam.fov_deg}")
+        if (problem := fov_option_problem(cam.fov_deg)) is not None:
+            out.append(problem)
         if not (8 <= cam.width_px <= MAX_SIZE_PX and 8 <= cam.height_px <= MAX_SIZE_PX):
             out.append(
                 f"--size must be between 8x8 and {MAX_SIZE_PX}x{MAX_SIZE_PX}, "

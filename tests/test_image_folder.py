@@ -261,6 +261,28 @@ def test_folder_problems(tmp_path):
         open_image_folder(tmp_path / "imgs", rate_hz=0.0)
 
 
+@pytest.mark.parametrize(
+    ("option", "needle"),
+    [
+        (["--fov-deg", "nan"], "--fov-deg must be between 1 and 170 degrees, got nan"),
+        (["--fov-deg", "180"], "--fov-deg must be between 1 and 170"),
+        (["--fov-deg", "1e-300"], "--fov-deg must be between 1 and 170"),
+        (["--fov-deg", "-5"], "--fov-deg must be between 1 and 170"),
+        (["--rate", "1e-300"], "too slow: 3 images would run past the last nanosecond stamp"),
+    ],
+)
+def test_import_option_values_out_of_range_are_bad_input(tmp_path, capsys, option, needle):
+    """Exit 2 and one line (they were exit 70: a camera model refusing the value, an overflow)."""
+    from aslam.cli.app import main
+
+    write_images(tmp_path / "imgs", 3)
+    out = tmp_path / "x.mcap"
+    assert main(["import", str(tmp_path / "imgs"), "-o", str(out), *option]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and needle in err
+    assert not out.exists()
+
+
 # --- import -------------------------------------------------------------------------------------
 
 

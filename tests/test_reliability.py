@@ -192,7 +192,7 @@ def test_closed_stdout_ends_quietly_with_141(estimate_file: Path, tmp_path: Path
 # --- leftovers and signals -----------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("signum, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+@pytest.mark.parametrize("signum, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130), (signal.SIGHUP, 129)])
 def test_signal_during_estimate_cleans_up(tmp_path: Path, signum: int, code: int):
     recording = tmp_path / "long.mcap"
     # Long enough (about 3 s) that the signal lands mid-run even when this process is descheduled
@@ -210,8 +210,8 @@ def test_signal_during_estimate_cleans_up(tmp_path: Path, signum: int, code: int
     process.send_signal(signum)
     _, err = process.communicate(timeout=120)
     assert process.returncode == code, err
-    assert err.splitlines()[-1] == (
-        "aslam: error: terminated" if code == 143 else "aslam: error: interrupted"
+    assert err.splitlines()[-1] == "aslam: error: " + {143: "terminated", 129: "hung up"}.get(
+        code, "interrupted"
     )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["long.mcap"]
 
@@ -219,9 +219,68 @@ def test_signal_during_estimate_cleans_up(tmp_path: Path, signum: int, code: int
 def test_stale_partial_file_is_named_by_the_next_run(recording: Path, tmp_path: Path, capsys):
     stale = tmp_path / ".e.mcap.partial-999999999"
     stale.write_bytes(b"left by a killed run")
-    assert main(["estimate", str(recording), "-o", str(tmp_path / "e.mcap")]) == 0
+    assert main(["estimate", str(recording), "-o", str(tmp_path / "e.mcap"), "-q"]) == 0
+    assert capsys.readouterr().err == ""  # --quiet: errors only
+    assert main(["estimate", str(recording), "-o", str(tmp_path / "e.mcap"), "--force"]) == 0
     err = capsys.readouterr().err
     assert f"aslam: warning: {stale}: temporary file left by an interrupted run" in err
+
+
+def test_closed_stdout_or_stderr_is_no_traceback(recording: Path, estimate_file: Path, tmp_path: Path):
+    """Started with stdout or stderr closed (``>&-``): a command with nothing for stdout succeeds
+    and writes its file; one whose result is for stdout ends as a closed pipe (141); never a
+    traceback, never the gate's exit 1."""
+
+    def run(argv: list[str], closed: int) -> subprocess.CompletedProcess:
+        other = subprocess.PIPE
+        return subprocess.run(
+            [str(ASLAM), *argv],
+            stdout=subprocess.PIPE if closed == 2 else None,
+            stderr=other if closed == 1 else None,
+            pass_fds=(),
+            preexec_fn=lambda: os.close(closed),
+            timeout=120,
+        )
+
+    for closed in (1, 2):
+        out = tmp_path / f"e{closed}.mcap"
+        assert run(["estimate", str(recording), "-o", str(out)], closed).returncode == 0
+        assert out.exists()
+    done = run(["report", str(estimate_file)], 1)
+    assert done.returncode == 141 and b"Traceback" not in done.stderr
+
+
+def test_a_name_with_brackets_is_printed_not_read_as_markup(recording: Path, tmp_path: Path, capsys):
+    """Rich would read ``[/x]`` in a file name as a closing tag (exit 70) and ``[red]`` as a style
+    (the name shown without it): tables print names as they are."""
+    folder = tmp_path / "a["
+    folder.mkdir()
+    odd = folder / "x]rec.mcap"  # its path holds "a[/x]"
+    odd.write_bytes(recording.read_bytes())
+    out = folder / "[red]e.mcap"
+    assert main(["estimate", str(odd), "-o", str(out), "-q"]) == 0
+    capsys.readouterr()
+    assert main(["report", str(out)]) == 0
+    shown = capsys.readouterr().out
+    assert "aslam report — [red]e.mcap" in shown and "a[/x]rec.mcap" in shown
+    assert main(["info", str(odd)]) == 0
+    assert "a[/x]rec.mcap" in capsys.readouterr().out
+
+
+def test_tables_in_a_pipe_are_never_cut(estimate_file: Path, tmp_path: Path):
+    """Piped (a CI log), the report's table holds every name and number in full, whatever COLUMNS
+    says; a colour variable (FORCE_COLOR) brings no live progress bar into the log either."""
+    deep = tmp_path / ("a_rather_long_folder_name_" * 4)
+    deep.mkdir()
+    copy = deep / "estimate.mcap"
+    copy.write_bytes(estimate_file.read_bytes())
+    env = {**os.environ, "COLUMNS": "25", "FORCE_COLOR": "1"}
+    done = subprocess.run(
+        [str(ASLAM), "report", str(copy)], capture_output=True, text=True, env=env, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    assert "…" not in done.stdout and "keyframes" in done.stdout
+    assert "\r" not in done.stderr and "\x1b[2K" not in done.stderr
 
 
 # --- bad data: exit 2, one line ------------------------------------------------------------------
