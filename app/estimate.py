@@ -20,7 +20,7 @@ from aslam.core.config import EstimatorConfig
 from aslam.core.errors import InputError
 from aslam.core.estimator import Estimator
 from aslam.data_formats.errors import EstimateError
-from aslam.data_formats.files import check_output_path, source_files, source_sha256
+from aslam.data_formats.files import check_output_path, full_path, source_files, source_sha256
 from aslam.data_formats.sources import TopicChoice, open_input
 
 if TYPE_CHECKING:
@@ -123,14 +123,12 @@ def estimate(
     """
     if workers < 0:
         raise InputError(f"--workers must be at least 0, got {workers}")
-    recording = Path(recording).absolute()
-    output = Path(output).absolute()
-    inputs = [recording, *source_files(recording)] + ([] if prior is None else [Path(prior).absolute()])
+    recording = full_path(recording)
+    output = full_path(output)
+    inputs = [recording, *source_files(recording)] + ([] if prior is None else [full_path(prior)])
     check_output_path(output, force=force, error=EstimateError, inputs=inputs)
     warn = on_warning or (lambda _line: None)
-    start_map, map_identity = (
-        (None, None) if prior is None else load_prior_map(Path(prior).absolute(), config)
-    )
+    start_map, map_identity = (None, None) if prior is None else load_prior_map(full_path(prior), config)
     source = open_input(recording, topics, on_warning=warn)
     total = source.image_count()
     estimator = Estimator(config, start_map, odometry_known=source.odometry_known)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import operator
 import re
@@ -85,6 +86,14 @@ def failed_conditions(conditions: Sequence[Condition], summary: dict[str, Any]) 
     for condition in conditions:
         holds, actual = condition.holds(summary)
         if holds:
-            shown = "null" if actual is None else f"{actual:.6g}" if isinstance(actual, float) else actual
+            shown = (
+                "null"
+                if actual is None
+                else json.dumps(actual)  # true/false, as the summary JSON has it
+                if isinstance(actual, bool)
+                else f"{actual:.6g}"
+                if isinstance(actual, float)
+                else actual
+            )
             failed.append(f"{condition.text.strip()} (is {shown})")
     return failed

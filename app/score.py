@@ -30,7 +30,7 @@ from aslam.core.mapgraph import GrowableArray
 from aslam.core.metrics import AssignmentScore, Evaluation, evaluate, score_assignment
 from aslam.data_formats.errors import EstimateError, RecordingError
 from aslam.data_formats.estimate import EstimateFile, iter_keyframes, read_estimate
-from aslam.data_formats.files import source_files
+from aslam.data_formats.files import full_path, source_files
 from aslam.data_formats.graph_json import build_graph_json
 from aslam.data_formats.sources import TopicChoice, open_input
 
@@ -234,7 +234,7 @@ class Report:
             self.estimate.graph,
             self.stamps_ns,
             self.map_truth,
-            estimate_path=str(self.estimate_path.absolute()),
+            estimate_path=str(full_path(self.estimate_path)),
             recording_path=None if self.recording_path is None else str(self.recording_path),
         )
 
@@ -418,7 +418,7 @@ def _find_recording(given: Path | None, info: EstimateFile, warn: Callable[[str]
                 f"{given} is not the recording the estimate was made from ({size} bytes, that one"
                 f" {info.metadata.recording.size_bytes}): its ground truth is taken at the keyframes' stamps"
             )
-        return given.absolute()
+        return full_path(given)
     named, size_bytes = info.metadata.recording.path, info.metadata.recording.size_bytes
     path = Path(named)
     if not path.exists():

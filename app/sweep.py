@@ -34,7 +34,7 @@ from typing import Any
 from aslam.app.sweep_file import ScoreOptions, Sweep
 from aslam.core.config import EstimatorConfig
 from aslam.core.errors import AslamError, InputError
-from aslam.data_formats.files import source_sha256, write_atomically
+from aslam.data_formats.files import full_path, source_sha256, write_atomically
 from aslam.data_formats.provenance import tool_version
 from aslam.recorder.config import RecordConfig
 
@@ -172,7 +172,7 @@ def plan_tasks(sweep: Sweep, results_dir: Path, *, hashes: HashCache | None = No
 
     Hashes each recording file (one sequential read), or takes its hash from ``hashes``.
     """
-    results_dir = Path(results_dir).absolute()
+    results_dir = full_path(results_dir)
     hashes = hashes if hashes is not None else HashCache(None)
     sources = []
     for path in sweep.recordings:
@@ -449,7 +449,7 @@ def run_sweep(
         raise InputError("--workers sizes a local cluster; the cluster at --scheduler has its own workers")
     if workers is not None and workers < 1:
         raise InputError(f"--workers must be at least 1, got {workers}")
-    results_dir = Path(results_dir).absolute()
+    results_dir = full_path(results_dir)
     if results_dir.exists() and not results_dir.is_dir():
         raise InputError("is not a folder", path=results_dir)
     created = not results_dir.exists()

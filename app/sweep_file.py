@@ -19,6 +19,7 @@ from typing import Any
 from aslam.app.config_file import read_toml
 from aslam.core.config import EstimatorConfig
 from aslam.core.errors import ConfigError
+from aslam.data_formats.files import full_path
 from aslam.recorder.config import CameraSpec, NoiseParams, RecordConfig, parse_size
 
 DEFAULT_FIGURES = (
@@ -115,7 +116,7 @@ def read_sweep_file(path: Path) -> Sweep:
     path = Path(path)
     document = read_toml(path, what="a sweep file")
     problems: list[str] = []
-    base = path.absolute().parent
+    base = full_path(path).parent
     problems += [
         f"unknown key '{key}' (known: {', '.join(TOP_LEVEL_KEYS)})"
         for key in document
@@ -130,7 +131,7 @@ def read_sweep_file(path: Path) -> Sweep:
     score = _score(document.get("score", {}), problems)
     if problems:
         raise ConfigError("; ".join(dict.fromkeys(problems)), path=path)
-    return Sweep(path.absolute(), recordings, renders, grids, figures, score)
+    return Sweep(full_path(path), recordings, renders, grids, figures, score)
 
 
 def _table(value: Any, name: str, known: Any, problems: list[str]) -> dict[str, Any]:
@@ -157,11 +158,11 @@ def _recordings(value: Any, base: Path, problems: list[str]) -> tuple[Path, ...]
             matches = sorted(Path(p) for p in glob.glob(str(full), recursive=True) if Path(p).exists())
             if not matches:
                 problems.append(f"recordings.paths: '{pattern}' matches nothing")
-            found.update(dict.fromkeys(m.absolute() for m in matches))
+            found.update(dict.fromkeys(full_path(m) for m in matches))
         elif not full.exists():
             problems.append(f"recordings.paths: '{pattern}' does not exist (a recording or a bag)")
         else:
-            found[full.absolute()] = None
+            found[full_path(full)] = None
     return tuple(found)
 
 

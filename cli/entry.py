@@ -43,6 +43,11 @@ if sys.stdout is None:
     sys.stdout = _ClosedStdout()
 if sys.stderr is None:  # nothing can be told: messages go nowhere, the exit code still says it
     sys.stderr = open(os.devnull, "w")  # noqa: SIM115 (the process's own stderr, kept to the end)
+for _stream in (sys.stdout, sys.stderr):
+    # A terminal or pipe that is not UTF-8 (PYTHONIOENCODING=ascii, a C locale): "—" and the
+    # tables' box characters written as \u escapes, never a UnicodeEncodeError (exit 70).
+    with contextlib.suppress(AttributeError, ValueError):
+        _stream.reconfigure(errors="backslashreplace")  # type: ignore[union-attr]
 
 
 def run() -> None:

@@ -105,6 +105,10 @@ def report(
         _check_output(path, force=force, others=outputs[:i])
     if plots is not None and plots.exists() and not plots.is_dir():
         raise InputError("exists and is not a folder", path=plots)
+    if plots is not None and not plots.exists():  # to be made: under a folder, not under a file
+        above = next(folder for folder in plots.absolute().parents if folder.exists())
+        if not above.is_dir():
+            raise InputError(f"cannot make the plots folder: {above} is not a folder", path=plots)
     if plots is not None and plots.is_dir():
         from aslam.app.plots import PLOT_NAMES
 

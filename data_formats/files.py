@@ -234,6 +234,13 @@ def check_input_file(path: Path, *, error: type[InputError], what: str) -> int:
     return st.st_size
 
 
+def full_path(path: Path | str) -> Path:
+    """``path`` absolute, with ``.`` and ``..`` folded away (symlinks kept: the name given, made
+    canonical). What files record of the paths they name (an estimate's recording, a report's
+    estimate), so the same file spelled ``../rec.mcap`` from another folder gives the same bytes."""
+    return Path(os.path.abspath(path))
+
+
 def check_output_path(
     path: Path,
     *,

@@ -315,6 +315,8 @@ def test_fail_on_takes_the_short_names_of_sweep_pareto(estimate_file: Path, caps
     err = capsys.readouterr().err
     one_error_line(err)
     assert "hypotheses.final>=1 (is 1)" in err
+    assert main(["report", str(estimate_file), "--fail-on", "ground_truth==1"]) == 1
+    assert "ground_truth==1 (is true)" in capsys.readouterr().err  # as the summary JSON says it
     assert parse_condition("precision<0.99").key == "loop_closure.precision"
     assert parse_condition("committed.precision<0.99").key == "committed.precision"
 

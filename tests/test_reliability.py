@@ -712,7 +712,9 @@ def test_plots_under_a_file_are_one_line(estimate_file: Path, tmp_path: Path, ca
         main(["report", str(estimate_file), "-q", "--json", str(json_out), "--plots", str(blocker / "p")])
         == 2
     )
-    one_error_line(capsys, "Not a directory")
+    captured = capsys.readouterr()
+    assert captured.out == ""  # refused before any work: no tables printed
+    assert captured.err.count("\n") == 1 and "cannot make the plots folder" in captured.err
     assert not json_out.exists()
 
 
@@ -804,3 +806,23 @@ def test_control_characters_never_reach_the_terminal(capsys):
     error_line("no transform from frame '\x1b[2K\x1b[1Gfake' to 'base'\r\n(seen: x\x07)")
     err = capsys.readouterr().err
     assert err == "aslam: error: no transform from frame '\\x1b[2K\\x1b[1Gfake' to 'base' (seen: x\\x07)\n"
+
+
+def test_the_same_file_spelled_another_way_gives_the_same_estimate(recording: Path, tmp_path: Path):
+    """Paths are recorded with ``..`` folded (not symlinks resolved): an estimate made from another
+    folder through ``../`` is byte-identical, so a report finds its recording anywhere."""
+    (tmp_path / "sub").mkdir()
+    spelled = tmp_path / "sub" / ".." / recording.name
+    (tmp_path / recording.name).write_bytes(recording.read_bytes())
+    a, b = tmp_path / "a.mcap", tmp_path / "b.mcap"
+    assert main(["estimate", str(tmp_path / recording.name), "-o", str(a), "--no-timing", "-q"]) == 0
+    assert main(["estimate", str(spelled), "-o", str(b), "--no-timing", "-q"]) == 0
+    assert a.read_bytes() == b.read_bytes()
+
+
+def test_a_stdout_that_is_not_utf8_gets_escapes_not_an_internal_error(estimate_file: Path):
+    env = {**os.environ, "PYTHONIOENCODING": "ascii"}
+    argv = [str(ASLAM), "report", str(estimate_file)]
+    done = subprocess.run(argv, capture_output=True, env=env, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert b"aslam report \\u2014" in done.stdout
