@@ -162,11 +162,13 @@ class KeyframeViews:
         return len(self._row_of_keyframe)
 
     def __getitem__(self, keyframes: int | np.ndarray) -> np.ndarray:
-        """The views of ``keyframes`` (an index: one row; an array: one row each, a copy)."""
+        """The views of ``keyframes`` (an index: one row; an array: one row each, a copy). On the
+        SLAM step's path: the arrays are indexed directly, and a let-go keyframe (row -1) found by
+        the minimum, with no temporaries."""
         rows = self._row_of_keyframe.view[keyframes]
-        if np.any(rows < 0):
+        if rows.size and rows.min() < 0:
             raise KeyError(f"no view is kept of keyframe(s) {np.asarray(keyframes)[rows < 0].tolist()}")
-        return self._rows.view[rows]
+        return self._rows._data[rows]
 
     @property
     def rows(self) -> int:
