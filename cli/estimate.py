@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import inspect
+import json
 from collections.abc import Callable
 from contextlib import AbstractContextManager
 from pathlib import Path
@@ -54,7 +55,7 @@ def estimate(**options: Any) -> None:
     config = build_config(
         paper_faithful=fixed["paper_faithful"], config_file=fixed["config"], options=options
     )
-    terminal.detail(f"configuration: {asdict(config)}")
+    terminal.detail(f"configuration: {json.dumps(asdict(config))}")  # JSON, as the estimate file holds it
     progress, on_progress = _progress_bar(terminal)
     with progress:
         summary = run_estimate(

@@ -282,6 +282,8 @@ def check_output_path(
         if not force:
             raise error("already exists; refusing to overwrite it (use --force)", path=path)
     if not real.parent.is_dir():
+        if real.parent.exists():
+            raise error(f"{path.parent} is not a folder", path=path)
         raise error(f"folder {path.parent} does not exist", path=path)
 
 

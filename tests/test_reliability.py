@@ -94,6 +94,7 @@ def test_report_output_that_is_its_estimate_is_refused_and_writes_nothing(
         (["--graph", "out.json", "--json", "sub/../out.json"], "another output of this command"),
         (["--json", "run.odometry.tum", "--trajectory", "run.tum"], "another output of this command"),
         (["--trajectory", "missing/run.tum"], "folder missing does not exist"),
+        (["--trajectory", "sub/file/run.tum"], "sub/file is not a folder"),
     ],
 )
 def test_report_outputs_are_checked_before_any_work(
@@ -102,6 +103,7 @@ def test_report_outputs_are_checked_before_any_work(
     """Two outputs that are one file, or a trajectory with nowhere to go: refused before scoring
     (no tables printed), nothing written."""
     (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "file").write_text("a file, not a folder")
     monkeypatch.chdir(tmp_path)
     assert main(["report", str(estimate_file), *outputs]) == 2
     assert capsys.readouterr().out == ""
