@@ -202,7 +202,11 @@ def test_signal_during_estimate_cleans_up(tmp_path: Path, signum: int, code: int
     long_recording(recording, frames=1500)
     output = tmp_path / "e.mcap"
     process = subprocess.Popen(
-        [str(ASLAM), "estimate", str(recording), "-o", str(output)], stderr=subprocess.PIPE, text=True
+        [str(ASLAM), "estimate", str(recording), "-o", str(output)],
+        stderr=subprocess.PIPE,
+        text=True,
+        # as a terminal starts it: a run under nohup (SIGHUP ignored, inherited) keeps ignoring
+        preexec_fn=lambda: signal.signal(signum, signal.SIG_DFL),
     )
     deadline = time.monotonic() + 120
     while not list(tmp_path.glob(".e.mcap.partial-*")) and process.poll() is None:
