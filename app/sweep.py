@@ -34,7 +34,7 @@ from typing import Any
 from aslam.app.sweep_file import ScoreOptions, Sweep
 from aslam.core.config import EstimatorConfig
 from aslam.core.errors import AslamError, InputError
-from aslam.data_formats.files import full_path, source_sha256, write_atomically
+from aslam.data_formats.files import full_path, remove_stale_partials, source_sha256, write_atomically
 from aslam.data_formats.provenance import tool_version
 from aslam.recorder.config import RecordConfig
 
@@ -481,6 +481,12 @@ def _run_in(
     on_plan: Callable[[Sequence[Task], Sequence[Task]], None] | None,
     on_result: Callable[[Task, TaskResult, bool], None] | None,
 ) -> SweepRun:
+    # What an interrupted run's workers were writing when they were killed (renders, estimates).
+    for folder in (
+        results_dir,
+        *(results_dir / name for name in (RENDERS_FOLDER, ESTIMATES_FOLDER, TASKS_FOLDER)),
+    ):
+        remove_stale_partials(folder)
     hashes = HashCache(results_dir / HASHES_FILE, use=not force)
     tasks = plan_tasks(sweep, results_dir, hashes=hashes)
     hashes.save()

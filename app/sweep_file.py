@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import glob
 import itertools
+import os
 import re
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -152,17 +153,18 @@ def _recordings(value: Any, base: Path, problems: list[str]) -> tuple[Path, ...]
         return ()
     found: dict[Path, None] = {}
     for pattern in patterns:
-        full = Path(pattern).expanduser()
-        full = full if full.is_absolute() else base / full
-        if glob.has_magic(str(full)):
-            matches = sorted(Path(p) for p in glob.glob(str(full), recursive=True) if Path(p).exists())
+        given = Path(pattern).expanduser()
+        full = given if given.is_absolute() else base / given
+        if full.exists():  # a file named as it is, even one whose name holds [brackets]
+            found[full_path(full)] = None
+        elif glob.has_magic(str(given)):  # the pattern's own wildcards; the sweep file's folder literal
+            search = str(given) if given.is_absolute() else os.path.join(glob.escape(str(base)), str(given))
+            matches = sorted(Path(p) for p in glob.glob(search, recursive=True) if Path(p).exists())
             if not matches:
                 problems.append(f"recordings.paths: '{pattern}' matches nothing")
             found.update(dict.fromkeys(full_path(m) for m in matches))
-        elif not full.exists():
-            problems.append(f"recordings.paths: '{pattern}' does not exist (a recording or a bag)")
         else:
-            found[full_path(full)] = None
+            problems.append(f"recordings.paths: '{pattern}' does not exist (a recording or a bag)")
     return tuple(found)
 
 

@@ -62,11 +62,10 @@ def _live_display_wanted() -> bool:
     """A progress bar redraws itself: only on an interactive terminal, decided without importing
     rich's console (20 ms of an estimate's start-up, before its reader starts). stderr must be a
     real terminal: ``FORCE_COLOR`` and ``TTY_COMPATIBLE``, which CI logs set for colour, ask for
-    colour, not for a bar redrawn eight times a second into a log. ``TTY_INTERACTIVE`` (rich's own
-    variable) decides outright: 1 shows the bar, 0 never."""
-    wanted = os.environ.get("TTY_INTERACTIVE")
-    if wanted in ("0", "1"):
-        return wanted == "1"
+    colour, not for a bar redrawn eight times a second into a log. ``TTY_INTERACTIVE=0`` (rich's
+    own variable) turns the bar off on a terminal too."""
+    if os.environ.get("TTY_INTERACTIVE") == "0":
+        return False
     try:
         return sys.stderr.isatty() and os.environ.get("TERM", "").lower() not in ("dumb", "unknown")
     except (AttributeError, ValueError):  # no stderr, or a closed one

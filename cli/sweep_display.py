@@ -123,9 +123,8 @@ class LiveDisplay:
         else:
             self.failed += 1
             wall = ""
-        error = Text(result.error or "")  # plain text: an error may contain [brackets]
-        self.rows.append(
-            (str(task.index), task.source.label, parameters_text(task), *figures, wall, result.worker, error)
-        )
+        # Text, never markup: a recording's name, a route file's or an error may hold [brackets]
+        cells = (task.source.label, parameters_text(task), *figures, wall, result.worker)
+        self.rows.append((str(task.index), *map(Text, cells), Text(result.error or "")))
         self.progress.update(self.bar, advance=1, failed=self.failed)
         self.live.update(self._render())

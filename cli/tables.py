@@ -81,7 +81,8 @@ def print_report(console: Console, report: Report) -> None:
     console.print(table)
 
     if s["ground_truth"]:
-        errors = Table(title="Revisit errors (absolute; new-state hypotheses excluded)", title_justify="left")
+        console.print("Revisit errors (absolute; new-state hypotheses excluded)", soft_wrap=True)
+        errors = Table()
         for name, justify in (
             ("error", "left"),
             ("hypothesis", "left"),

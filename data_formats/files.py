@@ -311,6 +311,23 @@ def stale_partials(target: Path) -> list[Path]:
     return sorted(found)
 
 
+def remove_stale_partials(folder: Path) -> list[Path]:
+    """Delete the temporary files in ``folder`` whose writer is gone (a sweep's workers killed
+    mid-write by an interrupt); returns them. For folders a command owns, such as a sweep's
+    results: elsewhere a stale file is only named (the next run's warning), never deleted."""
+    removed = []
+    try:
+        candidates = sorted(folder.glob(f".*{PARTIAL_MARK}*"))
+    except OSError:
+        return []
+    for candidate in candidates:
+        pid_text = candidate.name.rpartition(PARTIAL_MARK)[2]
+        if candidate.is_file() and pid_text.isdigit() and not _process_alive(int(pid_text)):
+            candidate.unlink(missing_ok=True)
+            removed.append(candidate)
+    return removed
+
+
 def _process_alive(pid: int) -> bool:
     if pid == os.getpid():
         return True

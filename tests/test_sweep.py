@@ -173,11 +173,21 @@ def test_a_rerun_skips_the_done_tasks_and_force_recomputes(local_run, recordings
     sweep = read_sweep_file(_write_sweep(recordings))
     estimates = {p: p.stat().st_mtime_ns for p in (results / "estimates").glob("*.mcap")}
     assert len(estimates) == 2
+    # what killed workers of an interrupted run left (no such PID), and a live writer's file
+    dead = [
+        results / "recordings" / ".x.mcap.partial-999999999",
+        results / "estimates" / ".y.mcap.partial-999999999",
+    ]
+    live = results / "estimates" / f".z.mcap.partial-{os.getpid()}"
+    for path in (*dead, live):
+        path.write_bytes(b"half a file")
     seen: list[tuple[int, bool]] = []
     run = run_sweep(
         sweep, results, workers=1, on_result=lambda task, _r, reused: seen.append((task.index, reused))
     )
     assert run.reused == 2 and run.failed == 1
+    assert not any(path.exists() for path in dead) and live.exists()
+    live.unlink()
     assert sorted(seen) == [(0, True), (1, False), (2, True)]  # the failed task is tried again
     assert {p: p.stat().st_mtime_ns for p in (results / "estimates").glob("*.mcap")} == estimates
     assert _figures(_rows(results)) == _figures(_rows(local_run[1]))
@@ -299,6 +309,26 @@ def test_a_combination_named_twice_runs_once(tmp_path):
     ]
     assert [t.index for t in tasks] == [0, 1, 2]
     assert len({t.estimate_path for t in tasks}) == 3
+
+
+def test_recording_paths_with_brackets_are_names_and_globs_only_in_the_pattern(tmp_path):
+    """A sweep file in ``dir[1]/`` lists its own ``rec.mcap`` (not ``dir1/rec.mcap``, which the
+    folder's name read as a glob would match); a file whose name holds brackets is taken as named;
+    the pattern's own wildcards still glob, inside the literal folder."""
+    for folder in ("dir[1]", "dir1"):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "rec.mcap").write_bytes(b"x")
+    (tmp_path / "dir[1]" / "odd[bold].mcap").write_bytes(b"x")
+    sweep_file = tmp_path / "dir[1]" / "s.toml"
+    for paths, expected in (
+        ('["rec.mcap"]', ["rec.mcap"]),
+        ('["odd[bold].mcap"]', ["odd[bold].mcap"]),
+        ('["*.mcap"]', ["odd[bold].mcap", "rec.mcap"]),
+    ):
+        sweep_file.write_text(f"[recordings]\npaths = {paths}\n")
+        found = read_sweep_file(sweep_file).recordings
+        assert [p.name for p in found] == expected
+        assert all(p.parent == tmp_path / "dir[1]" for p in found)
 
 
 def test_pareto_names_map_to_summary_keys_with_a_direction():
