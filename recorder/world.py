@@ -533,7 +533,7 @@ def check_path_in_world(
 
     Every pose, and points every 5 cm along each driven step, need free cells at ``clearance_m`` in
     eight directions around them. Checked ``PATH_CHECK_BLOCK`` poses at a time, in order: the probes
-    of a whole 100,000-step route at once took 1 GB.
+    of a whole 100,000-step route at once would take about 1 GB (407 MiB at 36,001 steps).
     """
     points = np.asarray(poses, dtype=float)[:, :2]
     angles = np.arange(8) * (math.pi / 4)
