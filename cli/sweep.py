@@ -63,9 +63,9 @@ def sweep(
     objectives = resolve_objectives(pareto) if pareto is not None else []
     spec = read_sweep_file(sweep_file)
     display = (
-        LiveDisplay(terminal, spec.figures)
+        LiveDisplay(terminal, spec.figures, force=force)
         if terminal.shows_progress
-        else PlainDisplay(terminal, spec.figures)
+        else PlainDisplay(terminal, spec.figures, force=force)
     )
     with display:
         run = run_sweep(

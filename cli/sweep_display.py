@@ -30,12 +30,20 @@ def parameters_text(task: Task) -> str:
     return " ".join(f"{name}={value}" for name, value in task.parameters) or "defaults"
 
 
+def renders_due(to_run: Any, *, force: bool) -> int:
+    """How many recordings the tasks to run render first: those not rendered yet (or, with
+    --force, all of them; a render already there is otherwise used as it is)."""
+    paths = {t.source.path for t in to_run if t.source.render is not None}
+    return len(paths) if force else sum(not path.exists() for path in paths)
+
+
 class PlainDisplay:
     """One line per finished task (logs, pipes, --quiet: nothing but the summary line)."""
 
-    def __init__(self, terminal: Terminal, figures: tuple[str, ...]) -> None:
+    def __init__(self, terminal: Terminal, figures: tuple[str, ...], *, force: bool = False) -> None:
         self.terminal = terminal
         self.figures = figures
+        self.force = force
         self.total = 0
         self.done = 0
 
@@ -47,7 +55,7 @@ class PlainDisplay:
 
     def plan(self, tasks: Any, to_run: Any) -> None:
         self.total = len(tasks)
-        renders = len({t.source.path for t in to_run if t.source.render is not None})
+        renders = renders_due(to_run, force=self.force)
         rendering = f" (first rendering {renders} recording{'s' if renders != 1 else ''})" if renders else ""
         self.terminal.info(
             f"{len(tasks)} tasks, {len(tasks) - len(to_run)} already done, {len(to_run)} to run{rendering}"
@@ -69,12 +77,13 @@ class PlainDisplay:
 class LiveDisplay:
     """A progress bar over a table of the newest finished tasks, redrawn in place on stderr."""
 
-    def __init__(self, terminal: Terminal, figures: tuple[str, ...]) -> None:
+    def __init__(self, terminal: Terminal, figures: tuple[str, ...], *, force: bool = False) -> None:
         from rich.live import Live
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
         self.terminal = terminal
         self.figures = figures
+        self.force = force
         self.progress = Progress(
             TextColumn("sweep"),
             BarColumn(),
@@ -109,7 +118,7 @@ class LiveDisplay:
 
     def plan(self, tasks: Any, to_run: Any) -> None:
         self.progress.update(self.bar, total=len(tasks))
-        renders = len({t.source.path for t in to_run if t.source.render is not None})
+        renders = renders_due(to_run, force=self.force)
         if renders:
             self.terminal.console.print(f"rendering {renders} recording{'s' if renders != 1 else ''} first")
 

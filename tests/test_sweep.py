@@ -521,3 +521,21 @@ def test_an_edited_route_file_is_another_render(tmp_path):
         '{"actions": [{"forward_m": 3}, {"turn_deg": 180}, {"forward_m": 3}, {"turn_deg": 180}]}'
     )
     assert render_path(tmp_path, RecordConfig(route=str(route)))[1] != first[1]
+
+
+def test_the_plan_counts_only_the_renders_still_to_make(tmp_path):
+    """A re-run whose renders are there renders nothing first (it said it would); --force renders
+    them all again; a recording file is never a render."""
+    from types import SimpleNamespace
+
+    from aslam.cli.sweep_display import renders_due
+
+    made, missing = tmp_path / "made.mcap", tmp_path / "missing.mcap"
+    made.write_bytes(b"x")
+
+    def task(path: Path, render: object) -> SimpleNamespace:
+        return SimpleNamespace(source=SimpleNamespace(path=path, render=render))
+
+    to_run = [task(made, "cfg"), task(made, "cfg"), task(missing, "cfg"), task(tmp_path / "rec.mcap", None)]
+    assert renders_due(to_run, force=False) == 1
+    assert renders_due(to_run, force=True) == 2
