@@ -19,6 +19,7 @@ from aslam.app.pipeline import DEFAULT_WORKERS, EstimateSteps, PipelineCounts, r
 from aslam.core.config import EstimatorConfig
 from aslam.core.errors import InputError
 from aslam.core.estimator import Estimator
+from aslam.core.mapgraph import GrowableArray
 from aslam.data_formats.errors import EstimateError
 from aslam.data_formats.files import check_output_path, full_path, source_files, source_sha256
 from aslam.data_formats.sources import TopicChoice, open_input
@@ -163,7 +164,7 @@ def estimate(
             if total is None or total >= 2:  # a metric view needs 2 keyframes: its imports, meanwhile
                 preload()
             last_update = 0.0
-            actions = []
+            actions = GrowableArray((3,), np.float64)  # 24 bytes a keyframe, for the metric view
             for step in steps:
                 writer.write_keyframe(step)
                 actions.append(step.action)
@@ -192,9 +193,7 @@ def estimate(
                     keyframes=keyframes,
                 )
             embed_start = time.perf_counter()
-            embedding = embed_run(
-                np.array(actions).reshape(-1, 3), result.states, result.links, config, result.first_keyframe
-            )
+            embedding = embed_run(actions.view, result.states, result.links, config, result.first_keyframe)
             scene = None if embedding is None else metric_scene(embedding, result.keyframe_stamps_ns)
             views = PlaceViews(
                 config.observation_model,
