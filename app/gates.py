@@ -86,14 +86,12 @@ def failed_conditions(conditions: Sequence[Condition], summary: dict[str, Any]) 
     for condition in conditions:
         holds, actual = condition.holds(summary)
         if holds:
-            shown = (
-                "null"
-                if actual is None
-                else json.dumps(actual)  # true/false, as the summary JSON has it
-                if isinstance(actual, bool)
-                else f"{actual:.6g}"
-                if isinstance(actual, float)
-                else actual
-            )
-            failed.append(f"{condition.text.strip()} (is {shown})")
+            failed.append(f"{condition.text.strip()} (is {_shown(actual)})")
     return failed
+
+
+def _shown(value: Any) -> str:
+    """A summary value as the summary JSON writes it (null, true), a float to 6 digits."""
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    return json.dumps(value)

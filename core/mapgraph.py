@@ -124,6 +124,10 @@ class GrowableArray:
     def view(self) -> np.ndarray:
         return self._data[: self._size]
 
+    def take(self, rows: np.ndarray | int) -> np.ndarray:
+        """``view[rows]`` without making the view first (a hot path): ``rows`` must be under ``len``."""
+        return self._data[rows]
+
 
 class KeyframeViews:
     """The view of every keyframe a hypothesis may still call a place; a place's view for good.
@@ -168,7 +172,7 @@ class KeyframeViews:
         rows = self._row_of_keyframe.view[keyframes]
         if rows.size and rows.min() < 0:
             raise KeyError(f"no view is kept of keyframe(s) {np.asarray(keyframes)[rows < 0].tolist()}")
-        return self._rows._data[rows]
+        return self._rows.take(rows)
 
     @property
     def rows(self) -> int:

@@ -299,33 +299,30 @@ def _claim_output(path: Path, real: Path, error: type[InputError]) -> None:
 
 def stale_partials(target: Path) -> list[Path]:
     """Temporary files of ``target`` left by runs that were killed (their process is gone)."""
-    found = []
     try:
         candidates = list(target.parent.glob(f".{target.name}{PARTIAL_MARK}*"))
     except OSError:
         return []
-    for candidate in candidates:
-        pid_text = candidate.name.rpartition(PARTIAL_MARK)[2]
-        if pid_text.isdigit() and not _process_alive(int(pid_text)):
-            found.append(candidate)
-    return sorted(found)
+    return sorted(candidate for candidate in candidates if _writer_gone(candidate))
 
 
 def remove_stale_partials(folder: Path) -> list[Path]:
     """Delete the temporary files in ``folder`` whose writer is gone (a sweep's workers killed
     mid-write by an interrupt); returns them. For folders a command owns, such as a sweep's
     results: elsewhere a stale file is only named (the next run's warning), never deleted."""
-    removed = []
     try:
-        candidates = sorted(folder.glob(f".*{PARTIAL_MARK}*"))
+        removed = [c for c in sorted(folder.glob(f".*{PARTIAL_MARK}*")) if c.is_file() and _writer_gone(c)]
     except OSError:
         return []
-    for candidate in candidates:
-        pid_text = candidate.name.rpartition(PARTIAL_MARK)[2]
-        if candidate.is_file() and pid_text.isdigit() and not _process_alive(int(pid_text)):
-            candidate.unlink(missing_ok=True)
-            removed.append(candidate)
+    for candidate in removed:
+        candidate.unlink(missing_ok=True)
     return removed
+
+
+def _writer_gone(partial: Path) -> bool:
+    """Whether the process a temporary file is named after (``.NAME.partial-PID``) has ended."""
+    pid_text = partial.name.rpartition(PARTIAL_MARK)[2]
+    return pid_text.isdigit() and not _process_alive(int(pid_text))
 
 
 def _process_alive(pid: int) -> bool:
