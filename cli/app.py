@@ -57,10 +57,18 @@ def _root(
 ) -> None:
     """Appearance-based SLAM with a tree of path hypotheses, over MCAP recordings.
 
-    record → estimate → report.  Exit codes: 0 success, 1 a `report --fail-on` gate failed,
-    2 bad input or usage, 3 some `sweep` tasks failed, 70 internal error (a bug), 129 hung up
-    (SIGHUP), 130 interrupted (Ctrl-C), 141 stdout closed (e.g. piped into `head`), 143 terminated
-    (SIGTERM).
+    record → estimate → report.
+
+    Exit codes:
+      0 success
+      1 a `report --fail-on` gate failed
+      2 bad input or usage
+      3 some `sweep` tasks failed
+      70 internal error (a bug)
+      129 hung up (SIGHUP)
+      130 interrupted (Ctrl-C)
+      141 stdout closed (e.g. piped into `head`)
+      143 terminated (SIGTERM)
     """
 
 

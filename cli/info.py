@@ -36,8 +36,7 @@ def info(
 ) -> None:
     """Read a recording or a ROS bag, decoding every image; print its topics, counts, duration, metadata.
 
-    Exit code 0 when the whole recording reads (warnings, e.g. a truncated file, go to stderr),
-    2 when it cannot be used.
+    Exit 0 when the whole recording reads (warnings such as a truncated file go to stderr), 2 when not.
     """
     from aslam.data_formats.files import check_output_path, write_text_output
     from aslam.data_formats.sources import TopicChoice, open_input

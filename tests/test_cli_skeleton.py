@@ -15,6 +15,17 @@ def test_help_lists_the_three_commands(capsys):
         assert command in out
 
 
+def test_help_lists_every_exit_code_one_to_a_line(capsys):
+    """Scripts read the codes off --help; each on its own line, none missing (typer keeps the breaks)."""
+    from aslam.cli import app as cli_app
+
+    assert main(["--help"]) == 0
+    lines = [line.strip(" │") for line in capsys.readouterr().out.splitlines()]
+    codes = {value for name, value in vars(cli_app).items() if name.startswith("EXIT_")} | {1}
+    listed = {int(line.split()[0]) for line in lines if line.split() and line.split()[0].isdigit()}
+    assert listed == codes
+
+
 def test_version(capsys):
     assert main(["--version"]) == 0
     assert capsys.readouterr().out.startswith("aslam ")

@@ -414,6 +414,13 @@ def test_quiet_and_verbose(recording: Path, tmp_path: Path, capsys):
     one_error_line(capsys.readouterr().err)
 
 
+def test_estimate_names_its_output_as_given(recording: Path, tmp_path: Path, capsys, monkeypatch):
+    """As record, import and report do: a relative -o is echoed relative, not made absolute."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["estimate", str(recording), "-o", "rel.mcap", "--no-timing"]) == 0
+    assert capsys.readouterr().err.startswith("wrote rel.mcap (")
+
+
 def test_report_names_the_files_it_wrote_and_obeys_force(estimate_file: Path, tmp_path: Path, capsys):
     graph, summary = tmp_path / "g.json", tmp_path / "s.json"
     args = ["report", str(estimate_file), "--graph", str(graph), "--json", str(summary)]
