@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
@@ -387,32 +387,34 @@ def export_trajectories(
     embedding: Embedding,
     stamps_ns: Sequence[int] | np.ndarray,
     truth: np.ndarray | None = None,
-    fmt: str = "tum",
+    fmt: str | None = None,
     *,
     force: bool = False,
+    on_warning: Callable[[str], None] | None = None,
 ) -> dict[str, Path]:
     """Write the optimised trajectory to ``path``, and beside it ``*.odometry.*`` and ``*.truth.*``.
 
+    The format is ``fmt``, else the one the name says (``data_formats.trajectory.export_plan``).
     The truth is written where known: in TUM the keyframes without truth are left out (evo pairs
     poses by stamp); KITTI has no stamps, so its truth file is written only when every keyframe has
-    truth. Every path is checked before anything is written. Returns ``{"optimised": …, …}``.
+    truth (``on_warning`` hears why it is missing). Every path is checked before anything is
+    written. Returns ``{"optimised": …, …}``.
     """
     from aslam.data_formats import files
-    from aslam.data_formats.trajectory import (
-        TrajectoryError,
-        TrajectoryFormat,
-        sibling_paths,
-        write_trajectory,
-    )
+    from aslam.data_formats.trajectory import TrajectoryError, TrajectoryFormat, export_plan, write_trajectory
 
-    fmt = TrajectoryFormat(fmt)
-    paths = sibling_paths(path)
+    paths, fmt = export_plan(path, None if fmt is None else TrajectoryFormat(fmt))
     stamps = np.asarray(stamps_ns, dtype=np.int64)
     known = np.zeros(len(stamps), bool) if truth is None else np.isfinite(truth).all(axis=1)
     with_truth = known.all() if fmt is TrajectoryFormat.KITTI else known.any()
     targets = {"optimised": paths.optimised, "odometry": paths.odometry}
     if with_truth:
         targets["truth"] = paths.truth
+    elif known.any() and on_warning is not None:
+        on_warning(
+            f"{paths.truth}: not written: {int((~known).sum())} of {len(known)} keyframes have no ground "
+            "truth, and KITTI rows carry no stamps to pair them by (--trajectory-format tum leaves them out)"
+        )
     for target in targets.values():
         files.check_output_path(target, force=force, error=TrajectoryError)
     write_trajectory(paths.optimised, embedding.poses, stamps, fmt)

@@ -354,7 +354,7 @@ def run_one(
         wall = time.perf_counter() - start
         report = score(out, recording=rec)
     evaluation = report.evaluation
-    wrong = evaluation.claims & ~evaluation.correct
+    wrong = evaluation.wrong
     distance = np.hypot(evaluation.best_error[:, 0], evaluation.best_error[:, 1])
     near = int((wrong & (distance < 1.0)).sum()) if evaluation.has_ground_truth else None
     row = Row(scenario, estimator, report.summary, wall, near)

@@ -73,7 +73,7 @@ def method_scores(evaluation: Evaluation, summary: dict[str, Any], scenario: Sce
     lap2 = None
     if start is not None and evaluation.keyframes > start:
         lap2 = float(evaluation.correct[start:].mean())
-    wrong = evaluation.claims & ~evaluation.correct
+    wrong = evaluation.wrong
     return {
         "summary": summary,
         "f1": baselines.f1(evaluation),
@@ -128,7 +128,7 @@ def run_scenario(scenario: Scenario, threshold: float, work: Path, plots: Path |
             )
     matches = baselines.nearest_neighbours(keyframes.histograms)
     nearest = baselines.nearest_neighbour(keyframes, threshold, matches)
-    t = np.flatnonzero(nearest.claims & ~nearest.correct)
+    t = np.flatnonzero(nearest.wrong)
     odometry = baselines.odometry_only(keyframes)
     for method, evaluation in (("nearest", nearest), ("odometry", odometry)):
         states = int((~evaluation.claims).sum())

@@ -4,7 +4,9 @@
   true pose at t and the true pose at k's first visit (state ids are first-visit keyframes).
   New-state hypotheses are excluded, as in the paper.
 * Keyframe t is a ground-truth revisit when some earlier keyframe lies within ``radius_m`` and
-  ``heading_deg``; a claim by the best hypothesis is correct under the same test.
+  ``heading_deg``; a claim by the best hypothesis is correct under the same test. A claim where
+  the truth is unknown (at the keyframe or at the place's first visit: a gap in a real dataset's
+  ground truth) is not judged: precision counts only the claims the truth can score.
 * A relocalisation episode is a run of consecutive ground-truth revisits; its delay is the number
   of keyframes from its start until the best hypothesis first names a correct state.
 * As place-recognition work reports it, each claim has a confidence (the belief of the best
@@ -66,10 +68,23 @@ class Evaluation:
     episodes: tuple[Episode, ...]
     confidence: np.ndarray | None = None
     """(n,) belief of the best hypothesis where it claims a revisit, NaN elsewhere."""
+    judged: np.ndarray | None = None
+    """bool (n,): a claim the truth can score, known at the keyframe and at the place's first visit
+    (None: every claim). Claims in a gap of the ground truth are neither right nor wrong."""
+
+    @property
+    def judged_claims(self) -> np.ndarray:
+        """bool (n,): the claims precision counts."""
+        return self.claims if self.judged is None else self.claims & self.judged
+
+    @property
+    def wrong(self) -> np.ndarray:
+        """bool (n,): judged claims that are not right."""
+        return self.judged_claims & ~self.correct
 
     @property
     def precision(self) -> float | None:
-        claims = int(self.claims.sum())
+        claims = int(self.judged_claims.sum())
         return None if not self.has_ground_truth or claims == 0 else float(self.correct.sum() / claims)
 
     @property
@@ -89,6 +104,7 @@ class Evaluation:
     def pr_curve(self) -> PRCurve:
         """Precision and recall of the claims whose confidence reaches each threshold."""
         confidence = self.confidence if self.confidence is not None else np.where(self.claims, 1.0, np.nan)
+        confidence = np.where(self.judged_claims, confidence, np.nan)
         return precision_recall_curve(confidence, self.correct, int(self.true_revisit.sum()))
 
     def error_stats(self, weighted: bool) -> dict[str, ErrorStats]:
@@ -154,10 +170,12 @@ class AssignmentScore:
     claims: np.ndarray
     correct: np.ndarray
     true_revisit: np.ndarray
+    judged: np.ndarray
+    """bool (n,): a claim the truth can score (see ``Evaluation.judged``)."""
 
     @property
     def precision(self) -> float | None:
-        claims = int(self.claims.sum())
+        claims = int((self.claims & self.judged).sum())
         return None if claims == 0 else float(self.correct.sum() / claims)
 
     @property
@@ -186,15 +204,17 @@ def score_assignment(
     index = np.arange(n)
     claims = (states >= 0) & (states < index)
     correct = np.zeros(n, dtype=bool)
+    judged = np.zeros(n, dtype=bool)
     if claims.any():
         t = index[claims]
         errors = pose_error(true_poses[t], true_poses[states[claims]])
         finite = np.isfinite(errors).all(axis=1)
         good = (np.hypot(errors[:, 0], errors[:, 1]) <= radius_m) & (np.abs(errors[:, 2]) <= heading_deg)
         correct[t] = finite & good
+        judged[t] = finite
     true_revisit = ground_truth_revisits(true_poses, radius_m, heading_deg)
     run = slice(first_keyframe, None)
-    return AssignmentScore(claims[run], correct[run], true_revisit[run])
+    return AssignmentScore(claims[run], correct[run], true_revisit[run], judged[run])
 
 
 def pose_error(true_now: np.ndarray, true_then: np.ndarray) -> np.ndarray:
@@ -263,6 +283,7 @@ def evaluate(
     best_error = np.full((n, 3), np.nan)
     weighted_error = np.full((n, 3), np.nan)
     correct = np.zeros(n, dtype=bool)
+    judged = np.zeros(n, dtype=bool)
     has_truth = (
         true_poses is not None
         and len(true_poses) == first + n
@@ -295,6 +316,7 @@ def evaluate(
                 finite
             ].sum()
         if claims[t] and finite[0] and hypotheses[0] is revisits[0]:
+            judged[t] = True
             best_error[t] = errors[0]
             distance = math.hypot(errors[0, 0], errors[0, 1])
             correct[t] = distance <= radius_m and abs(math.radians(errors[0, 2])) <= heading_rad
@@ -315,6 +337,7 @@ def evaluate(
         weighted_error,
         _episodes(true_revisit, correct),
         confidence,
+        judged,
     )
 
 

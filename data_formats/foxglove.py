@@ -209,10 +209,17 @@ def frame_transform(pose: np.ndarray, stamp_ns: int) -> Any:
 
 
 GROWTH_STEPS = 64
-"""A growth scene is written once the map has grown by 1/64 of its size since the last one (so at
-every new place or link below 64 of them). Each scene holds the whole map so far — a viewer that
-seeks shows the map of that moment — so one per growth summed to O(places²) entities (2.0 M place
-spheres for 2,000 places); spaced this way they sum to O(64 × places) (121,334 for 2,000)."""
+"""A growth scene is written once the map (places and links) has grown by 1/64 of its size since
+the last one (so at every new place or link below 64 of them), or its loop closures by 1/64 of
+their number (so a loop closing is drawn when it closes, however large the map). Each scene holds
+the whole map so far — a viewer that seeks shows the map of that moment — so one per growth summed
+to O(places²) entities (2.0 M place spheres for 2,000 places); spaced this way they sum to
+O(64 × places) (121,334 for 2,000) for the map's growth, plus a scene per closure for the first 64
+closures and geometrically fewer after."""
+
+
+def _grown(count: int, at_last_scene: int) -> bool:
+    return count > at_last_scene and (count - at_last_scene) * GROWTH_STEPS >= count
 
 
 def preload_schemas() -> None:
@@ -270,7 +277,8 @@ class SceneChannels:
         assignment = np.asarray(scene.assignment, np.int64).tolist()
         stamps = scene.stamps_ns.tolist()
         growing = _GrowingScene(scene)
-        drawn = drawn_at_last_scene = 0  # places and links in the map so far, and at the last scene
+        # places and links in the map so far, and at the last scene; loop closures counted apart too
+        drawn = drawn_at_last_scene = closures = closures_at_last_scene = 0
         for k, (stamp_ns, pose) in enumerate(zip(stamps, scene.poses, strict=True)):
             self._add(TF_TOPIC, stamp_ns, frame_transform(pose, stamp_ns))
             if not growth or k == len(assignment) - 1:
@@ -281,8 +289,9 @@ class SceneChannels:
                 if link[0] != link[1] and link not in seen:
                     seen.add(link)
                     drawn += 1
-            if drawn > drawn_at_last_scene and (drawn - drawn_at_last_scene) * GROWTH_STEPS >= drawn:
-                drawn_at_last_scene = drawn
+                    closures += link[1] - link[0] != 1
+            if _grown(drawn, drawn_at_last_scene) or _grown(closures, closures_at_last_scene):
+                drawn_at_last_scene, closures_at_last_scene = drawn, closures
                 growing.extend(k + 1)
                 self._add(SCENE_TOPIC, stamp_ns, growing.message(stamp_ns))
 

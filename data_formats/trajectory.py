@@ -34,6 +34,30 @@ class TrajectoryPaths(NamedTuple):
     truth: Path
 
 
+#: File names that say their format; any other name is written as the format asked for (TUM by default).
+SUFFIX_FORMATS = {".tum": TrajectoryFormat.TUM, ".kitti": TrajectoryFormat.KITTI}
+
+
+def export_plan(path: Path, fmt: TrajectoryFormat | None) -> tuple[TrajectoryPaths, TrajectoryFormat]:
+    """Where an export of three trajectories goes, and in which format: the one asked for, else the
+    one the name says (``.tum``, ``.kitti``), else TUM. Refused before any work: a stream or ``-``
+    (three files cannot share one), no file name, and a name that says another format than the one
+    asked for (evo would then misread every row)."""
+    path = Path(path)
+    if str(path) == "-" or files.is_stream_output(path):
+        raise TrajectoryError(
+            "a trajectory export writes three files (NAME, NAME.odometry…, NAME.truth…): "
+            "give a file name, not stdout or a stream",
+            path=path,
+        )
+    if path.name in ("", ".", ".."):
+        raise TrajectoryError(f"--trajectory needs a file name, not {str(path)!r}")
+    named = SUFFIX_FORMATS.get(path.suffix.lower())
+    if fmt is not None and named is not None and fmt is not named:
+        raise TrajectoryError(f"the name says {named}, --trajectory-format says {fmt}", path=path)
+    return sibling_paths(path), fmt or named or TrajectoryFormat.TUM
+
+
 def sibling_paths(path: Path) -> TrajectoryPaths:
     """``OUT.tum`` → ``OUT.tum``, ``OUT.odometry.tum``, ``OUT.truth.tum`` (the same for any suffix)."""
     path = Path(path)

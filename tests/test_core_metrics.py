@@ -68,6 +68,29 @@ def test_weighted_error_uses_beliefs_and_excludes_new_state_hypotheses():
     assert math.isclose(result.weighted_error[4, 0], 1 / 3)
 
 
+def test_claims_in_a_gap_of_the_truth_are_neither_right_nor_wrong():
+    """Keyframe 6 has no true pose, keyframe 7 names a place whose first visit has none: neither
+    can be scored, so precision and the curve leave them out (as recall's revisits already do)."""
+    from aslam.core.metrics import score_assignment
+
+    poses = SQUARE.copy()
+    poses[6] = np.nan
+    poses[3] = np.nan
+    steps = [(t, [new(t)]) for t in range(4)] + [(t, [claim(t - 4)]) for t in range(4, 8)]
+    result = evaluate(steps, poses)
+    assert result.claims.sum() == 4 and result.judged_claims.tolist() == [False] * 4 + [
+        True,
+        True,
+        False,
+        False,
+    ]
+    assert result.precision == 1.0 and not result.wrong.any()
+    curve = result.pr_curve()
+    assert curve.precision.tolist() == [1.0] and curve.recall_at_full_precision == result.recall
+    scored = score_assignment(np.array([0, 1, 2, 3, 0, 1, 2, 3]), poses)
+    assert scored.precision == 1.0 and scored.claims.sum() == 4
+
+
 def test_without_ground_truth_only_counts():
     steps = [(0, [new(0)]), (1, [claim(0), new(1)])]
     result = evaluate(steps, None)

@@ -229,3 +229,21 @@ def test_a_large_map_grows_in_bounded_steps(tmp_path: Path):
     steps = [(a, b) for a, b in itertools.pairwise(drawn) if a >= GROWTH_STEPS]
     assert steps and all((b - a) * GROWTH_STEPS >= b for a, b in steps)
     assert len(scenes) <= GROWTH_STEPS * (1 + math.log(2 * n / GROWTH_STEPS)) + 1
+
+
+def test_a_loop_closing_in_a_large_map_is_drawn_when_it_closes(tmp_path: Path):
+    """40 places (79 places and links, past GROWTH_STEPS), then the loop closes and is driven
+    again: each first closure link is one item, under 1/64 of the map, yet it is drawn at once."""
+    places, laps = 40, 2
+    n = places * laps
+    angle = np.arange(n) * 2 * np.pi / places
+    poses = np.stack([10 * np.cos(angle), 10 * np.sin(angle), angle + np.pi / 2], axis=1)
+    assignment = np.arange(n, dtype=np.int64) % places
+    stamps = np.arange(n, dtype=np.int64) * 10**9
+    path = tmp_path / "scene.mcap"
+    write_scene(path, MetricScene(stamps, poses, assignment))
+    scenes = {message.log_time: as_package(m, SceneUpdate) for message, m in read_all(path)[SCENE_TOPIC]}
+    closing = int(stamps[places])  # keyframe 40 revisits place 0: the link 39 → 0 closes the loop
+    assert closing in scenes
+    entities = {e.id: e for e in scenes[closing].entities}
+    assert len(entities["loop_closures"].lines[0].points) == 2  # that one closure, drawn as one segment

@@ -194,5 +194,32 @@ def test_export_writes_three_files_evo_can_pair(tmp_path: Path):
     assert statistic(ape, "rmse") == pytest.approx(ours.ape_m.rmse, abs=2e-6)
     with pytest.raises(TrajectoryError, match="already exists"):
         export_trajectories(tmp_path / "run.tum", embedding, stamps, partial)
-    kitti = export_trajectories(tmp_path / "run.kitti", embedding, stamps, partial, "kitti")
+    said: list[str] = []
+    kitti = export_trajectories(tmp_path / "run.kitti", embedding, stamps, partial, on_warning=said.append)
     assert set(kitti) == {"optimised", "odometry"}  # no stamps: a partial truth cannot be paired
+    assert len(said) == 1 and "run.truth.kitti: not written: 2 of 30 keyframes" in said[0]
+    assert len(kitti["optimised"].read_text().split("\n")[0].split()) == 12  # the name chose KITTI
+
+
+@pytest.mark.parametrize(
+    ("name", "fmt", "problem"),
+    [
+        ("-", None, "give a file name, not stdout"),
+        ("/dev/null", None, "give a file name, not stdout or a stream"),
+        ("", None, "--trajectory needs a file name"),
+        ("run.kitti", "tum", "the name says kitti, --trajectory-format says tum"),
+    ],
+)
+def test_an_export_that_cannot_be_three_files_is_refused_before_any_work(name, fmt, problem):
+    from aslam.data_formats.trajectory import export_plan
+
+    with pytest.raises(TrajectoryError, match=re.escape(problem)):
+        export_plan(Path(name), None if fmt is None else TrajectoryFormat(fmt))
+
+
+def test_an_export_takes_its_format_from_the_option_then_the_name():
+    from aslam.data_formats.trajectory import export_plan
+
+    assert export_plan(Path("a.KITTI"), None)[1] is TrajectoryFormat.KITTI
+    assert export_plan(Path("a.txt"), None)[1] is TrajectoryFormat.TUM
+    assert export_plan(Path("a.txt"), TrajectoryFormat.KITTI)[1] is TrajectoryFormat.KITTI
