@@ -78,6 +78,9 @@ def import_image_folder(
     output = Path(output)
     check_output_path(output, force=force)
     source = open_image_folder(folder, ground_truth=ground_truth, odometry=odometry, fmt=fmt, rate_hz=rate_hz)
+    # Never an input, even with --force: a pose file, or (by name, not a stat per frame) an image.
+    same_name = [image for image in source.images if image.name == output.name]
+    check_output_path(output, force=True, inputs=[p for p in (odometry, ground_truth) if p] + same_name)
     first = source.images[0]
     height_px, width_px = read_image(first, 0).decode_gray().shape
     camera = CameraIntrinsics(width_px, height_px, DEFAULT_FOV_DEG if fov_deg is None else fov_deg)

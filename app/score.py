@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
 from contextlib import closing
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -69,7 +69,9 @@ def truth_at_stamps(
 # --- the summary -----------------------------------------------------------------------------------
 
 
-def _stats(values: dict[str, Any]) -> dict[str, dict[str, float | None]]:
+def _stats(values: dict[str, Any], measured: bool = True) -> dict[str, dict[str, float | None]]:
+    if not measured:
+        return {axis: dict.fromkeys(("mean", "median", "max")) for axis in values}
     return {axis: {"mean": s.mean, "median": s.median, "max": s.max} for axis, s in values.items()}
 
 
@@ -83,11 +85,13 @@ def build_summary(
     metric: MetricScores | None = None,
     committed: AssignmentScore | None = None,
     slam_ms_per_keyframe: float | None = None,
+    pose_errors: bool = True,
 ) -> dict[str, Any]:
     """The summary JSON (every key always present; null where not measurable).
 
     ``committed`` scores the final map's assignment (what the hypotheses agreed on) beside the
     online best hypothesis; the precision–recall curve is over the best hypothesis's belief.
+    Without ``pose_errors`` (a truth by index: frame numbers, not poses) the errors are null.
     """
     counts = evaluation.hypothesis_counts
     has_truth = evaluation.has_ground_truth
@@ -109,6 +113,9 @@ def build_summary(
         },
         "loop_closure": {
             "claims": int(evaluation.claims.sum()),
+            "unjudged_claims": int((evaluation.claims & ~evaluation.judged_claims).sum())
+            if has_truth
+            else None,
             "correct": int(evaluation.correct.sum()) if has_truth else None,
             "ground_truth_revisits": int(evaluation.true_revisit.sum()) if has_truth else None,
             "precision": evaluation.precision,
@@ -123,8 +130,8 @@ def build_summary(
             "recall": None if committed is None or not has_truth else committed.recall,
         },
         "error": {
-            "best": _stats(evaluation.error_stats(weighted=False)),
-            "weighted": _stats(evaluation.error_stats(weighted=True)),
+            "best": _stats(evaluation.error_stats(weighted=False), pose_errors),
+            "weighted": _stats(evaluation.error_stats(weighted=True), pose_errors),
         },
         "trajectory": _trajectory_summary(embedding, metric),
         "timing": {
@@ -246,6 +253,7 @@ def score(
     radius_m: float = 0.5,
     heading_deg: float = 45.0,
     truth_by_index: bool = False,
+    ground_truth_topic: str | None = None,
     on_warning: Callable[[str], None] | None = None,
     on_stage: Callable[[str], None] | None = None,
 ) -> Report:
@@ -277,7 +285,9 @@ def score(
     first = info.graph.first_keyframe
     stage("reading the ground truth")
     # every keyframe of the map: the prior map's, then this run's
-    true_poses, recording_path = _session_truth(info, stamps, truth_by_index, recording, warn)
+    true_poses, recording_path = _session_truth(
+        info, stamps, truth_by_index, recording, warn, ground_truth_topic
+    )
     if true_poses is not None and first:
         earlier = _map_truth(info, estimate, truth_by_index, warn)
         true_poses = None if earlier is None else np.concatenate([earlier, true_poses])
@@ -328,6 +338,7 @@ def score(
         slam_ms_per_keyframe=None
         if info.timing is None or not info.timing.keyframes
         else 1e3 * info.timing.slam_s / info.timing.keyframes,
+        pose_errors=not truth_by_index,
     )
     return Report(
         estimate_path=estimate,
@@ -355,15 +366,20 @@ def _session_truth(
     truth_by_index: bool,
     recording: Path | None,
     warn: Callable[[str], None],
+    ground_truth_topic: str | None = None,
 ) -> tuple[np.ndarray | None, Path | None]:
     """One session's truth at its keyframe stamps, and the recording it came from: by index, or
-    from ``recording`` (default: the one the estimate names); (None, …) with a warning if none."""
+    from ``recording`` (default: the one the estimate names), on ``ground_truth_topic`` if given
+    (default: the topic the estimate was made with); (None, …) with a warning if none."""
     if truth_by_index:
         return index_truth(len(stamps)), None
     path = _find_recording(recording, info, warn)
     if path is None:
         return None, None
-    return _ground_truth(path, TopicChoice.from_record(info.metadata.topics), stamps, warn), path
+    topics = TopicChoice.from_record(info.metadata.topics)
+    if ground_truth_topic is not None:
+        topics = replace(topics, ground_truth=ground_truth_topic)
+    return _ground_truth(path, topics, stamps, warn), path
 
 
 def _map_truth(

@@ -46,8 +46,12 @@ def report(
         ),
     ] = None,
     trajectory_format: Annotated[
-        TrajectoryFormat, typer.Option(help="Trajectory file format.")
-    ] = TrajectoryFormat.TUM,
+        TrajectoryFormat | None,
+        typer.Option(
+            help="Trajectory file format; by default what the name says (.tum, .kitti), else tum.",
+            show_default=False,
+        ),
+    ] = None,
     json_out: Annotated[
         str | None,
         typer.Option(
@@ -76,6 +80,13 @@ def report(
             " its --map) is the same place; --radius-m then counts keyframes. No recording is read.",
         ),
     ] = False,
+    ground_truth_topic: Annotated[
+        str | None,
+        typer.Option(
+            help="Read the ground truth from this pose topic of a bag (default: the topic the estimate"
+            " was made with)."
+        ),
+    ] = None,
     force: ForceOption = False,
     quiet: QuietOption = False,
     verbose: VerboseOption = False,
@@ -98,9 +109,11 @@ def report(
         raise InputError("--graph and --json cannot both write to stdout")
     outputs = [Path(p) for p in (graph, json_out) if p not in (None, "-")]
     if trajectory is not None:
-        from aslam.data_formats.trajectory import sibling_paths
+        from aslam.data_formats.trajectory import export_plan
 
-        outputs += sibling_paths(trajectory)
+        outputs += export_plan(trajectory, trajectory_format)[0]
+    elif trajectory_format is not None:
+        raise InputError("--trajectory-format needs --trajectory")
     for i, path in enumerate(outputs):  # before any work: a bad path, or two outputs that are one file
         _check_output(path, force=force, others=outputs[:i])
     if plots is not None and plots.exists() and not plots.is_dir():
@@ -115,8 +128,10 @@ def report(
         for name in PLOT_NAMES:
             _check_output(plots / name, force=force, others=outputs)
 
-    if truth_by_index and recording is not None:
-        raise InputError("--truth-by-index reads no recording; leave out --recording")
+    if truth_by_index and (recording is not None or ground_truth_topic is not None):
+        raise InputError(
+            "--truth-by-index reads no recording; leave out --recording and --ground-truth-topic"
+        )
     with _status(terminal) as on_stage:
         result = score(
             estimate,
@@ -124,6 +139,7 @@ def report(
             radius_m=radius_m,
             heading_deg=heading_deg,
             truth_by_index=truth_by_index,
+            ground_truth_topic=ground_truth_topic,
             on_warning=terminal.warning,
             on_stage=on_stage,
         )
@@ -134,7 +150,9 @@ def report(
     if graph is not None:
         written += _write_json(graph, result.graph_json(), indent=1)
     if trajectory is not None:
-        written += _write_trajectories(result, trajectory, trajectory_format, force=force)
+        written += _write_trajectories(
+            result, trajectory, trajectory_format, force=force, warn=terminal.warning
+        )
     if plots is not None:
         from aslam.app.plots import write_plots
 
@@ -149,12 +167,16 @@ def report(
         raise QualityGateFailed(f"quality gate failed: {'; '.join(failed)}")
 
 
-def _write_trajectories(result: Any, path: Path, fmt: TrajectoryFormat, *, force: bool) -> list[Path]:
+def _write_trajectories(
+    result: Any, path: Path, fmt: TrajectoryFormat | None, *, force: bool, warn: Callable[[str], None]
+) -> list[Path]:
     from aslam.app.metric_view import export_trajectories
 
     if result.embedding is None:
         raise InputError("fewer than two keyframes: no trajectory to write", path=path)
-    paths = export_trajectories(path, result.embedding, result.stamps_ns, result.true_poses, fmt, force=force)
+    paths = export_trajectories(
+        path, result.embedding, result.stamps_ns, result.true_poses, fmt, force=force, on_warning=warn
+    )
     return list(paths.values())
 
 

@@ -63,6 +63,11 @@ def print_report(console: Console, report: Report) -> None:
         ("states (places)", s["states"]),
         ("links", s["links"]),
         ("loop closures claimed (best hypothesis)", loop["claims"]),
+        *(
+            [("  not judged (no ground truth there)", loop["unjudged_claims"])]
+            if loop["unjudged_claims"]
+            else []
+        ),
         ("  correct", loop["correct"]),
         ("  true revisits", loop["ground_truth_revisits"]),
         ("  precision", loop["precision"]),
@@ -80,7 +85,9 @@ def print_report(console: Console, report: Report) -> None:
         table.add_row(name, _fmt(value, 1 if name == "keyframes/s" else 3))
     console.print(table)
 
-    if s["ground_truth"]:
+    if s["ground_truth"] and recording is None:  # the truth by keyframe index
+        console.print("Revisit errors: not measured (a truth by index has frame numbers, not poses)")
+    elif s["ground_truth"]:
         console.print("Revisit errors (absolute; new-state hypotheses excluded)", soft_wrap=True)
         errors = Table()
         for name, justify in (

@@ -34,17 +34,16 @@ from pathlib import Path
 import numpy as np
 
 from aslam.core.errors import InputError
-from aslam.data_formats.images import ImageFormat, LazyImage
-from aslam.data_formats.pose_files import PoseFileError, PoseFormat, detect_format, iter_poses
+from aslam.data_formats.images import ImageFormat, LazyImage, sniffed_format
+from aslam.data_formats.pose_files import PoseFileError, PoseFormat, detect_format, iter_poses, stamp_text_ns
 from aslam.data_formats.pose_sync import Sample, SampleAssembler
+from aslam.data_formats.ros_msgs import LAST_STAMP_NS
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 #: Same fixed epoch as the recorder (2020-09-13T12:26:40Z): not 0, which ROS tools treat as unset.
 START_STAMP_NS = 1_600_000_000_000_000_000
 DEFAULT_RATE_HZ = 1.0
 SYNTHETIC_STEP_M = 1.0
-_PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-_JPEG_MAGIC = b"\xff\xd8\xff"
 
 
 class ImageFolderError(InputError):
@@ -55,15 +54,39 @@ def _natural_key(path: Path) -> list[object]:
     return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", path.name)]
 
 
+#: Image files import cannot store as they are (a recording holds PNG or JPEG bytes): among the
+#: frames, each would shift every later frame's pairing, so one is refused rather than skipped.
+OTHER_IMAGE_SUFFIXES = (".bmp", ".tif", ".tiff", ".webp", ".gif", ".pgm", ".ppm", ".pnm", ".jp2", ".exr")
+
+
 def list_images(folder: Path) -> list[Path]:
-    """The png/jpg files of ``folder`` (not its subfolders), in natural file-name order."""
+    """The png/jpg files of ``folder`` (not its subfolders), in natural file-name order.
+
+    Hidden files are not frames (macOS's ``._NAME.png`` beside each file on a FAT or exFAT disk);
+    a frame that cannot be read (a broken link: a dataset on a disk not mounted) or is stored in
+    another image format is refused, since skipping it would pair every later frame wrongly.
+    """
     folder = Path(folder)
     if not folder.exists():
         raise ImageFolderError("no such folder", path=folder)
     if not folder.is_dir():
         raise ImageFolderError("is a file, not a folder of images", path=folder)
+    images = []
     try:
-        images = [p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()]
+        for path in folder.iterdir():
+            suffix = path.suffix.lower()
+            if path.name.startswith(".") or suffix not in IMAGE_SUFFIXES + OTHER_IMAGE_SUFFIXES:
+                continue
+            if suffix in OTHER_IMAGE_SUFFIXES:
+                raise ImageFolderError(
+                    f"a {suffix} image among the frames; import stores PNG and JPEG only (convert it, "
+                    "or move it out of the folder)",
+                    path=path,
+                )
+            if path.is_file():
+                images.append(path)
+            elif not path.exists():
+                raise ImageFolderError("cannot read: a broken symbolic link", path=path)
     except OSError as err:
         raise ImageFolderError(f"cannot list: {err.strerror or err}", path=folder) from err
     if not images:
@@ -73,10 +96,9 @@ def list_images(folder: Path) -> list[Path]:
 
 def image_format(data: bytes, path: Path) -> ImageFormat:
     """PNG or JPEG, from the file's first bytes (not its name)."""
-    if data.startswith(_PNG_MAGIC):
-        return ImageFormat.PNG
-    if data.startswith(_JPEG_MAGIC):
-        return ImageFormat.JPEG
+    fmt = sniffed_format(data)
+    if fmt is not None:
+        return fmt
     if not data:
         raise ImageFolderError("empty image file (0 bytes)", path=path)
     raise ImageFolderError(f"not a PNG or JPEG file (starts with {data[:8].hex(' ')})", path=path)
@@ -126,17 +148,21 @@ def _check_pose_file(path: Path, fmt: PoseFormat | str | None, what: str) -> Pos
     return PoseSource(path, fmt, rows, fmt is not PoseFormat.KITTI, last_line, first)
 
 
-def _seconds_stamps(images: list[Path]) -> list[int] | None:
-    """Stamps from file names that are all numbers of seconds, strictly increasing; else None."""
+def _named_stamps(images: list[Path]) -> list[int] | None:
+    """Stamps from file names that are all times (seconds, or EuRoC's nanoseconds: ``stamp_text_ns``),
+    strictly increasing; else None (frame numbers, say)."""
     stamps = []
     for path in images:
         try:
-            seconds = Decimal(path.stem)
+            value = Decimal(path.stem)
         except InvalidOperation:
             return None
-        if not seconds.is_finite() or seconds < 0:
+        if not value.is_finite() or value < 0:
             return None
-        stamps.append(int(seconds * 1_000_000_000))
+        try:
+            stamps.append(stamp_text_ns(path.stem))
+        except ValueError as err:
+            raise ImageFolderError(f"file name: {err}", path=path) from err
     if any(b <= a for a, b in pairwise(stamps)):
         return None
     return stamps
@@ -260,16 +286,16 @@ def open_image_folder(
     elif rate_hz is not None:
         start = START_STAMP_NS if interpolated is None else interpolated.first_stamp_ns
         assert start is not None
-        if start + (n - 1) * 1e9 / rate_hz >= 2**63:
+        if start + (n - 1) * 1e9 / rate_hz > LAST_STAMP_NS:
             raise ImageFolderError(
-                f"--rate {rate_hz:g} Hz is too slow: {n} images would run past the last nanosecond stamp"
-                " (the year 2262)"
+                f"--rate {rate_hz:g} Hz is too slow: {n} images would run past 2038, the last year a ROS"
+                " time holds"
             )
         image_stamps = tuple(start + round(i * 1e9 / rate_hz) for i in range(n))
         how = f"rate {rate_hz:g} Hz" + (
             "" if interpolated is None else f" from the first stamp of {interpolated.path.name}"
         )
-    elif (named := _seconds_stamps(images)) is not None:
+    elif (named := _named_stamps(images)) is not None:
         image_stamps, how = tuple(named), "file names"
     elif interpolated is not None:
         raise PoseFileError(

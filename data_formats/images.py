@@ -74,6 +74,16 @@ def _within_limits(width: int, height: int) -> bool:
     return width <= MAX_SIDE_PX and height <= MAX_SIDE_PX and width * height <= MAX_PIXELS
 
 
+def sniffed_format(data: bytes) -> ImageFormat | None:
+    """PNG or JPEG from the bytes themselves (a file's name or a message's label may be missing or
+    wrong); None for anything else."""
+    if data.startswith(_PNG_SIGNATURE):
+        return ImageFormat.PNG
+    if data.startswith(b"\xff\xd8\xff"):
+        return ImageFormat.JPEG
+    return None
+
+
 def header_size(data: bytes) -> tuple[int, int] | None:
     """``(width, height)`` from a PNG's IHDR or a JPEG's start-of-frame, or None if not found."""
     if data.startswith(_PNG_SIGNATURE):

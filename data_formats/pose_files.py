@@ -95,14 +95,38 @@ def detect_format(path: Path) -> PoseFormat:
     raise PoseFileError("has no pose lines", path=path)
 
 
+NANOSECOND_STAMP_MIN = 10**17
+"""A whole-number stamp this large is nanoseconds (EuRoC's file names and the files made from them):
+as seconds it would be three billion years on."""
+
+
+def stamp_text_ns(text: str) -> int:
+    """Nanoseconds of a stamp as datasets write it: decimal seconds, or whole nanoseconds of 18 or
+    more digits. Raises ``ValueError`` saying why a stamp is none (milliseconds, say, read as
+    seconds are past the last time a ROS message holds)."""
+    try:
+        value = Decimal(text)
+    except InvalidOperation as err:
+        raise ValueError(f"stamp '{text}' is not a number") from err
+    if not value.is_finite() or value < 0:
+        raise ValueError(f"stamp '{text}' is not a finite, non-negative time")
+    if value >= NANOSECOND_STAMP_MIN and value == value.to_integral_value():
+        stamp_ns = int(value)
+    else:
+        stamp_ns = int(value * ros_msgs.NS_PER_S)
+    if stamp_ns > ros_msgs.LAST_STAMP_NS:
+        raise ValueError(
+            f"stamp '{text}' is after 2038 read as seconds, the last year a ROS time holds: stamps are "
+            "seconds, or whole nanoseconds of 18 or more digits (milliseconds or microseconds are neither)"
+        )
+    return stamp_ns
+
+
 def _stamp_ns(text: str, path: Path, number: int) -> int:
     try:
-        seconds = Decimal(text)
-    except InvalidOperation as err:
-        raise PoseFileError(f"line {number}: stamp '{text}' is not a number", path=path) from err
-    if not seconds.is_finite() or seconds < 0:
-        raise PoseFileError(f"line {number}: stamp '{text}' is not a finite, non-negative time", path=path)
-    return int(seconds * 1_000_000_000)
+        return stamp_text_ns(text)
+    except ValueError as err:
+        raise PoseFileError(f"line {number}: {err}", path=path) from err
 
 
 def _planar(fmt: PoseFormat, values: list[float]) -> np.ndarray:

@@ -25,7 +25,7 @@ from aslam.data_formats import ros_msgs
 from aslam.data_formats.camera import CameraIntrinsics
 from aslam.data_formats.errors import RecordingError
 from aslam.data_formats.image_encodings import RAW_ENCODINGS, is_raw_encoding
-from aslam.data_formats.images import LazyImage
+from aslam.data_formats.images import LazyImage, sniffed_format
 from aslam.data_formats.mcap_file import McapFile
 from aslam.data_formats.pose_limits import implausible
 from aslam.data_formats.pose_sync import Sample, SampleAssembler
@@ -136,8 +136,12 @@ def _lazy_image(path: Path, topic: str, datatype: str, msg: Any, stamp_ns: int) 
     if datatype == ros_msgs.COMPRESSED_IMAGE:
         fmt = str(msg.format)
         lowered = fmt.lower()
-        # image_transport writes e.g. "bgr8; jpeg compressed bgr8"; depth formats are not images here.
-        if "compresseddepth" in lowered:
+        # image_transport writes e.g. "bgr8; jpeg compressed bgr8"; depth formats are not images here;
+        # a driver that leaves the field empty is read by the bytes.
+        if not lowered.strip():
+            sniffed = sniffed_format(bytes(msg.data[:8]))
+            kind = None if sniffed is None else sniffed.value
+        elif "compresseddepth" in lowered:
             kind = None
         elif "png" in lowered:
             kind = "png"

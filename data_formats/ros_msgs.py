@@ -124,6 +124,8 @@ def message_definition(datatype: str) -> str:
 # --- conversions --------------------------------------------------------------------------------
 
 NS_PER_S = 1_000_000_000
+LAST_STAMP_NS = 2**31 * NS_PER_S - 1
+"""The last instant a ROS time holds (``int32 sec``: 2038-01-19 03:14:07 UTC)."""
 
 
 def stamp_msg(stamp_ns: int) -> dict[str, int]:

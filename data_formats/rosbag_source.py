@@ -189,9 +189,11 @@ def resolve_topics(path: Path, types: dict[str, str], topics: BagTopics) -> Reso
         odometry = only("odometry", (ros_msgs.ODOMETRY,), "--odometry-topic")
         if odometry is None:
             if types.get(topics.tf) not in TF_TYPES:
+                poses = sorted(t for t, kind in types.items() if kind in ros_msgs.POSE_TYPES)
+                hint = f"; name a pose topic with --odometry-topic, e.g. {poses[0]}" if poses else ""
                 raise BagError(
                     f"no odometry: neither a nav_msgs/msg/Odometry topic nor transforms on '{topics.tf}' "
-                    f"(topics in the bag: {_topic_list(types)})",
+                    f"(topics in the bag: {_topic_list(types)}){hint}",
                     path=path,
                 )
             tf = topics.tf
@@ -248,14 +250,27 @@ def _rosbags_errors(path: Path, doing: str) -> Iterator[None]:
         raise BagError(f"{doing}: {type(err).__name__}: {err}", path=path) from err
 
 
+#: What rosbags says of a bag whose recorder stopped before writing its index (killed, power lost).
+_NO_INDEX_SIGNS = ("File end magic is invalid", "index looks damaged", "Header could not be read")
+_REINDEX_HINT = (
+    "a bag whose recorder was stopped before closing it has no index: rebuild it on a copy with "
+    "'ros2 bag reindex' (ROS 2) or 'rosbag reindex' (ROS 1)"
+)
+
+
 @contextmanager
 def _open_reader(path: Path) -> Iterator[Any]:
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
-    with _rosbags_errors(path, "cannot open the bag"):
-        reader = AnyReader([path], default_typestore=get_typestore(Stores.LATEST))
-        reader.open()
+    try:
+        with _rosbags_errors(path, "cannot open the bag"):
+            reader = AnyReader([path], default_typestore=get_typestore(Stores.LATEST))
+            reader.open()
+    except BagError as err:
+        if not any(sign in str(err) for sign in _NO_INDEX_SIGNS):
+            raise
+        raise BagError(f"{err.problem}; {_REINDEX_HINT}", path=path) from err
     try:
         yield reader
     finally:

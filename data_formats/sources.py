@@ -131,7 +131,10 @@ class BagInput:
 
     def ground_truth(self) -> Iterator[tuple[int, np.ndarray]]:
         if self.choice.ground_truth is None:
-            raise BagError("no ground-truth topic named for this bag (--ground-truth-topic)", path=self.path)
+            raise BagError(
+                "no ground-truth topic named for this bag (--ground-truth-topic of estimate or report)",
+                path=self.path,
+            )
         return iter_bag_ground_truth(self.path, self.choice.ground_truth)
 
     odometry_known = True

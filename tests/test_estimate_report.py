@@ -496,6 +496,16 @@ def test_report_trajectory_files_score_the_same_with_evo_ape(estimate_file: Path
     assert len((tmp_path / "k.txt").read_text().splitlines()) == summary["keyframes"]
 
 
+def test_report_refuses_a_trajectory_format_with_no_trajectory_and_a_stream_before_any_work(
+    estimate_file: Path, tmp_path: Path, capsys
+):
+    assert main(["report", str(estimate_file), "--trajectory-format", "kitti"]) == 2
+    assert "--trajectory-format needs --trajectory" in one_error_line(capsys.readouterr().err)
+    assert main(["report", str(estimate_file), "--trajectory", "/dev/null"]) == 2
+    assert "not stdout or a stream" in one_error_line(capsys.readouterr().err)
+    assert not Path("/dev/null.odometry").exists()
+
+
 def test_report_against_another_recording_says_so(estimate_file: Path, tmp_path: Path, capsys):
     """A ground truth from another file is allowed (a bag with the truth beside an imported
     folder), but not silently: a different file is named in a warning."""

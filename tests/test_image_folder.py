@@ -100,9 +100,39 @@ def test_stamps_are_exact_decimals(tmp_path):
     assert next(iter_poses(path)).stamp_ns == 1305031102_175304000
 
 
+def test_whole_nanosecond_stamps_are_read_as_euroc_writes_them(tmp_path):
+    path = tmp_path / "gt.txt"
+    path.write_text("1403636579763555584 0 0 0 0 0 0 1\n1403636579813555456 1 0 0 0 0 0 1\n")
+    assert [row.stamp_ns for row in iter_poses(path)] == [1403636579763555584, 1403636579813555456]
+
+
+def test_euroc_file_names_are_nanosecond_stamps(tmp_path):
+    stamps = [1403636579763555584, 1403636579813555456, 1403636579863555584]
+    for stamp in stamps:
+        write_images(tmp_path / "data", 1, name=lambda _i, stamp=stamp: f"{stamp}.png")
+    folder = open_image_folder(tmp_path / "data")
+    assert folder.stamps == "file names" and [s.stamp_ns for s in folder.samples()] == stamps
+    result = import_image_folder(tmp_path / "data", tmp_path / "euroc.mcap")
+    assert result.frames == 3
+    assert [s.stamp_ns for s in Recording(tmp_path / "euroc.mcap").samples()] == stamps
+
+
+def test_millisecond_file_names_are_one_line_naming_the_file(tmp_path):
+    write_images(tmp_path / "ms", 2, name=lambda i: f"{1403636579763 + 50 * i}.png")
+    with pytest.raises(
+        InputError, match=r"1403636579763\.png: file name: stamp '1403636579763' is after 2038"
+    ):
+        open_image_folder(tmp_path / "ms")
+
+
 @pytest.mark.parametrize(
     ("text", "fmt", "needle"),
     [
+        (
+            "t,x,y,yaw\n1403636579763,0,0,0\n",
+            None,
+            "line 2: stamp '1403636579763' is after 2038 read as seconds",
+        ),
         ("1 0 0 0 0 0 0 1\n2 0 0 0 0 0 1\n", None, "line 2: 7 fields, a TUM line has 8"),
         ("1 0 0 0 0 0 0 1\n\n# c\n2 0 0 0 0 zero 0 1\n", None, "line 4: 'zero' is not a number"),
         ("2 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 1\n", None, "line 2: stamp 1 s is before the previous line's"),
@@ -268,7 +298,7 @@ def test_folder_problems(tmp_path):
         (["--fov-deg", "180"], "--fov-deg must be between 1 and 170"),
         (["--fov-deg", "1e-300"], "--fov-deg must be between 1 and 170"),
         (["--fov-deg", "-5"], "--fov-deg must be between 1 and 170"),
-        (["--rate", "1e-300"], "too slow: 3 images would run past the last nanosecond stamp"),
+        (["--rate", "1e-300"], "too slow: 3 images would run past 2038"),
     ],
 )
 def test_import_option_values_out_of_range_are_bad_input(tmp_path, capsys, option, needle):
@@ -364,6 +394,37 @@ def test_import_refuses_to_overwrite(tmp_path):
     assert out.read_text() == "keep me"
     import_image_folder(tmp_path / "imgs", out, force=True)
     assert len(list(Recording(out).samples())) == 1
+
+
+def test_hidden_files_are_not_frames_and_an_unreadable_or_unstorable_frame_is_refused(tmp_path):
+    """A skipped frame would shift every later frame's pose: refused, not skipped; macOS's ``._``
+    files are not frames at all."""
+    write_images(tmp_path / "imgs", 3)
+    (tmp_path / "imgs" / "._frame-0001.png").write_bytes(b"\x00\x05\x16\x07 AppleDouble")
+    assert len(open_image_folder(tmp_path / "imgs")) == 3
+    (tmp_path / "imgs" / "frame-0003.png").symlink_to(tmp_path / "unmounted" / "frame-0003.png")
+    with pytest.raises(InputError, match=r"frame-0003\.png: cannot read: a broken symbolic link"):
+        open_image_folder(tmp_path / "imgs")
+    (tmp_path / "imgs" / "frame-0003.png").unlink()
+    cv2.imwrite(str(tmp_path / "imgs" / "frame-0003.bmp"), np.zeros((H, W), np.uint8))
+    with pytest.raises(InputError, match=r"frame-0003\.bmp: a \.bmp image among the frames"):
+        open_image_folder(tmp_path / "imgs")
+
+
+def test_import_never_overwrites_its_own_inputs_even_with_force(tmp_path):
+    """As estimate, report and record refuse: the pose file or a frame under -o is a typo that
+    would destroy the dataset."""
+    paths = write_images(tmp_path / "imgs", 2)
+    poses = tmp_path / "gt.txt"
+    poses.write_text("1 0 0 0 0 0 0 1\n2 1 0 0 0 0 0 1\n")
+    before = poses.read_bytes(), paths[0].read_bytes()
+    for output in (poses, paths[0]):
+        with pytest.raises(InputError, match="input"):
+            import_image_folder(tmp_path / "imgs", output, ground_truth=poses, force=True)
+    assert (poses.read_bytes(), paths[0].read_bytes()) == before
+    import_image_folder(
+        tmp_path / "imgs", tmp_path / "imgs" / "rec.mcap", ground_truth=poses
+    )  # beside them: fine
 
 
 def test_a_byte_order_mark_is_not_part_of_the_first_number(tmp_path: Path):

@@ -487,6 +487,11 @@ def test_two_image_topics_is_one_error_listing_them(tmp_path):
     ("options", "topics", "needle"),
     [
         (Options(odometry="none"), BagTopics(), "no odometry: neither a nav_msgs/msg/Odometry topic nor"),
+        (
+            Options(odometry="none"),
+            BagTopics(),
+            "; name a pose topic with --odometry-topic, e.g. /ground_truth",
+        ),
         (Options(), BagTopics(ground_truth="/gps"), "no ground-truth topic '/gps' (topics in the bag: "),
         (Options(), BagTopics(odometry=IMAGE_TOPIC), f"odometry topic '{IMAGE_TOPIC}' has type"),
         (Options(), BagTopics(image="/odom"), "image topic '/odom' has type 'nav_msgs/msg/Odometry'"),
@@ -497,6 +502,25 @@ def test_topic_problems_are_one_line(tmp_path, options, topics, needle):
     with pytest.raises(BagError) as caught:
         list(iter_bag_samples(path, topics))
     assert needle in str(caught.value) and "\n" not in str(caught.value)
+
+
+def test_compressed_images_with_no_format_are_read_by_their_bytes(tmp_path):
+    """Some drivers leave CompressedImage.format empty; the bytes say PNG (or JPEG) all the same."""
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    rows = bag_messages(ts, Options(compressed=True))
+    images = [msg for _log, topic, _type, msg in rows if topic == f"{IMAGE_TOPIC}/compressed"]
+    assert images
+    for msg in images:
+        msg.format = ""
+    path = write_rosbag2(tmp_path / "bag", messages=rows)
+    assert_driver_samples(list(iter_bag_samples(path, WITH_TRUTH)), gray_tolerance=1)
+    for msg in images:
+        msg.data = np.frombuffer(b"GIF89a" + bytes(msg.data[6:]), np.uint8)
+    path = write_rosbag2(tmp_path / "gif", messages=rows)
+    with pytest.raises(RecordingError, match=f"unknown image encoding '' on '{IMAGE_TOPIC}/compressed'"):
+        list(iter_bag_samples(path))
 
 
 def test_unknown_encoding_names_topic_and_stamp(tmp_path):
@@ -569,6 +593,23 @@ def test_damaged_metadata_is_one_line(tmp_path):
         list(iter_bag_samples(path))
     assert str(caught.value).startswith(f"{path}: cannot open the bag: ")
     assert "\n" not in str(caught.value)
+
+
+@pytest.mark.parametrize("kind", ["rosbag2 mcap file", "rosbag1"])
+def test_a_bag_cut_short_says_how_to_rebuild_its_index(tmp_path, kind):
+    """A recorder killed before closing its bag leaves no index (an MCAP file with no footer, a ROS 1
+    bag with no index records): rosbags cannot read it, so the error says how to repair it."""
+    if kind == "rosbag1":
+        path = write_rosbag1(tmp_path / "cut.bag")
+    else:
+        path = next(write_rosbag2(tmp_path / "bag").glob("*.mcap"))
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) * 2 // 3])
+    with pytest.raises(BagError) as caught:
+        list(iter_bag_samples(path))
+    message = str(caught.value)
+    assert message.startswith(f"{path}: cannot open the bag: ") and "\n" not in message
+    assert "rebuild it on a copy with 'ros2 bag reindex' (ROS 2) or 'rosbag reindex' (ROS 1)" in message
 
 
 def test_our_mcap_reader_agrees_on_the_lone_rosbag2_file(bags):

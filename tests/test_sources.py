@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from test_rosbag_source import (
@@ -85,6 +87,7 @@ def test_estimate_gives_the_same_result_from_a_recording_and_its_bags(tmp_path, 
             )
     sources["recording"] = recording
     results = {}
+    scored = {}
     for name, path in sources.items():
         out = tmp_path / f"{name}.est.mcap"
         args = ["estimate", str(path), "-o", str(out), "--step-m", "0.15", "--turn-deg", "10", "-q"]
@@ -93,6 +96,14 @@ def test_estimate_gives_the_same_result_from_a_recording_and_its_bags(tmp_path, 
         assert main(["info", str(path), "--json", "-"]) == 0
         assert main(["report", str(out), "--json", "-", "-q"]) == 0
         capsys.readouterr()
+        truth = [] if name == "recording" else ["--ground-truth-topic", "/ground_truth"]
+        assert main(["report", str(out), "--json", "-", "-q", *truth]) == 0
+        scored[name] = json.loads(capsys.readouterr().out)
     assert len(results["recording"]) > 3
     for name in ("mcap", "sqlite3", "ros1"):
         assert results[name] == results["recording"], name
+        # estimated without a ground-truth topic, scored with one named at report time
+        assert (
+            scored[name]["ground_truth"]
+            and scored[name]["loop_closure"] == scored["recording"]["loop_closure"]
+        )
