@@ -21,9 +21,14 @@ from aslam.data_formats.images import LazyImage
 # Images held while waiting for the odometry message after them. Past this the oldest is dropped
 # (counted and reported): memory stays bounded even when odometry stops mid-recording.
 MAX_PENDING_IMAGES = 512
-# Odometry (and ground-truth) messages kept to interpolate images that arrive late, i.e. whose
-# stamp is older than the newest pose already read (sensor latency differs between topics).
+# Odometry (and ground-truth) poses kept to interpolate images that arrive late, i.e. whose stamp
+# is older than the newest pose already read (sensor latency differs between topics): the last
+# POSE_HISTORY messages and every one of the last POSE_HISTORY_NS, so neither a slow topic nor a
+# fast one (400 Hz fused odometry, a motion-capture truth) loses a late camera; at most
+# POSE_HISTORY_MAX, which bounds the memory whatever the rate.
 POSE_HISTORY = 256
+POSE_HISTORY_NS = 10_000_000_000
+POSE_HISTORY_MAX = 65_536
 
 
 class Sample(NamedTuple):
@@ -39,16 +44,24 @@ _WAIT, _BEFORE, _LATE = "wait", "before", "late"
 class PoseTrack:
     """Recent poses of one topic, for interpolation to image stamps."""
 
-    def __init__(self, history: int = POSE_HISTORY) -> None:
-        self._stamps: deque[int] = deque(maxlen=history)
-        self._poses: deque[np.ndarray] = deque(maxlen=history)
+    def __init__(
+        self, history: int = POSE_HISTORY, history_ns: int = POSE_HISTORY_NS, most: int = POSE_HISTORY_MAX
+    ) -> None:
+        self._stamps: deque[int] = deque(maxlen=most)
+        self._poses: deque[np.ndarray] = deque(maxlen=most)
+        self._history = history
+        self._history_ns = history_ns
         self.first_ns: int | None = None
         self.last_ns: int | None = None
         self.count = 0
 
     def add(self, stamp_ns: int, pose: np.ndarray) -> None:
-        self._stamps.append(stamp_ns)
+        stamps = self._stamps
+        stamps.append(stamp_ns)
         self._poses.append(pose)
+        while len(stamps) > self._history and stamps[0] < stamp_ns - self._history_ns:
+            stamps.popleft()
+            self._poses.popleft()
         if self.first_ns is None:
             self.first_ns = stamp_ns
         self.last_ns = stamp_ns
@@ -81,6 +94,7 @@ class _Pending:
 @dataclass
 class _Counts:
     before_first: int = 0
+    out_of_order: int = 0
     late: int = 0
     gap: int = 0
     after_last: int = 0
@@ -106,6 +120,11 @@ class SampleAssembler:
 
     def add_image(self, stamp_ns: int, image: LazyImage) -> Iterator[Sample]:
         self.images += 1
+        if self.last_image_ns is not None and stamp_ns < self.last_image_ns:
+            # A driver's threads may log two frames swapped: the later-logged, earlier-stamped one
+            # is let go (and counted) rather than the whole recording refused.
+            self.counts.out_of_order += 1
+            return
         self.last_image_ns = stamp_ns
         item = _Pending(stamp_ns, image)
         self._resolve(item)
@@ -197,7 +216,12 @@ class SampleAssembler:
                 "image(s) stamped before the first odometry message"
                 + (f" (at {first} ns)" if first is not None else ""),
             ),
-            (c.late, f"image(s) that arrived more than {POSE_HISTORY} odometry messages late"),
+            (c.out_of_order, "image(s) stamped before the image logged before them (out of order)"),
+            (
+                c.late,
+                f"image(s) that arrived more than {POSE_HISTORY_NS / 1e9:g} s and {POSE_HISTORY} odometry "
+                "messages late",
+            ),
             (c.gap, f"image(s) in odometry gaps longer than {self.max_pending} images"),
             (
                 c.after_last,

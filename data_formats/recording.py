@@ -175,10 +175,20 @@ def _lazy_image(path: Path, topic: str, datatype: str, msg: Any, stamp_ns: int) 
 
 
 class _Stream:
-    """One kind of message in a recording: its accepted types, and stamps that must not go back."""
+    """One kind of message in a recording: its accepted types, and stamps that must not go back
+    (``ordered``; images out of order are the assembler's to drop)."""
 
-    def __init__(self, path: Path, what: str, accepted: tuple[str, ...], decode: _MessageDecoder) -> None:
+    def __init__(
+        self,
+        path: Path,
+        what: str,
+        accepted: tuple[str, ...],
+        decode: _MessageDecoder,
+        *,
+        ordered: bool = True,
+    ) -> None:
         self.path = path
+        self.ordered = ordered
         self.what = what
         self.accepted = accepted
         self.decode = decode
@@ -193,7 +203,7 @@ class _Stream:
         stamp_ns = _header_stamp_ns(msg, message.log_time)
         if stamp_ns < 0:
             raise RecordingError(negative_stamp(self.what, channel.topic, stamp_ns), path=self.path)
-        if self.last_ns is not None and stamp_ns < self.last_ns:
+        if self.ordered and self.last_ns is not None and stamp_ns < self.last_ns:
             topic, previous = channel.topic, self.last_ns
             raise RecordingError(
                 f"{self.what} stamps go backwards on '{topic}': {stamp_ns} ns after {previous} ns",
@@ -278,7 +288,7 @@ class Recording:
                 )
         decode = _MessageDecoder(path)
         assembler = SampleAssembler(path)
-        images = _Stream(path, "image", ros_msgs.IMAGE_TYPES, decode)
+        images = _Stream(path, "image", ros_msgs.IMAGE_TYPES, decode, ordered=False)
         odometry = _Stream(path, "odometry", ros_msgs.POSE_TYPES, decode)
         truth = _Stream(path, "ground-truth", ros_msgs.POSE_TYPES, decode)
         wanted = (topics.image, topics.odometry, topics.ground_truth)

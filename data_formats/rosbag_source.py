@@ -379,8 +379,6 @@ def _iter_bag_samples(path: Path, topics: BagTopics, warn: Callable[[str], None]
         for topic, datatype, log_time, msg in _messages(path, reader, wanted):
             if topic == resolved.image:
                 stamp_ns = _stamp(path, "image", topic, msg, log_time)
-                if assembler.last_image_ns is not None and stamp_ns < assembler.last_image_ns:
-                    raise _backwards(path, "image", topic, stamp_ns, assembler.last_image_ns)
                 yield from assembler.add_image(stamp_ns, _lazy_image(path, topic, datatype, msg, stamp_ns))
             elif topic == resolved.odometry:
                 stamp_ns = _stamp(path, "odometry", topic, msg, log_time)

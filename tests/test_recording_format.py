@@ -263,6 +263,31 @@ def test_late_images_are_interpolated_from_the_odometry_history(tmp_path):
     assert [s.odometry_pose[0] for s in samples] == pytest.approx([0.5, 5.5, 10.5, 15.5])
 
 
+def test_late_images_are_kept_by_time_not_by_message_count(tmp_path):
+    """400 Hz odometry and a camera logged 0.8 s late: 320 odometry messages later, still paired
+    (a window of 256 messages dropped every image); 12 s late is over both windows: dropped, said."""
+    path = tmp_path / "fast.mcap"
+    png = encode_image(random_frames(1)[0][1]).data
+    period = 2_500_000  # 400 Hz
+    with ForeignRecording(path) as rec:
+        for k in range(8_000):
+            t = T0_NS + k * period
+            rec.odometry("/odom", t, k * 0.001, 0.0, 0.0)
+            if k in (1_000, 2_000):  # stamped 0.8 s before it is logged
+                rec.compressed_image("/camera/image/compressed", t - 800_000_000, png, "png", log_time=t + 1)
+            if k == 7_999:  # stamped 12 s before it is logged
+                rec.compressed_image(
+                    "/camera/image/compressed", t - 12_000_000_000, png, "png", log_time=t + 1
+                )
+    warnings: list[str] = []
+    samples = list(Recording(path, on_warning=warnings.append).samples())
+    assert [s.odometry_pose[0] for s in samples] == pytest.approx([0.68, 1.68])
+    assert (
+        len(warnings) == 1
+        and "dropped 1 image(s) that arrived more than 10 s and 256 odometry" in warnings[0]
+    )
+
+
 def test_equal_stamps_are_not_going_backwards_and_take_the_exact_pose(tmp_path):
     frames = random_frames(2)
     path = write_recording(tmp_path / "r.mcap", frames)
