@@ -114,6 +114,8 @@ class SampleAssembler:
     ground_truth: PoseTrack = field(default_factory=PoseTrack)
     counts: _Counts = field(default_factory=_Counts)
     images: int = 0
+    # images whose header stamp was unset, stamped with their log time by the reader
+    log_time_images: int = 0
     yielded: int = 0
     last_image_ns: int | None = None
     _pending: deque[_Pending] = field(default_factory=deque)
@@ -230,6 +232,11 @@ class SampleAssembler:
             ),
         ]
         out = [f"{self.path}: dropped {count} {what}" for count, what in lines if count]
+        if self.log_time_images and (c.before_first or c.after_last):
+            out.append(
+                f"{self.path}: {self.log_time_images} image(s) had no header stamp and took their log time,"
+                " which may be another clock than the odometry's (a simulator's, say)"
+            )
         if c.no_ground_truth:
             out.append(
                 f"{self.path}: {c.no_ground_truth} image(s) have no ground truth (stamped outside the "

@@ -96,11 +96,17 @@ class _MessageDecoder:
 
 def _header_stamp_ns(msg: Any, log_time: int) -> int:
     """The header stamp; the log time when a driver left the stamp unset (zero)."""
+    stamp = _set_header_stamp_ns(msg)
+    return log_time if stamp is None else stamp
+
+
+def _set_header_stamp_ns(msg: Any) -> int | None:
+    """The header stamp, or None where a driver left it unset (zero) or there is no header."""
     try:
         stamp = ros_msgs.stamp_ns_of(msg.header.stamp)
     except AttributeError:
-        return log_time
-    return stamp if stamp != 0 else log_time
+        return None
+    return stamp if stamp != 0 else None
 
 
 def negative_stamp(what: str, topic: str, stamp_ns: int) -> str:
@@ -299,6 +305,7 @@ class Recording:
                 assembler.expect_ground_truth = True
             if topic == topics.image:
                 stamp_ns, msg, datatype = images.read(schema, channel, message)
+                assembler.log_time_images += _set_header_stamp_ns(msg) is None
                 yield from assembler.add_image(stamp_ns, _lazy_image(path, topic, datatype, msg, stamp_ns))
             elif topic == topics.odometry:
                 stamp_ns, msg, datatype = odometry.read(schema, channel, message)

@@ -32,7 +32,7 @@ from aslam.data_formats.files import check_input_file, source_files
 from aslam.data_formats.mcap_file import McapFile
 from aslam.data_formats.pose_limits import implausible
 from aslam.data_formats.pose_sync import Sample, SampleAssembler
-from aslam.data_formats.recording import _header_stamp_ns, _lazy_image, negative_stamp
+from aslam.data_formats.recording import _header_stamp_ns, _lazy_image, _set_header_stamp_ns, negative_stamp
 from aslam.data_formats.recording_info import TopicInfo
 
 TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
@@ -379,6 +379,7 @@ def _iter_bag_samples(path: Path, topics: BagTopics, warn: Callable[[str], None]
         for topic, datatype, log_time, msg in _messages(path, reader, wanted):
             if topic == resolved.image:
                 stamp_ns = _stamp(path, "image", topic, msg, log_time)
+                assembler.log_time_images += _set_header_stamp_ns(msg) is None
                 yield from assembler.add_image(stamp_ns, _lazy_image(path, topic, datatype, msg, stamp_ns))
             elif topic == resolved.odometry:
                 stamp_ns = _stamp(path, "odometry", topic, msg, log_time)

@@ -709,6 +709,29 @@ def test_unset_header_stamps_fall_back_to_the_log_time(tmp_path):
     assert [s.stamp_ns for s in samples] == [stamp + IMAGE_LATENCY_NS for stamp in image_stamps()]
 
 
+def test_unset_image_stamps_on_another_clock_than_the_odometry_say_so(tmp_path):
+    """Images with unset stamps logged on the wall clock, odometry stamped in a simulator's time:
+    every image falls after the odometry, and the warning says which clock they took."""
+    from rosbags.typesys import Stores, get_typestore
+
+    rows = bag_messages(get_typestore(Stores.ROS2_HUMBLE))
+    wall = 1_700_000_000_000_000_000
+    moved = []
+    for log, topic, msgtype, msg in rows:
+        if topic == IMAGE_TOPIC:
+            msg.header.stamp.sec, msg.header.stamp.nanosec = 0, 0
+            log += wall
+        moved.append((log, topic, msgtype, msg))
+    path = write_rosbag2(tmp_path / "bag", messages=sorted(moved, key=lambda row: row[0]))
+    warnings: list[str] = []
+    assert list(iter_bag_samples(path, on_warning=warnings.append)) == []
+    assert any("stamped after the last odometry message" in w for w in warnings)
+    assert warnings[-1] == (
+        f"{path}: {N_IMAGES} image(s) had no header stamp and took their log time, which may be another "
+        "clock than the odometry's (a simulator's, say)"
+    )
+
+
 def test_ground_truth_stream(bags):
     from aslam.data_formats.rosbag_source import iter_bag_ground_truth
 
