@@ -68,7 +68,7 @@ def import_image_folder(
     file (and line); nothing appears under ``output`` unless the import completes.
     """
     from aslam.data_formats.camera import CameraIntrinsics, fov_option_problem
-    from aslam.data_formats.files import check_output_path
+    from aslam.data_formats.files import check_output_path, real_path
     from aslam.data_formats.images import EncodedImage, ImageFormat
     from aslam.data_formats.recording_writer import RecordingWriter
 
@@ -78,8 +78,10 @@ def import_image_folder(
     output = Path(output)
     check_output_path(output, force=force)
     source = open_image_folder(folder, ground_truth=ground_truth, odometry=odometry, fmt=fmt, rate_hz=rate_hz)
-    # Never an input, even with --force: a pose file, or (by name, not a stat per frame) an image.
-    same_name = [image for image in source.images if image.name == output.name]
+    # Never an input, even with --force: a pose file, or a frame (found by name, the output's own or
+    # the one it resolves to through a link, rather than by resolving every frame).
+    names = {output.name, real_path(output).name}
+    same_name = [image for image in source.images if image.name in names]
     check_output_path(output, force=True, inputs=[p for p in (odometry, ground_truth) if p] + same_name)
     first = source.images[0]
     height_px, width_px = read_image(first, 0).decode_gray().shape

@@ -383,7 +383,7 @@ def metric_scene(embedding: Embedding, stamps_ns: Sequence[int] | np.ndarray) ->
 
 
 def export_trajectories(
-    path: Path,
+    path: Path | str,
     embedding: Embedding,
     stamps_ns: Sequence[int] | np.ndarray,
     truth: np.ndarray | None = None,

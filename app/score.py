@@ -32,13 +32,14 @@ from aslam.data_formats.errors import EstimateError, RecordingError
 from aslam.data_formats.estimate import EstimateFile, iter_keyframes, read_estimate
 from aslam.data_formats.files import full_path, source_files
 from aslam.data_formats.graph_json import build_graph_json
+from aslam.data_formats.pose_sync import TRUTH_MAX_GAP_NS
 from aslam.data_formats.sources import TopicChoice, open_input
 
 # --- ground truth ----------------------------------------------------------------------------------
 
 
 def truth_at_stamps(
-    stamps_ns: Sequence[int], truth: Iterable[tuple[int, np.ndarray]], *, max_gap_ns: int = 1_000_000_000
+    stamps_ns: Sequence[int], truth: Iterable[tuple[int, np.ndarray]], *, max_gap_ns: int = TRUTH_MAX_GAP_NS
 ) -> np.ndarray:
     """(n, 3) true poses at ``stamps_ns`` (ascending), NaN where unknown.
 
@@ -289,7 +290,7 @@ def score(
         info, stamps, truth_by_index, recording, warn, ground_truth_topic
     )
     if true_poses is not None and first:
-        earlier = _map_truth(info, estimate, truth_by_index, warn)
+        earlier = _map_truth(info, estimate, truth_by_index, warn, ground_truth_topic)
         true_poses = None if earlier is None else np.concatenate([earlier, true_poses])
     stage("scoring the claims")
     with closing(iter_keyframes(estimate)) as keyframes:
@@ -367,10 +368,13 @@ def _session_truth(
     recording: Path | None,
     warn: Callable[[str], None],
     ground_truth_topic: str | None = None,
+    *,
+    of_the_map: bool = False,
 ) -> tuple[np.ndarray | None, Path | None]:
     """One session's truth at its keyframe stamps, and the recording it came from: by index, or
     from ``recording`` (default: the one the estimate names), on ``ground_truth_topic`` if given
-    (default: the topic the estimate was made with); (None, …) with a warning if none."""
+    (default: the topic the estimate was made with); (None, …) with a warning if none. A topic
+    named for this run's own recording that it cannot read is an error, not a warning."""
     if truth_by_index:
         return index_truth(len(stamps)), None
     path = _find_recording(recording, info, warn)
@@ -379,15 +383,21 @@ def _session_truth(
     topics = TopicChoice.from_record(info.metadata.topics)
     if ground_truth_topic is not None:
         topics = replace(topics, ground_truth=ground_truth_topic)
-    return _ground_truth(path, topics, stamps, warn), path
+    strict = ground_truth_topic is not None and not of_the_map
+    return _ground_truth(path, topics, stamps, warn, strict=strict, of_the_map=of_the_map), path
 
 
 def _map_truth(
-    info: EstimateFile, path: Path, truth_by_index: bool, warn: Callable[[str], None]
+    info: EstimateFile,
+    path: Path,
+    truth_by_index: bool,
+    warn: Callable[[str], None],
+    ground_truth_topic: str | None = None,
 ) -> np.ndarray | None:
     """(first_keyframe, 3) truth of the prior map's keyframes, session by session back to the first
     map (each prior estimate names its recording and its own prior); None, with a warning, when a
-    prior estimate is missing. Sessions without truth give NaN rows."""
+    prior estimate is missing. Sessions without truth give NaN rows (their claims are not judged).
+    ``ground_truth_topic`` is tried on every session (bags estimated without one)."""
     prior = info.metadata.prior_map
     if prior is None:
         return np.zeros((0, 3))
@@ -398,10 +408,12 @@ def _map_truth(
     prior_info = read_estimate(prior_path)
     with closing(iter_keyframes(prior_path)) as keyframes:
         stamps = [keyframe.stamp_ns for keyframe in keyframes]
-    earlier = _map_truth(prior_info, prior_path, truth_by_index, warn)
+    earlier = _map_truth(prior_info, prior_path, truth_by_index, warn, ground_truth_topic)
     if earlier is None:
         return None
-    own, _ = _session_truth(prior_info, stamps, truth_by_index, None, warn)
+    own, _ = _session_truth(
+        prior_info, stamps, truth_by_index, None, warn, ground_truth_topic, of_the_map=True
+    )
     own = np.full((len(stamps), 3), np.nan) if own is None else own
     truth = np.concatenate([earlier, own])
     if len(truth) != prior.keyframes:
@@ -447,15 +459,29 @@ def _find_recording(given: Path | None, info: EstimateFile, warn: Callable[[str]
 
 
 def _ground_truth(
-    path: Path, topics: TopicChoice, stamps: list[int], warn: Callable[[str], None]
+    path: Path,
+    topics: TopicChoice,
+    stamps: list[int],
+    warn: Callable[[str], None],
+    *,
+    strict: bool = False,
+    of_the_map: bool = False,
 ) -> np.ndarray | None:
+    """The truth at ``stamps``; None with a warning when there is none (``strict``: an error)."""
+    without = "the map's keyframes from it are not scored" if of_the_map else "reporting without ground truth"
     try:
         with closing(open_input(path, topics, on_warning=warn).ground_truth()) as truth:  # type: ignore[arg-type]
             poses = truth_at_stamps(stamps, truth)
     except RecordingError as err:
-        warn(f"{err}; reporting without ground truth")
+        if strict:
+            raise
+        warn(f"{err}; {without}")
         return None
     if not len(poses) or not (poses == poses).all(axis=1).any():
-        warn(f"{path}: no ground truth at the keyframe stamps; reporting without ground truth")
+        if strict:
+            raise RecordingError(
+                f"no ground truth on '{topics.ground_truth}' at the keyframe stamps", path=path
+            )
+        warn(f"{path}: no ground truth at the keyframe stamps; {without}")
         return None
     return poses

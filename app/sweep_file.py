@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from aslam.app.config_file import read_toml
-from aslam.core.config import EstimatorConfig
+from aslam.core.config import REPORT_RANGES, EstimatorConfig
 from aslam.core.errors import ConfigError
 from aslam.data_formats.files import full_path
 from aslam.recorder.config import CameraSpec, NoiseParams, RecordConfig, parse_size
@@ -320,8 +320,8 @@ def _score(value: Any, problems: list[str]) -> ScoreOptions:
         else:
             values[key] = float(item)
     options = ScoreOptions(**values)
-    if not options.radius_m > 0:
-        problems.append(f"score.radius_m must be positive, got {options.radius_m}")
-    if not 0 < options.heading_deg <= 180:
-        problems.append(f"score.heading_deg must be in (0, 180], got {options.heading_deg}")
+    # the ranges report takes (core.config.REPORT_RANGES), so no task can fail on them
+    for key, bounds in REPORT_RANGES.items():
+        if not bounds.holds(getattr(options, key)):
+            problems.append(f"score.{key} must be {bounds.describe()}, got {getattr(options, key)!r}")
     return options

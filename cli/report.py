@@ -38,11 +38,11 @@ def report(
         Path | None, typer.Option("--plots", help="Write PNG figures into this folder.", file_okay=False)
     ] = None,
     trajectory: Annotated[
-        Path | None,
+        str | None,
         typer.Option(
             help="Write the embedded (GTSAM-optimised) trajectory here, and beside it *.odometry.* and "
             "*.truth.* (for evo).",
-            dir_okay=False,
+            metavar="<file>",
         ),
     ] = None,
     trajectory_format: Annotated[
@@ -168,7 +168,7 @@ def report(
 
 
 def _write_trajectories(
-    result: Any, path: Path, fmt: TrajectoryFormat | None, *, force: bool, warn: Callable[[str], None]
+    result: Any, path: str, fmt: TrajectoryFormat | None, *, force: bool, warn: Callable[[str], None]
 ) -> list[Path]:
     from aslam.app.metric_view import export_trajectories
 

@@ -83,13 +83,19 @@ class Evaluation:
         return self.judged_claims & ~self.correct
 
     @property
+    def scored_revisits(self) -> np.ndarray:
+        """bool (n,): the true revisits recall counts: not those where the claim made cannot be judged
+        (a revisit of this run named as the map's place, whose truth is unknown, is no miss)."""
+        return self.true_revisit & ~(self.claims & ~self.judged_claims)
+
+    @property
     def precision(self) -> float | None:
         claims = int(self.judged_claims.sum())
         return None if not self.has_ground_truth or claims == 0 else float(self.correct.sum() / claims)
 
     @property
     def recall(self) -> float | None:
-        revisits = int(self.true_revisit.sum())
+        revisits = int(self.scored_revisits.sum())
         return None if not self.has_ground_truth or revisits == 0 else float(self.correct.sum() / revisits)
 
     @property
@@ -105,7 +111,7 @@ class Evaluation:
         """Precision and recall of the claims whose confidence reaches each threshold."""
         confidence = self.confidence if self.confidence is not None else np.where(self.claims, 1.0, np.nan)
         confidence = np.where(self.judged_claims, confidence, np.nan)
-        return precision_recall_curve(confidence, self.correct, int(self.true_revisit.sum()))
+        return precision_recall_curve(confidence, self.correct, int(self.scored_revisits.sum()))
 
     def error_stats(self, weighted: bool) -> dict[str, ErrorStats]:
         errors = self.weighted_error if weighted else self.best_error
@@ -180,7 +186,7 @@ class AssignmentScore:
 
     @property
     def recall(self) -> float | None:
-        revisits = int(self.true_revisit.sum())
+        revisits = int((self.true_revisit & ~(self.claims & ~self.judged)).sum())
         return None if revisits == 0 else float(self.correct.sum() / revisits)
 
 
@@ -335,7 +341,7 @@ def evaluate(
         correct,
         best_error,
         weighted_error,
-        _episodes(true_revisit, correct),
+        _episodes(true_revisit & ~(claims & ~judged), correct),
         confidence,
         judged,
     )

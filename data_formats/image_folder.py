@@ -39,7 +39,7 @@ from aslam.data_formats.pose_files import PoseFileError, PoseFormat, detect_form
 from aslam.data_formats.pose_sync import Sample, SampleAssembler
 from aslam.data_formats.ros_msgs import LAST_STAMP_NS
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".jfif")
 #: Same fixed epoch as the recorder (2020-09-13T12:26:40Z): not 0, which ROS tools treat as unset.
 START_STAMP_NS = 1_600_000_000_000_000_000
 DEFAULT_RATE_HZ = 1.0
@@ -56,15 +56,20 @@ def _natural_key(path: Path) -> list[object]:
 
 #: Image files import cannot store as they are (a recording holds PNG or JPEG bytes): among the
 #: frames, each would shift every later frame's pairing, so one is refused rather than skipped.
-OTHER_IMAGE_SUFFIXES = (".bmp", ".tif", ".tiff", ".webp", ".gif", ".pgm", ".ppm", ".pnm", ".jp2", ".exr")
+OTHER_IMAGE_SUFFIXES = (
+    ".bmp", ".tif", ".tiff", ".webp", ".gif", ".pgm", ".ppm", ".pnm", ".jp2", ".exr", ".heic", ".heif",
+    ".avif", ".jxl", ".dng", ".raw",
+)  # fmt: skip
 
 
 def list_images(folder: Path) -> list[Path]:
-    """The png/jpg files of ``folder`` (not its subfolders), in natural file-name order.
+    """The png/jpg files of ``folder`` (not its subfolders), in natural file-name order, or by value
+    where every name is a number (``0.05.png`` before ``0.1.png``: stamps as Python writes them).
 
     Hidden files are not frames (macOS's ``._NAME.png`` beside each file on a FAT or exFAT disk);
-    a frame that cannot be read (a broken link: a dataset on a disk not mounted) or is stored in
-    another image format is refused, since skipping it would pair every later frame wrongly.
+    a frame that cannot be read (a broken link: a dataset on a disk not mounted; a pipe) or is
+    stored in another image format is refused, since skipping it would pair every later frame
+    wrongly. Folders are never frames, whatever their names.
     """
     folder = Path(folder)
     if not folder.exists():
@@ -77,21 +82,36 @@ def list_images(folder: Path) -> list[Path]:
             suffix = path.suffix.lower()
             if path.name.startswith(".") or suffix not in IMAGE_SUFFIXES + OTHER_IMAGE_SUFFIXES:
                 continue
+            if path.is_dir():
+                continue
+            if not path.exists():
+                raise ImageFolderError("cannot read: a broken symbolic link", path=path)
             if suffix in OTHER_IMAGE_SUFFIXES:
                 raise ImageFolderError(
                     f"a {suffix} image among the frames; import stores PNG and JPEG only (convert it, "
                     "or move it out of the folder)",
                     path=path,
                 )
-            if path.is_file():
-                images.append(path)
-            elif not path.exists():
-                raise ImageFolderError("cannot read: a broken symbolic link", path=path)
+            if not path.is_file():
+                raise ImageFolderError("is not a regular file (a pipe, socket or device)", path=path)
+            images.append(path)
     except OSError as err:
         raise ImageFolderError(f"cannot list: {err.strerror or err}", path=folder) from err
     if not images:
         raise ImageFolderError("has no .png or .jpg images", path=folder)
-    return sorted(images, key=_natural_key)
+    images.sort(key=_natural_key)
+    values = [_number(image.stem) for image in images]
+    if all(value is not None for value in values):
+        images = [image for _, image in sorted(zip(values, images, strict=True), key=lambda pair: pair[0])]
+    return images
+
+
+def _number(text: str) -> Decimal | None:
+    try:
+        value = Decimal(text)
+    except InvalidOperation:
+        return None
+    return value if value.is_finite() else None
 
 
 def image_format(data: bytes, path: Path) -> ImageFormat:

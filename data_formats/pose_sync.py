@@ -16,6 +16,7 @@ from typing import NamedTuple
 import numpy as np
 
 from aslam.core import se2
+from aslam.data_formats.errors import RecordingError
 from aslam.data_formats.images import LazyImage
 
 # Images held while waiting for the odometry message after them. Past this the oldest is dropped
@@ -27,6 +28,12 @@ MAX_PENDING_IMAGES = 512
 # fast one (400 Hz fused odometry, a motion-capture truth) loses a late camera; at most
 # POSE_HISTORY_MAX, which bounds the memory whatever the rate.
 POSE_HISTORY = 256
+# Images stamped before an image logged earlier are dropped one by one (frames logged swapped);
+# once at least this many are, and more than a quarter of the images so far, the stamps are refused.
+OUT_OF_ORDER_MIN = 3
+# Ground truth is interpolated between two messages at most this far apart; inside a longer gap
+# (a motion-capture dropout) it is unknown. Odometry is interpolated across any gap: the run needs it.
+TRUTH_MAX_GAP_NS = 1_000_000_000
 POSE_HISTORY_NS = 10_000_000_000
 POSE_HISTORY_MAX = 65_536
 
@@ -38,7 +45,7 @@ class Sample(NamedTuple):
     ground_truth_pose: np.ndarray | None  # (x_m, y_m, yaw_rad) in the world frame, or None
 
 
-_WAIT, _BEFORE, _LATE = "wait", "before", "late"
+_WAIT, _BEFORE, _LATE, _GAP = "wait", "before", "late", "gap"
 
 
 class PoseTrack:
@@ -67,8 +74,9 @@ class PoseTrack:
         self.last_ns = stamp_ns
         self.count += 1
 
-    def lookup(self, stamp_ns: int) -> np.ndarray | str:
-        """The pose at ``stamp_ns``, or why not: _WAIT (no pose after it yet), _BEFORE, _LATE."""
+    def lookup(self, stamp_ns: int, max_gap_ns: int | None = None) -> np.ndarray | str:
+        """The pose at ``stamp_ns``, or why not: _WAIT (no pose after it yet), _BEFORE, _LATE, or
+        _GAP (between two poses more than ``max_gap_ns`` apart)."""
         if self.last_ns is None or stamp_ns > self.last_ns:
             return _WAIT
         stamps = self._stamps
@@ -78,6 +86,8 @@ class PoseTrack:
         if stamps[j] == stamp_ns:
             return self._poses[j].copy()
         t0, t1 = stamps[j], stamps[j + 1]
+        if max_gap_ns is not None and t1 - t0 > max_gap_ns:
+            return _GAP
         return se2.interpolate(self._poses[j], self._poses[j + 1], (stamp_ns - t0) / (t1 - t0))
 
 
@@ -124,8 +134,15 @@ class SampleAssembler:
         self.images += 1
         if self.last_image_ns is not None and stamp_ns < self.last_image_ns:
             # A driver's threads may log two frames swapped: the later-logged, earlier-stamped one
-            # is let go (and counted) rather than the whole recording refused.
+            # is let go (and counted) rather than the whole recording refused. A clock that jumps
+            # ahead would let every later frame go: that is refused, not run on what is left.
             self.counts.out_of_order += 1
+            if self.counts.out_of_order >= OUT_OF_ORDER_MIN and self.counts.out_of_order * 4 > self.images:
+                raise RecordingError(
+                    f"image stamps go backwards at {self.counts.out_of_order} of {self.images} images "
+                    f"(now {stamp_ns} ns after {self.last_image_ns} ns): the camera's clock jumps",
+                    path=self.path,
+                )
             return
         self.last_image_ns = stamp_ns
         item = _Pending(stamp_ns, image)
@@ -161,8 +178,8 @@ class SampleAssembler:
             if not isinstance(found, str):
                 item.odometry = found
         if self.expect_ground_truth and not item.ground_truth_done:
-            found = self.ground_truth.lookup(item.stamp_ns)
-            if found is _BEFORE or found is _LATE:
+            found = self.ground_truth.lookup(item.stamp_ns, TRUTH_MAX_GAP_NS)
+            if found is _BEFORE or found is _LATE or found is _GAP:
                 item.ground_truth_done = True
                 self.counts.no_ground_truth += 1
             elif not isinstance(found, str):
@@ -218,11 +235,12 @@ class SampleAssembler:
                 "image(s) stamped before the first odometry message"
                 + (f" (at {first} ns)" if first is not None else ""),
             ),
-            (c.out_of_order, "image(s) stamped before the image logged before them (out of order)"),
+            (c.out_of_order, "image(s) stamped before an image logged earlier (out of order)"),
             (
                 c.late,
-                f"image(s) that arrived more than {POSE_HISTORY_NS / 1e9:g} s and {POSE_HISTORY} odometry "
-                "messages late",
+                "image(s) that arrived after the odometry at their stamp was let go (the last "
+                f"{POSE_HISTORY_NS / 1e9:g} s are kept, at least {POSE_HISTORY} and at most "
+                f"{POSE_HISTORY_MAX:,} messages)",
             ),
             (c.gap, f"image(s) in odometry gaps longer than {self.max_pending} images"),
             (
@@ -240,6 +258,6 @@ class SampleAssembler:
         if c.no_ground_truth:
             out.append(
                 f"{self.path}: {c.no_ground_truth} image(s) have no ground truth (stamped outside the "
-                "ground-truth messages)"
+                f"ground-truth messages, or in a gap of more than {TRUTH_MAX_GAP_NS / 1e9:g} s between two)"
             )
         return out

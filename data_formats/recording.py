@@ -156,8 +156,10 @@ def _lazy_image(path: Path, topic: str, datatype: str, msg: Any, stamp_ns: int) 
         else:
             kind = None
         if kind is None:
+            why = " and its bytes are neither PNG nor JPEG" if not lowered.strip() else ""
             raise RecordingError(
-                f"unknown image encoding '{fmt}' on '{topic}' at stamp {stamp_ns} ns (accepted: png, jpeg)",
+                f"unknown image encoding '{fmt}'{why} on '{topic}' at stamp {stamp_ns} ns "
+                "(accepted: png, jpeg)",
                 path=path,
             )
         return LazyImage(bytes(msg.data), kind, path=path, stamp_ns=stamp_ns)

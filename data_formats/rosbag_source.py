@@ -189,7 +189,9 @@ def resolve_topics(path: Path, types: dict[str, str], topics: BagTopics) -> Reso
         odometry = only("odometry", (ros_msgs.ODOMETRY,), "--odometry-topic")
         if odometry is None:
             if types.get(topics.tf) not in TF_TYPES:
-                poses = sorted(t for t, kind in types.items() if kind in ros_msgs.POSE_TYPES)
+                poses = sorted(
+                    t for t, kind in types.items() if kind in ros_msgs.POSE_TYPES and t != topics.ground_truth
+                )
                 hint = f"; name a pose topic with --odometry-topic, e.g. {poses[0]}" if poses else ""
                 raise BagError(
                     f"no odometry: neither a nav_msgs/msg/Odometry topic nor transforms on '{topics.tf}' "

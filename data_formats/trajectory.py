@@ -1,17 +1,19 @@
 """Trajectory files that evo and every other SLAM tool read: TUM and KITTI.
 
 * TUM: one line per pose, ``stamp_s x y z qx qy qz qw`` (seconds, metres, unit quaternion).
-* KITTI: one line per pose, the first three rows of the 4×4 pose matrix, row-major; no stamps.
+* KITTI: one line per pose, the first three rows of the 4×4 pose matrix, row-major; no stamps;
+  the camera's pose in KITTI's camera axes (x right, y down, z forward), as KITTI's own files.
 
 Both are written by evo's own ``evo.tools.file_interface`` writers, so the files are evo's format
 by construction, under a temporary name renamed when complete. Poses are SE(2) ``(x_m, y_m,
-yaw_rad)`` in the z = 0 plane (REP 103: x forward, y left, z up); the readers give them back and
-refuse trajectories that leave the plane. TUM keeps seconds as float64, so stamps come back to
-within a microsecond, not to the nanosecond.
+yaw_rad)``; in TUM in the z = 0 plane (REP 103: x forward, y left, z up). They are read back by
+the one reader of pose files, ``data_formats.pose_files`` (what ``aslam import`` reads). TUM keeps
+seconds as float64, so stamps come back to within a microsecond, not to the nanosecond.
 """
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -21,9 +23,6 @@ import numpy as np
 from aslam.data_formats import files
 from aslam.data_formats.errors import TrajectoryError
 from aslam.data_formats.format_names import TrajectoryFormat
-
-PLANAR_TOLERANCE = 1e-6
-"""|z| (m) and roll/pitch (rad) up to which a read pose still counts as planar."""
 
 
 class TrajectoryPaths(NamedTuple):
@@ -38,11 +37,12 @@ class TrajectoryPaths(NamedTuple):
 SUFFIX_FORMATS = {".tum": TrajectoryFormat.TUM, ".kitti": TrajectoryFormat.KITTI}
 
 
-def export_plan(path: Path, fmt: TrajectoryFormat | None) -> tuple[TrajectoryPaths, TrajectoryFormat]:
+def export_plan(path: Path | str, fmt: TrajectoryFormat | None) -> tuple[TrajectoryPaths, TrajectoryFormat]:
     """Where an export of three trajectories goes, and in which format: the one asked for, else the
     one the name says (``.tum``, ``.kitti``), else TUM. Refused before any work: a stream or ``-``
     (three files cannot share one), no file name, and a name that says another format than the one
-    asked for (evo would then misread every row)."""
+    asked for (evo would then misread every row). ``path`` as typed: ``out/`` names a folder."""
+    given = str(path)
     path = Path(path)
     if str(path) == "-" or files.is_stream_output(path):
         raise TrajectoryError(
@@ -50,8 +50,8 @@ def export_plan(path: Path, fmt: TrajectoryFormat | None) -> tuple[TrajectoryPat
             "give a file name, not stdout or a stream",
             path=path,
         )
-    if path.name in ("", ".", ".."):
-        raise TrajectoryError(f"--trajectory needs a file name, not {str(path)!r}")
+    if path.name in ("", ".", "..") or given.endswith(("/", os.sep)) or path.is_dir():
+        raise TrajectoryError(f"--trajectory needs a file name, not a folder ({given!r})")
     named = SUFFIX_FORMATS.get(path.suffix.lower())
     if fmt is not None and named is not None and fmt is not named:
         raise TrajectoryError(f"the name says {named}, --trajectory-format says {fmt}", path=path)
@@ -120,49 +120,23 @@ def write_trajectory(
             path, lambda tmp: file_interface.write_tum_trajectory_file(tmp, trajectory), error=TrajectoryError
         )
     else:
-        trajectory = evo_trajectory(poses, None)
+        trajectory = kitti_camera_path(poses)
         files.write_atomically(
             path, lambda tmp: file_interface.write_kitti_poses_file(tmp, trajectory), error=TrajectoryError
         )
 
 
-def _planar(trajectory: Any, path: Path) -> np.ndarray:
-    xyz = np.asarray(trajectory.positions_xyz)
-    quat = np.asarray(trajectory.orientations_quat_wxyz)  # w, x, y, z
-    if len(xyz) and (
-        np.abs(xyz[:, 2]).max() > PLANAR_TOLERANCE or np.abs(quat[:, 1:3]).max() > PLANAR_TOLERANCE
-    ):
-        raise TrajectoryError("not a planar trajectory (z or roll/pitch is not zero)", path=path)
-    yaw = 2.0 * np.arctan2(quat[:, 3], quat[:, 0])
-    yaw = (yaw + np.pi) % (2.0 * np.pi) - np.pi
-    return np.column_stack([xyz[:, :2], yaw]) if len(xyz) else np.zeros((0, 3))
+def kitti_camera_path(poses: np.ndarray) -> Any:
+    """SE(2) poses as KITTI writes its own: the camera's pose (x right, y down, z forward) in the
+    first camera's frame, so an export compares with a KITTI ground truth and ``aslam import`` reads
+    it back (``data_formats.pose_files``: forward ``z`` → ``x_m``, left ``−x`` → ``y_m``)."""
+    from evo.core.trajectory import PosePath3D
 
-
-def _read(path: Path, read: Any) -> Any:
-    from evo import EvoException
-
-    path = Path(path)
-    if not path.is_file():
-        raise TrajectoryError("no such file" if not path.exists() else "is not a file", path=path)
-    try:
-        return read(path)
-    except (EvoException, ValueError, OSError) as err:
-        raise TrajectoryError(f"unreadable trajectory ({type(err).__name__}: {err})", path=path) from err
-
-
-def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """``(stamps_ns (n,), poses (n, 3))`` of a planar TUM file (stamps to within 1 µs)."""
-    from evo.tools import file_interface
-
-    path = Path(path)
-    trajectory = _read(path, file_interface.read_tum_trajectory_file)
-    stamps_ns = np.rint(np.asarray(trajectory.timestamps, dtype=float) * 1e9).astype(np.int64)
-    return stamps_ns, _planar(trajectory, path)
-
-
-def read_kitti(path: Path) -> np.ndarray:
-    """``poses (n, 3)`` of a planar KITTI poses file."""
-    from evo.tools import file_interface
-
-    path = Path(path)
-    return _planar(_read(path, file_interface.read_kitti_poses_file), path)
+    poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    matrices = np.zeros((len(poses), 4, 4))
+    matrices[:, 0, 0], matrices[:, 0, 2], matrices[:, 0, 3] = c, -s, -poses[:, 1]
+    matrices[:, 1, 1] = 1.0
+    matrices[:, 2, 0], matrices[:, 2, 2], matrices[:, 2, 3] = s, c, poses[:, 0]
+    matrices[:, 3, 3] = 1.0
+    return PosePath3D(poses_se3=list(matrices))

@@ -91,6 +91,17 @@ def test_claims_in_a_gap_of_the_truth_are_neither_right_nor_wrong():
     assert scored.precision == 1.0 and scored.claims.sum() == 4
 
 
+def test_a_revisit_named_as_a_place_of_unknown_truth_is_no_miss():
+    """A run in a map without truth: keyframe 3 truly revisits keyframe 1, and names the map's place
+    0, as keyframe 1 did; neither claim can be judged, so recall has nothing to count (not 0)."""
+    poses = np.array([[np.nan] * 3, [0, 0, 0], [1, 0, 0], [0, 0, 0]], dtype=float)
+    steps = [(0, [new(0)]), (1, [claim(0)]), (2, [new(2)]), (3, [claim(0)])]
+    result = evaluate(steps, poses)
+    assert result.true_revisit.tolist() == [False, False, False, True]
+    assert result.recall is None and result.precision is None and result.pr_curve().auc is None
+    assert result.episodes == ()
+
+
 def test_without_ground_truth_only_counts():
     steps = [(0, [new(0)]), (1, [claim(0), new(1)])]
     result = evaluate(steps, None)

@@ -411,6 +411,26 @@ def test_hidden_files_are_not_frames_and_an_unreadable_or_unstorable_frame_is_re
         open_image_folder(tmp_path / "imgs")
 
 
+def test_frames_named_by_time_are_in_time_order_and_odd_entries_are_not_frames(tmp_path):
+    """``str(t)`` names (0.05, 0.1, 0.15) sort by value, not as text; a folder named like an image
+    is no frame; a pipe or a HEIC among the frames is refused by name."""
+    import os
+
+    for name in ("0.1.png", "0.05.png", "0.15.png", "1.png"):
+        write_images(tmp_path / "t", 1, name=lambda _i, name=name: name)
+    (tmp_path / "t" / "old.bmp").mkdir()
+    folder = open_image_folder(tmp_path / "t")
+    assert [p.name for p in folder.images] == ["0.05.png", "0.1.png", "0.15.png", "1.png"]
+    assert folder.stamps == "file names"
+    os.mkfifo(tmp_path / "t" / "2.png")
+    with pytest.raises(InputError, match=r"2\.png: is not a regular file"):
+        open_image_folder(tmp_path / "t")
+    (tmp_path / "t" / "2.png").unlink()
+    (tmp_path / "t" / "2.heic").write_bytes(b"\x00")
+    with pytest.raises(InputError, match=r"2\.heic: a \.heic image among the frames"):
+        open_image_folder(tmp_path / "t")
+
+
 def test_import_never_overwrites_its_own_inputs_even_with_force(tmp_path):
     """As estimate, report and record refuse: the pose file or a frame under -o is a typo that
     would destroy the dataset."""
@@ -422,9 +442,13 @@ def test_import_never_overwrites_its_own_inputs_even_with_force(tmp_path):
         with pytest.raises(InputError, match="input"):
             import_image_folder(tmp_path / "imgs", output, ground_truth=poses, force=True)
     assert (poses.read_bytes(), paths[0].read_bytes()) == before
-    import_image_folder(
-        tmp_path / "imgs", tmp_path / "imgs" / "rec.mcap", ground_truth=poses
-    )  # beside them: fine
+    link = tmp_path / "out.mcap"
+    link.symlink_to(paths[1])  # another name, resolving to a frame
+    with pytest.raises(InputError, match="input"):
+        import_image_folder(tmp_path / "imgs", link, ground_truth=poses, force=True)
+    assert paths[1].read_bytes().startswith(b"\x89PNG")
+    beside = tmp_path / "imgs" / "rec.mcap"
+    import_image_folder(tmp_path / "imgs", beside, ground_truth=poses)  # beside them: fine
 
 
 def test_a_byte_order_mark_is_not_part_of_the_first_number(tmp_path: Path):

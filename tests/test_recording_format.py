@@ -284,8 +284,34 @@ def test_late_images_are_kept_by_time_not_by_message_count(tmp_path):
     assert [s.odometry_pose[0] for s in samples] == pytest.approx([0.68, 1.68])
     assert (
         len(warnings) == 1
-        and "dropped 1 image(s) that arrived more than 10 s and 256 odometry" in warnings[0]
+        and "dropped 1 image(s) that arrived after the odometry at their stamp was let go (the last 10 s"
+        in warnings[0]
     )
+
+
+def test_ground_truth_is_unknown_inside_a_long_gap_as_report_has_it(tmp_path):
+    """One rule for the truth at an image's stamp, in reading a recording (info, import) and in
+    report (``truth_at_stamps``): interpolated between messages at most 1 s apart, unknown inside
+    a longer gap (a motion-capture dropout)."""
+    from aslam.app.score import truth_at_stamps
+
+    path = tmp_path / "gap.mcap"
+    png = encode_image(random_frames(1)[0][1]).data
+    truth = [(T0_NS + k * 500_000_000, np.array([float(k), 0.0, 0.0])) for k in (0, 1, 2, 6, 7)]
+    images = [T0_NS + 250_000_000, T0_NS + 2_000_000_000]  # between 0 and 1; inside the 2 s gap
+    with ForeignRecording(path) as rec:
+        for k in range(9):
+            rec.odometry("/odom", T0_NS + k * 500_000_000, float(k), 0.0, 0.0)
+        for stamp, pose in truth:
+            rec.odometry("/ground_truth/pose", stamp, *pose)
+        for stamp in images:
+            rec.compressed_image("/camera/image/compressed", stamp, png, "png", log_time=stamp)
+    warnings: list[str] = []
+    read = [s.ground_truth_pose for s in Recording(path, on_warning=warnings.append).samples()]
+    assert read[0] is not None and read[0][0] == pytest.approx(0.5) and read[1] is None
+    assert any("1 image(s) have no ground truth" in w and "gap of more than 1 s" in w for w in warnings)
+    scored = truth_at_stamps(images, truth)
+    assert scored[0][0] == pytest.approx(0.5) and np.isnan(scored[1]).all()
 
 
 def test_equal_stamps_are_not_going_backwards_and_take_the_exact_pose(tmp_path):

@@ -519,7 +519,10 @@ def test_compressed_images_with_no_format_are_read_by_their_bytes(tmp_path):
     for msg in images:
         msg.data = np.frombuffer(b"GIF89a" + bytes(msg.data[6:]), np.uint8)
     path = write_rosbag2(tmp_path / "gif", messages=rows)
-    with pytest.raises(RecordingError, match=f"unknown image encoding '' on '{IMAGE_TOPIC}/compressed'"):
+    with pytest.raises(
+        RecordingError,
+        match=f"encoding '' and its bytes are neither PNG nor JPEG on '{IMAGE_TOPIC}/compressed'",
+    ):
         list(iter_bag_samples(path))
 
 
@@ -665,9 +668,21 @@ def test_two_frames_logged_swapped_lose_the_late_one_not_the_bag(tmp_path):
     samples = list(iter_bag_samples(path, on_warning=warnings.append))
     assert len(samples) == N_IMAGES - 1
     assert [s.stamp_ns for s in samples] == sorted(s.stamp_ns for s in samples)
-    assert warnings == [
-        f"{path}: dropped 1 image(s) stamped before the image logged before them (out of order)"
-    ]
+    assert warnings == [f"{path}: dropped 1 image(s) stamped before an image logged earlier (out of order)"]
+
+
+def test_a_camera_clock_that_jumps_ahead_is_refused_not_run_on_what_is_left(tmp_path):
+    """One frame stamped an hour ahead would put every later frame "out of order": the bag is
+    refused, naming the jump, instead of running on the few frames before it."""
+
+    def jump(msgs):
+        msgs[2].header.stamp.sec += 3600
+
+    path = _damaged(tmp_path, IMAGE_TOPIC, jump)
+    with pytest.raises(
+        RecordingError, match=r"bag: image stamps go backwards at 3 of 6 images .* the camera.s clock jumps"
+    ):
+        list(iter_bag_samples(path))
 
 
 def _nan_at_10(msgs):

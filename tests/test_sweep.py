@@ -250,7 +250,14 @@ def test_sweep_file_problems_are_one_line_exit_2_naming_the_file(tmp_path, capsy
     [
         ("[grid]\nbeta = [-1.0, 3.0]\n", "beta must be a number in [0.001, 50], got -1.0"),
         ("[grid]\ncandidate_search = ['graph', 'sideways']\n", "candidate_search must be 'graph' or 'path'"),
-        ("[score]\nradius_m = 0\n[[render]]\nseeds = 1\n", "score.radius_m must be positive"),
+        (
+            "[score]\nradius_m = 0\n[[render]]\nseeds = 1\n",
+            "score.radius_m must be a number in [0.001, 1000], got 0.0",
+        ),
+        (
+            "[score]\nradius_m = 5000\n[[render]]\nseeds = 1\n",
+            "score.radius_m must be a number in [0.001, 1000], got 5000.0",
+        ),
         ("[grid]\nbeta = 3.0\n", "no recordings"),
         ("[[render]]\nroute = 'nowhere'\n", "route 'nowhere' is neither a preset"),
         ("[[render]\n", "not valid TOML"),
@@ -539,3 +546,20 @@ def test_the_plan_counts_only_the_renders_still_to_make(tmp_path):
     to_run = [task(made, "cfg"), task(made, "cfg"), task(missing, "cfg"), task(tmp_path / "rec.mcap", None)]
     assert renders_due(to_run, force=False) == 1
     assert renders_due(to_run, force=True) == 2
+
+
+def test_every_summary_figure_has_the_direction_a_user_means():
+    """Pareto's default direction for each summary key: the costs and errors small, the rest large."""
+    from aslam.app.score import summary_keys
+    from aslam.app.sweep import lower_is_better
+
+    smaller = {key for key in summary_keys() if lower_is_better(key)}
+    for key in ("trajectory.ape_m.rmse", "trajectory.odometry_rpe_deg.max", "error.best.x_m.mean"):
+        assert key in smaller
+    for key in ("relocalisation.first_delay_keyframes", "timing.slam_ms_per_keyframe"):
+        assert key in smaller
+    assert {"trajectory.closures_outvoted", "loop_closure.unjudged_claims"} <= smaller
+    larger = set(summary_keys()) - smaller
+    for key in ("loop_closure.precision", "loop_closure.recall", "loop_closure.auc", "committed.recall"):
+        assert key in larger
+    assert {"timing.keyframes_per_second", "trajectory.closures"} <= larger

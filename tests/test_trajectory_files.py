@@ -16,11 +16,10 @@ from hypothesis.extra.numpy import arrays
 
 from aslam.app.metric_view import EmbedOptions, embed, score_trajectory
 from aslam.core import se2
+from aslam.data_formats.pose_files import PoseFormat, iter_poses
 from aslam.data_formats.trajectory import (
     TrajectoryError,
     TrajectoryFormat,
-    read_kitti,
-    read_tum,
     sibling_paths,
     write_trajectory,
 )
@@ -35,6 +34,16 @@ def random_walk(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     for step in steps[1:]:
         poses.append(se2.compose(poses[-1], step))
     return np.array(poses), STAMP0_NS + np.arange(n, dtype=np.int64) * 250_000_000
+
+
+def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Read back as ``aslam import`` reads a pose file."""
+    rows = list(iter_poses(path, PoseFormat.TUM))
+    return np.array([r.stamp_ns for r in rows], dtype=np.int64), np.array([r.pose for r in rows])
+
+
+def read_kitti(path: Path) -> np.ndarray:
+    return np.array([r.pose for r in iter_poses(path, PoseFormat.KITTI)])
 
 
 def same_poses(a: np.ndarray, b: np.ndarray, atol: float = 1e-9) -> None:
@@ -59,9 +68,12 @@ def test_kitti_round_trip(tmp_path: Path):
     write_trajectory(path, poses, fmt=TrajectoryFormat.KITTI)
     rows = np.loadtxt(path)
     assert rows.shape == (30, 12)  # 3×4 row-major
-    np.testing.assert_allclose(rows[:, 3], poses[:, 0])
+    # KITTI's camera axes (x right, y down, z forward): forward is +z, left is −x, yaw about −y
+    np.testing.assert_allclose(rows[:, 11], poses[:, 0])
+    np.testing.assert_allclose(rows[:, 3], -poses[:, 1])
+    np.testing.assert_allclose(rows[:, 7], 0.0)
     np.testing.assert_allclose(rows[:, 0], np.cos(poses[:, 2]))
-    same_poses(read_kitti(path), poses)
+    same_poses(read_kitti(path), poses)  # what aslam import reads of a KITTI poses file
 
 
 @settings(max_examples=30, deadline=None)
@@ -69,7 +81,9 @@ def test_kitti_round_trip(tmp_path: Path):
     arrays(
         np.float64,
         st.tuples(st.integers(1, 20), st.just(3)),
-        elements=st.floats(-1e4, 1e4, allow_nan=False, allow_infinity=False),
+        elements=st.floats(
+            -3e3, 3e3, allow_nan=False, allow_infinity=False
+        ),  # jumps under the 10 km the reader takes
     )
 )
 def test_any_planar_trajectory_survives_both_formats(poses: np.ndarray):
@@ -107,21 +121,6 @@ def test_writes_are_atomic_and_checked(tmp_path: Path):
     with pytest.raises(TrajectoryError, match="does not exist"):
         write_trajectory(tmp_path / "missing" / "x.tum", poses, stamps)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["est.tum"]  # no partial files
-
-
-def test_bad_files_give_one_error_naming_the_file(tmp_path: Path):
-    with pytest.raises(TrajectoryError, match="no such file") as err:
-        read_tum(tmp_path / "nope.tum")
-    assert err.value.path == str(tmp_path / "nope.tum")
-    garbage = tmp_path / "garbage.tum"
-    garbage.write_text("0 1 2 three\n")
-    with pytest.raises(TrajectoryError, match="unreadable trajectory") as err:
-        read_tum(garbage)
-    assert err.value.__cause__ is not None
-    tilted = tmp_path / "tilted.tum"
-    tilted.write_text("0 0 0 0.5 0 0 0 1\n")  # z = 0.5 m
-    with pytest.raises(TrajectoryError, match="not a planar"):
-        read_tum(tilted)
 
 
 def test_sibling_paths():
@@ -207,6 +206,7 @@ def test_export_writes_three_files_evo_can_pair(tmp_path: Path):
         ("-", None, "give a file name, not stdout"),
         ("/dev/null", None, "give a file name, not stdout or a stream"),
         ("", None, "--trajectory needs a file name"),
+        ("newdir/", None, "--trajectory needs a file name, not a folder ('newdir/')"),
         ("run.kitti", "tum", "the name says kitti, --trajectory-format says tum"),
     ],
 )
@@ -214,7 +214,7 @@ def test_an_export_that_cannot_be_three_files_is_refused_before_any_work(name, f
     from aslam.data_formats.trajectory import export_plan
 
     with pytest.raises(TrajectoryError, match=re.escape(problem)):
-        export_plan(Path(name), None if fmt is None else TrajectoryFormat(fmt))
+        export_plan(name, None if fmt is None else TrajectoryFormat(fmt))  # as typed
 
 
 def test_an_export_takes_its_format_from_the_option_then_the_name():
