@@ -53,8 +53,6 @@ class Keyframe(NamedTuple):
     action: np.ndarray
     """Odometry since the previous keyframe."""
     histogram: np.ndarray
-    ground_truth_pose: np.ndarray | None
-    odometry_pose: np.ndarray
 
 
 @dataclass
@@ -231,8 +229,7 @@ def keyframe_histograms(
 
     keyframes = keyframer.keyframes(counted(), lambda sample: sample.odometry_pose)
     for sample, action, vector in _described(keyframes, histogram, workers, depth):
-        pose = np.asarray(sample.odometry_pose, dtype=float)
-        yield Keyframe(sample.stamp_ns, action, vector, sample.ground_truth_pose, pose)
+        yield Keyframe(sample.stamp_ns, action, vector)
 
 
 def frame_histograms(

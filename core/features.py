@@ -83,8 +83,3 @@ def chi2_distances(histogram: np.ndarray, stored: np.ndarray, eps: float = 1e-10
     stored = np.atleast_2d(stored)
     difference = stored - histogram
     return np.einsum("ij,ij->i", difference, difference / (stored + histogram + eps))
-
-
-def log_observation_likelihood(chi2: np.ndarray | float, beta: float, chi2_floor: float) -> np.ndarray:
-    """``log P(z|x) = -β log χ²``, with χ² floored so identical views stay finite."""
-    return -beta * np.log(np.maximum(chi2, chi2_floor))

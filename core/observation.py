@@ -257,9 +257,6 @@ def random_projection(length: int) -> np.ndarray:
     return projection
 
 
-OBSERVATION_MODELS = ("histogram", "thumbnail")
-
-
 def descriptor_key(config: EstimatorConfig) -> str:
     """What decides the vector ``describe`` makes under ``config``, as the ``aslam estimate`` options
     that set it: views stored by one run can be compared by another only when these are equal (a

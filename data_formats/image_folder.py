@@ -329,17 +329,3 @@ def open_image_folder(
     if image_stamps is not None and any(b <= a for a, b in pairwise(image_stamps)):
         raise ImageFolderError(f"--rate {rate_hz:g} Hz is too fast to give {n} distinct nanosecond stamps")
     return ImageFolder(folder, tuple(images), how, odo, truth, image_stamps, stamp_file)
-
-
-def iter_folder_samples(
-    folder: Path,
-    *,
-    ground_truth: Path | None = None,
-    odometry: Path | None = None,
-    fmt: PoseFormat | str | None = None,
-    rate_hz: float | None = None,
-    on_warning: Callable[[str], None] | None = None,
-) -> Iterator[Sample]:
-    """``open_image_folder(...).samples()``: the folder as a ``Sample`` stream."""
-    source = open_image_folder(folder, ground_truth=ground_truth, odometry=odometry, fmt=fmt, rate_hz=rate_hz)
-    return source.samples(on_warning=on_warning)

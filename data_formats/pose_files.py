@@ -189,8 +189,3 @@ def _iter_poses(path: Path, fmt: PoseFormat) -> Iterator[PoseRow]:
             raise PoseFileError(f"line {number}: the pose {problem}", path=path)
         previous_pose = pose
         yield PoseRow(number, stamp, pose)
-
-
-def count_poses(path: Path, fmt: PoseFormat | str | None = None) -> int:
-    """How many pose rows ``path`` has (the whole file is checked on the way)."""
-    return sum(1 for _row in iter_poses(path, fmt))

@@ -65,7 +65,6 @@ class RecordingWriter:
         self.partial_path = self._output.partial_path
         self._file = self._output.file
         self._last_stamp_ns: int | None = None
-        self.frames_written = 0
         try:
             self._writer = Writer(self._file, chunk_size=chunk_size_bytes)
             self._schemas = {
@@ -156,7 +155,6 @@ class RecordingWriter:
                     "pose": ros_msgs.planar_pose_msg(truth),
                 },
             )
-        self.frames_written += 1
 
     def _camera_info(self, stamp_ns: int) -> dict[str, Any]:
         cam = self.camera

@@ -1,7 +1,7 @@
 """ROS bags as robots write them: rosbag2 folders (mcap or sqlite3 storage, split or zstd-compressed
 files), single rosbag2 storage files and ROS 1 ``.bag`` files, read through ``rosbags``.
 
-:func:`iter_bag_samples` yields the same ``Sample`` stream as ``recording.iter_samples`` (one per
+:func:`iter_bag_samples` yields the same ``Sample`` stream as ``Recording.samples`` (one per
 camera image, poses interpolated to its stamp by the same ``SampleAssembler``), so everything downstream
 is unchanged. Topics are found rather than configured: the only image topic, the only
 ``nav_msgs/Odometry`` topic or else the ``odom → base`` transforms on ``/tf``. Message types come

@@ -292,12 +292,7 @@ def parse_route(doc: Any, *, name: str = "route", path: Path | str | None = None
 
 
 def load_route_file(path: Path) -> Route:
-    try:
-        text = read_route_text(path)  # bounds: recorder/route_limits.py
-    except OSError as err:
-        raise RouteError(f"cannot read route file: {err.strerror or err}", path=path) from err
-    except UnicodeDecodeError as err:
-        raise RouteError("route file is not UTF-8 text", path=path) from err
+    text = read_route_text(path)  # read errors and bounds: recorder/route_limits.py
     try:
         doc = json.loads(text)
     except json.JSONDecodeError as err:
