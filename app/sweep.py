@@ -33,7 +33,7 @@ from typing import Any
 
 from aslam.app.sweep_file import ScoreOptions, Sweep
 from aslam.core.config import EstimatorConfig
-from aslam.core.errors import AslamError, InputError
+from aslam.core.errors import AslamError, InputError, one_line
 from aslam.data_formats.files import full_path, remove_stale_partials, source_sha256, write_atomically
 from aslam.data_formats.provenance import tool_version
 from aslam.recorder.config import RecordConfig
@@ -245,8 +245,7 @@ class TaskResult:
 
 def error_text(err: BaseException) -> str:
     """The one line a failed task shows: an ``AslamError``'s message, else the type and message."""
-    text = str(err) if isinstance(err, AslamError) else f"{type(err).__name__}: {err}"
-    return " ".join(text.split())
+    return one_line(str(err) if isinstance(err, AslamError) else f"{type(err).__name__}: {err}")
 
 
 def worker_name() -> str:

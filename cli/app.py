@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Annotated, NoReturn
 import typer
 import typer.core
 
-from aslam.core.errors import AslamError, QualityGateFailed
+from aslam.core.errors import AslamError, QualityGateFailed, one_line
 from aslam.data_formats.provenance import tool_version
 
 if TYPE_CHECKING:
@@ -92,14 +92,6 @@ def _register_commands(name: str | None = None) -> None:
     modules = [COMMAND_MODULES[name]] if name in COMMAND_MODULES else list(COMMAND_MODULES.values())
     for module in modules:
         importlib.import_module(f"aslam.cli.{module}")
-
-
-def one_line(message: str) -> str:
-    """``message`` as one line of plain text: whitespace runs made one space, and every other
-    control character (an escape sequence in a bag's frame name, say) shown as its code, never
-    sent to the terminal to act on."""
-    text = " ".join(message.split())
-    return "".join(ch if ch.isprintable() else f"\\x{ord(ch):02x}" for ch in text)
 
 
 def error_line(message: str) -> None:

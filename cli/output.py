@@ -122,7 +122,7 @@ class Terminal:
 
     def warning(self, message: str) -> None:
         if not self.quiet:
-            from aslam.cli.app import one_line
+            from aslam.core.errors import one_line
 
             self._line(f"aslam: warning: {one_line(message)}")
 

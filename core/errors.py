@@ -16,6 +16,14 @@ class AslamError(Exception):
         super().__init__(f"{self.path}: {problem}" if self.path else problem)
 
 
+def one_line(message: str) -> str:
+    """``message`` as one line of plain text: whitespace runs made one space, and every other
+    control character (an escape sequence in a bag's frame name, say) shown as its code, never
+    sent to a terminal to act on. How every error and warning is shown, on stderr or in a table."""
+    text = " ".join(message.split())
+    return "".join(ch if ch.isprintable() else f"\\x{ord(ch):02x}" for ch in text)
+
+
 class InputError(AslamError):
     """A file, a value or an option that cannot be used (exit 2)."""
 

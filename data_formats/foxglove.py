@@ -32,6 +32,7 @@ import numpy as np
 
 from aslam.data_formats import files
 from aslam.data_formats.errors import SceneError
+from aslam.data_formats.graph_json import is_loop_closure_link
 
 SCENE_TOPIC = "/aslam/metric/scene"
 TRAJECTORY_TOPIC = "/aslam/metric/trajectory"
@@ -147,10 +148,10 @@ class _GrowingScene:
             if a == b or (a, b) in self._seen or (b, a) in self._seen:
                 continue
             self._seen.add((a, b))
-            if abs(a - b) == 1:
-                _segment(self._links, poses[a], poses[b], LINK_RGBA)
-            else:
+            if is_loop_closure_link(a, b):
                 _segment(self._loops, poses[a], poses[b], LOOP_RGBA)
+            else:
+                _segment(self._links, poses[a], poses[b], LINK_RGBA)
         self._upto = max(self._upto, upto)
 
     def message(self, stamp_ns: int, *, complete: bool = False) -> Any:
@@ -289,7 +290,7 @@ class SceneChannels:
                 if link[0] != link[1] and link not in seen:
                     seen.add(link)
                     drawn += 1
-                    closures += link[1] - link[0] != 1
+                    closures += is_loop_closure_link(*link)
             if _grown(drawn, drawn_at_last_scene) or _grown(closures, closures_at_last_scene):
                 drawn_at_last_scene, closures_at_last_scene = drawn, closures
                 growing.extend(k + 1)
