@@ -21,7 +21,7 @@ from aslam.app.config_file import read_toml
 from aslam.core.config import REPORT_RANGES, EstimatorConfig
 from aslam.core.errors import ConfigError
 from aslam.data_formats.files import full_path
-from aslam.recorder.config import CameraSpec, NoiseParams, RecordConfig, parse_size
+from aslam.recorder.config import CameraSpec, NoiseModel, NoiseParams, RecordConfig, parse_size
 
 DEFAULT_FIGURES = (
     "keyframes",
@@ -46,7 +46,13 @@ RENDER_KEYS: dict[str, type] = {
     "drift_deg_per_m": float,
     "jitter_m": float,
     "jitter_deg": float,
+    "wander_m": float,
+    "wander_deg": float,
+    "wander_length_m": float,
+    "noise_model": str,
     "aliasing": float,
+    "lighting_change": float,
+    "odometry_reset_at": int,
     "world": str,
     "size": str,
     "fov_deg": float,
@@ -240,13 +246,19 @@ def _record_config(knobs: dict[str, Any], base: Path, where: str, problems: list
         route=route,
         laps=knobs.get("laps"),
         seed=knobs["seeds"],
-        noise=NoiseParams(
+        noise=NoiseParams.of_model(
+            knobs.get("noise_model", NoiseModel.DEFAULT),
             noise=float(knobs.get("noise", noise.noise)),
             drift_deg_per_m=float(knobs.get("drift_deg_per_m", noise.drift_deg_per_m)),
-            jitter_m=float(knobs.get("jitter_m", noise.jitter_m)),
-            jitter_deg=float(knobs.get("jitter_deg", noise.jitter_deg)),
+            jitter_m=None if knobs.get("jitter_m") is None else float(knobs["jitter_m"]),
+            jitter_deg=None if knobs.get("jitter_deg") is None else float(knobs["jitter_deg"]),
+            wander_m=float(knobs.get("wander_m", noise.wander_m)),
+            wander_deg=float(knobs.get("wander_deg", noise.wander_deg)),
+            wander_length_m=float(knobs.get("wander_length_m", noise.wander_length_m)),
         ),
         aliasing=float(knobs.get("aliasing", 0.0)),
+        lighting_change=float(knobs.get("lighting_change", 0.0)),
+        odometry_reset_at=knobs.get("odometry_reset_at"),
         world=world,
         camera=CameraSpec(
             width_px=width,

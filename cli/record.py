@@ -17,7 +17,6 @@ from aslam.cli.output import ForceOption, QuietOption, Terminal, VerboseOption
 from aslam.recorder.config import (
     DEFAULT_CAMERA_HEIGHT_M,
     DEFAULT_FOV_DEG,
-    DEFAULT_JITTER,
     CameraSpec,
     NoiseModel,
     NoiseParams,
@@ -127,20 +126,19 @@ def record(
 ) -> None:
     """Render an indoor walkthrough along a route into an MCAP recording (images, odometry, truth)."""
     width, height = parse_size(size)
-    default_jitter_m, default_jitter_deg = DEFAULT_JITTER[noise_model]
     config = RecordConfig(
         route=route,
         laps=laps,
         seed=seed,
-        noise=NoiseParams(
+        noise=NoiseParams.of_model(
+            noise_model,
             noise=noise,
             drift_deg_per_m=drift_deg_per_m,
-            jitter_m=default_jitter_m if jitter_m is None else jitter_m,
-            jitter_deg=default_jitter_deg if jitter_deg is None else jitter_deg,
+            jitter_m=jitter_m,
+            jitter_deg=jitter_deg,
             wander_m=wander_m,
             wander_deg=wander_deg,
             wander_length_m=wander_length_m,
-            model=noise_model,
         ),
         aliasing=aliasing,
         lighting_change=lighting_change,

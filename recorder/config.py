@@ -11,6 +11,7 @@ import re
 from dataclasses import dataclass, field, fields
 from enum import StrEnum
 from pathlib import Path
+from typing import Any
 
 from aslam.core.errors import ConfigError
 from aslam.data_formats.camera import fov_option_problem
@@ -73,6 +74,26 @@ class NoiseParams:
     def __post_init__(self) -> None:
         if not isinstance(self.model, NoiseModel) and self.model in set(NoiseModel):
             object.__setattr__(self, "model", NoiseModel(self.model))  # "paper" → NoiseModel.PAPER
+
+    @classmethod
+    def of_model(
+        cls,
+        model: NoiseModel | str = NoiseModel.DEFAULT,
+        *,
+        jitter_m: float | None = None,
+        jitter_deg: float | None = None,
+        **rest: Any,
+    ) -> NoiseParams:
+        """The noise of ``model`` with the jitter it has when not given (``DEFAULT_JITTER``): one
+        rule for ``aslam record``'s options and a sweep file's ``[[render]]`` tables."""
+        defaults = DEFAULT_JITTER.get(NoiseModel(model) if model in set(NoiseModel) else NoiseModel.DEFAULT)
+        assert defaults is not None
+        return cls(
+            jitter_m=defaults[0] if jitter_m is None else jitter_m,
+            jitter_deg=defaults[1] if jitter_deg is None else jitter_deg,
+            model=model,  # type: ignore[arg-type]  # a bad name is reported by problems()
+            **rest,
+        )
 
     def problems(self) -> list[str]:
         out = []

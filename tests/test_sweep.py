@@ -291,6 +291,30 @@ def test_render_lists_multiply_and_grids_multiply_in_file_order(tmp_path):
     assert len(plan_tasks(sweep, tmp_path)) == 16
 
 
+def test_a_sweep_renders_what_aslam_record_renders(tmp_path):
+    """Issue 9's knobs (wander, a new light, the paper's noise model, an odometry reset) in a
+    [[render]] table give the configuration `aslam record` gives for the same options, the
+    noise model's own jitter included."""
+    from aslam.recorder.config import NoiseModel, NoiseParams, RecordConfig
+
+    path = tmp_path / "s.toml"
+    path.write_text(
+        "[[render]]\nseeds = 3\nnoise_model = ['default', 'paper']\nwander_m = 0.3\nwander_deg = 5.0\n"
+        "lighting_change = 0.5\nodometry_reset_at = 40\n"
+    )
+    default, paper = read_sweep_file(path).renders
+    for config, model, jitter in (
+        (default, NoiseModel.DEFAULT, (0.05, 1.5)),
+        (paper, NoiseModel.PAPER, (0.0, 0.0)),
+    ):
+        noise = NoiseParams.of_model(model, wander_m=0.3, wander_deg=5.0)
+        assert config == RecordConfig(seed=3, noise=noise, lighting_change=0.5, odometry_reset_at=40)
+        assert (config.noise.jitter_m, config.noise.jitter_deg) == jitter
+    path.write_text("[[render]]\nnoise_model = 'papr'\n")
+    with pytest.raises(ConfigError, match="noise_model must be one of default, paper"):
+        read_sweep_file(path)
+
+
 def test_a_combination_named_twice_runs_once(tmp_path):
     """A value listed twice, or two grids naming the same configuration (``step_m`` at its
     default is the defaults), plan one task each, in first-come order: no duplicate rows, and no
