@@ -34,7 +34,13 @@ from typing import Any
 from aslam.app.sweep_file import ScoreOptions, Sweep
 from aslam.core.config import EstimatorConfig
 from aslam.core.errors import AslamError, InputError, one_line
-from aslam.data_formats.files import full_path, remove_stale_partials, source_sha256, write_atomically
+from aslam.data_formats.files import (
+    check_output_folder,
+    full_path,
+    remove_stale_partials,
+    source_sha256,
+    write_atomically,
+)
 from aslam.data_formats.provenance import tool_version
 from aslam.recorder.config import RecordConfig
 
@@ -449,8 +455,7 @@ def run_sweep(
     if workers is not None and workers < 1:
         raise InputError(f"--workers must be at least 1, got {workers}")
     results_dir = full_path(results_dir)
-    if results_dir.exists() and not results_dir.is_dir():
-        raise InputError("is not a folder", path=results_dir)
+    check_output_folder(results_dir, what="results folder")
     created = not results_dir.exists()
     try:
         (results_dir / TASKS_FOLDER).mkdir(parents=True, exist_ok=True)

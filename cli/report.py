@@ -116,12 +116,10 @@ def report(
         raise InputError("--trajectory-format needs --trajectory")
     for i, path in enumerate(outputs):  # before any work: a bad path, or two outputs that are one file
         _check_output(path, force=force, others=outputs[:i])
-    if plots is not None and plots.exists() and not plots.is_dir():
-        raise InputError("exists and is not a folder", path=plots)
-    if plots is not None and not plots.exists():  # to be made: under a folder, not under a file
-        above = next(folder for folder in plots.absolute().parents if folder.exists())
-        if not above.is_dir():
-            raise InputError(f"cannot make the plots folder: {above} is not a folder", path=plots)
+    if plots is not None:
+        from aslam.data_formats.files import check_output_folder
+
+        check_output_folder(plots, what="plots folder")
     if plots is not None and plots.is_dir():
         from aslam.app.plots import PLOT_NAMES
 

@@ -241,6 +241,18 @@ def full_path(path: Path | str) -> Path:
     return Path(os.path.abspath(path))
 
 
+def check_output_folder(path: Path, *, what: str = "folder") -> None:
+    """Fail before any work when ``path`` cannot be an output folder: a file, or a folder to be made
+    under a file (the folder itself is made by whoever writes into it)."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise InputError(f"is a file, not a {what}", path=path)
+    if not path.exists():
+        above = next(folder for folder in path.absolute().parents if folder.exists())
+        if not above.is_dir():
+            raise InputError(f"cannot make the {what}: {above} is not a folder", path=path)
+
+
 def check_output_path(
     path: Path,
     *,

@@ -724,6 +724,25 @@ def test_plots_under_a_file_are_one_line(estimate_file: Path, tmp_path: Path, ca
     assert not json_out.exists()
 
 
+def test_an_output_folder_is_checked_one_way_for_plots_and_sweep_results(tmp_path: Path):
+    from aslam.app.sweep import run_sweep
+    from aslam.app.sweep_file import read_sweep_file
+    from aslam.data_formats.files import check_output_folder
+
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    with pytest.raises(InputError, match="is a file, not a results folder"):
+        check_output_folder(blocker, what="results folder")
+    with pytest.raises(InputError, match=f"cannot make the plots folder: {blocker} is not a folder"):
+        check_output_folder(blocker / "a" / "b", what="plots folder")
+    check_output_folder(tmp_path / "new" / "deeper")  # to be made: fine, and not made here
+    assert not (tmp_path / "new").exists()
+    sweep_file = tmp_path / "s.toml"
+    sweep_file.write_text("[[render]]\nseeds = 1\n")
+    with pytest.raises(InputError, match="file: is a file, not a results folder"):
+        run_sweep(read_sweep_file(sweep_file), blocker, workers=1)
+
+
 def test_outside_a_command_writes_land_at_once_and_may_be_rewritten(tmp_path: Path):
     """Library callers (and commands that keep files while they run, like a sweep's saved results)
     get the historic behaviour: each write atomic and immediate, the same path rewritable."""
