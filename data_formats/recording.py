@@ -212,34 +212,45 @@ class _Stream:
         if stamp_ns < 0:
             raise RecordingError(negative_stamp(self.what, channel.topic, stamp_ns), path=self.path)
         if self.ordered and self.last_ns is not None and stamp_ns < self.last_ns:
-            topic, previous = channel.topic, self.last_ns
-            raise RecordingError(
-                f"{self.what} stamps go backwards on '{topic}': {stamp_ns} ns after {previous} ns",
-                path=self.path,
-            )
+            raise RecordingError(backwards(self.what, channel.topic, stamp_ns, self.last_ns), path=self.path)
         self.last_ns = stamp_ns
         return stamp_ns, msg, datatype
 
     def pose(self, topic: str, datatype: str, msg: Any, stamp_ns: int) -> np.ndarray:
-        """The planar pose of a pose message (Odometry, PoseStamped, ...), finite."""
-        try:
-            pose = ros_msgs.pose_of_message(datatype, msg)
-        except (AttributeError, TypeError, ValueError) as err:
-            raise RecordingError(
-                f"{self.what} message on '{topic}' at stamp {stamp_ns} ns has no pose", path=self.path
-            ) from err
-        if not np.all(np.isfinite(pose)):
-            raise RecordingError(
-                f"{self.what} pose on '{topic}' at stamp {stamp_ns} ns is not finite (NaN or infinite)",
-                path=self.path,
-            )
-        problem = implausible(pose, self.last_pose)
-        if problem is not None:
-            raise RecordingError(
-                f"{self.what} pose on '{topic}' at stamp {stamp_ns} ns {problem}", path=self.path
-            )
-        self.last_pose = pose
-        return pose
+        """The planar pose of a pose message (Odometry, PoseStamped, ...), finite and plausible."""
+        self.last_pose = checked_pose(self.path, self.what, topic, datatype, msg, stamp_ns, self.last_pose)
+        return self.last_pose
+
+
+def backwards(what: str, topic: str, stamp_ns: int, previous_ns: int) -> str:
+    """The problem of a stamp before the one before it on its topic."""
+    return f"{what} stamps go backwards on '{topic}': {stamp_ns} ns after {previous_ns} ns"
+
+
+def checked_pose(
+    path: Path,
+    what: str,
+    topic: str,
+    datatype: str,
+    msg: Any,
+    stamp_ns: int,
+    previous: np.ndarray | None,
+    error: type[RecordingError] = RecordingError,
+) -> np.ndarray:
+    """The planar pose of a pose message, finite and plausible after ``previous``: the one check of
+    a recording's and a bag's poses (``error`` says which)."""
+    try:
+        pose = ros_msgs.pose_of_message(datatype, msg)
+    except (AttributeError, TypeError, ValueError) as err:
+        raise error(f"{what} message on '{topic}' at stamp {stamp_ns} ns has no pose", path=path) from err
+    if not np.all(np.isfinite(pose)):
+        raise error(
+            f"{what} pose on '{topic}' at stamp {stamp_ns} ns is not finite (NaN or infinite)", path=path
+        )
+    problem = implausible(pose, previous)
+    if problem is not None:
+        raise error(f"{what} pose on '{topic}' at stamp {stamp_ns} ns {problem}", path=path)
+    return pose
 
 
 class Recording:

@@ -32,7 +32,14 @@ from aslam.data_formats.files import check_input_file, source_files
 from aslam.data_formats.mcap_file import McapFile
 from aslam.data_formats.pose_limits import implausible
 from aslam.data_formats.pose_sync import Sample, SampleAssembler
-from aslam.data_formats.recording import _header_stamp_ns, _lazy_image, _set_header_stamp_ns, negative_stamp
+from aslam.data_formats.recording import (
+    _header_stamp_ns,
+    _lazy_image,
+    _set_header_stamp_ns,
+    backwards,
+    checked_pose,
+    negative_stamp,
+)
 from aslam.data_formats.recording_info import TopicInfo
 
 TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
@@ -213,18 +220,7 @@ def _pose(
     path: Path, what: str, topic: str, datatype: str, msg: Any, stamp_ns: int, previous: np.ndarray | None
 ) -> np.ndarray:
     """The planar pose of a pose message, finite and plausible after ``previous`` (as a recording's)."""
-    try:
-        pose = ros_msgs.pose_of_message(datatype, msg)
-    except (AttributeError, TypeError, ValueError) as err:
-        raise BagError(f"{what} message on '{topic}' at stamp {stamp_ns} ns has no pose", path=path) from err
-    if not np.all(np.isfinite(pose)):
-        raise BagError(
-            f"{what} pose on '{topic}' at stamp {stamp_ns} ns is not finite (NaN or infinite)", path=path
-        )
-    problem = implausible(pose, previous)
-    if problem is not None:
-        raise BagError(f"{what} pose on '{topic}' at stamp {stamp_ns} ns {problem}", path=path)
-    return pose
+    return checked_pose(path, what, topic, datatype, msg, stamp_ns, previous, error=BagError)
 
 
 def _stamp(path: Path, what: str, topic: str, msg: Any, log_time: int) -> int:
@@ -236,9 +232,7 @@ def _stamp(path: Path, what: str, topic: str, msg: Any, log_time: int) -> int:
 
 
 def _backwards(path: Path, what: str, topic: str, stamp_ns: int, previous_ns: int) -> BagError:
-    return BagError(
-        f"{what} stamps go backwards on '{topic}': {stamp_ns} ns after {previous_ns} ns", path=path
-    )
+    return BagError(backwards(what, topic, stamp_ns, previous_ns), path=path)
 
 
 @contextmanager
