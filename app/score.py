@@ -24,7 +24,7 @@ from aslam.app.metric_view import (
 )
 from aslam.app.metric_view import score as score_trajectories
 from aslam.core import se2
-from aslam.core.config import check_report_tolerances
+from aslam.core.config import REVISIT_HEADING_DEG, REVISIT_RADIUS_M, check_report_tolerances
 from aslam.core.errors import InputError
 from aslam.core.mapgraph import GrowableArray
 from aslam.core.metrics import AssignmentScore, Evaluation, evaluate, score_assignment
@@ -251,8 +251,8 @@ def score(
     estimate: Path,
     *,
     recording: Path | None = None,
-    radius_m: float = 0.5,
-    heading_deg: float = 45.0,
+    radius_m: float = REVISIT_RADIUS_M,
+    heading_deg: float = REVISIT_HEADING_DEG,
     truth_by_index: bool = False,
     ground_truth_topic: str | None = None,
     on_warning: Callable[[str], None] | None = None,

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from aslam.app.config_file import read_toml
-from aslam.core.config import REPORT_RANGES, EstimatorConfig
+from aslam.core.config import REPORT_RANGES, REVISIT_HEADING_DEG, REVISIT_RADIUS_M, EstimatorConfig
 from aslam.core.errors import ConfigError
 from aslam.data_formats.files import full_path
 from aslam.recorder.config import CameraSpec, NoiseModel, NoiseParams, RecordConfig, parse_size
@@ -66,8 +66,8 @@ RENDER_KEYS: dict[str, type] = {
 class ScoreOptions:
     """How every estimate is scored (``aslam.app.score.score``'s options)."""
 
-    radius_m: float = 0.5
-    heading_deg: float = 45.0
+    radius_m: float = REVISIT_RADIUS_M
+    heading_deg: float = REVISIT_HEADING_DEG
 
 
 Grid = tuple[tuple[str, tuple[Any, ...]], ...]

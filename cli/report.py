@@ -15,6 +15,7 @@ import typer
 
 from aslam.cli.app import app
 from aslam.cli.output import ForceOption, QuietOption, Terminal, VerboseOption, table_console
+from aslam.core.config import REVISIT_HEADING_DEG, REVISIT_RADIUS_M
 from aslam.core.errors import InputError, QualityGateFailed
 from aslam.data_formats.format_names import TrajectoryFormat
 
@@ -68,10 +69,10 @@ def report(
     ] = None,
     radius_m: Annotated[
         float, typer.Option(help="A revisit is within this distance of the earlier true position (m).")
-    ] = 0.5,
+    ] = REVISIT_RADIUS_M,
     heading_deg: Annotated[
         float, typer.Option(help="A revisit is within this difference of the earlier true heading (degrees).")
-    ] = 45.0,
+    ] = REVISIT_HEADING_DEG,
     truth_by_index: Annotated[
         bool,
         typer.Option(

@@ -443,6 +443,12 @@ def _with_range(name: str, help_text: str) -> str:
 
 
 #: Accepted values of `aslam report`'s revisit tolerances (a revisit is within these of the earlier visit).
+REVISIT_RADIUS_M = 0.5
+"""A keyframe truly revisits an earlier one (and a claim is right) within this distance: the
+default of every scorer (``core.metrics``, ``report --radius-m``, a sweep's ``[score]``)."""
+REVISIT_HEADING_DEG = 45.0
+"""... and within this difference of heading."""
+
 REPORT_RANGES: dict[str, Bounds] = {
     "radius_m": Bounds(0.001, 1000),
     "heading_deg": Bounds(0, 180, low_open=True),

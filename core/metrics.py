@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from aslam.core import se2
+from aslam.core.config import REVISIT_HEADING_DEG, REVISIT_RADIUS_M
 from aslam.core.tree import Hypothesis
 
 
@@ -194,8 +195,8 @@ def score_assignment(
     state_of_keyframe: np.ndarray,
     true_poses: np.ndarray,
     *,
-    radius_m: float = 0.5,
-    heading_deg: float = 45.0,
+    radius_m: float = REVISIT_RADIUS_M,
+    heading_deg: float = REVISIT_HEADING_DEG,
     first_keyframe: int = 0,
 ) -> AssignmentScore:
     """Score a map: keyframe t claims a revisit when its state is an earlier keyframe's place.
@@ -269,8 +270,8 @@ def evaluate(
     steps: Iterable[tuple[int, Sequence[Hypothesis]]],
     true_poses: np.ndarray | None,
     *,
-    radius_m: float = 0.5,
-    heading_deg: float = 45.0,
+    radius_m: float = REVISIT_RADIUS_M,
+    heading_deg: float = REVISIT_HEADING_DEG,
     first_keyframe: int = 0,
     count: int | None = None,
 ) -> Evaluation:
