@@ -411,11 +411,9 @@ def open_client(*, workers: int | None, scheduler: str | None) -> Any:
         # client's close; seen in the test suite). Collected here, where nothing else is starting.
         gc.collect()
         raise InputError(message)
-    count = (
-        workers
-        if workers is not None
-        else (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
-    )
+    from dask.system import CPU_COUNT  # the cores this process may use: affinity and cgroup quotas
+
+    count = workers if workers is not None else CPU_COUNT
     if count < 1:
         raise InputError(f"--workers must be at least 1, got {count}")
     with dask.config.set(LOCAL_CLUSTER_SETTINGS):
