@@ -19,14 +19,16 @@ rows, except the timing and worker columns.
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import hashlib
 import json
+import logging
 import os
 import shutil
 import socket
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -74,6 +76,19 @@ class TasksFailed(AslamError):
     """Some tasks of a sweep failed; their rows say why (exit 3). The others' results are written."""
 
     exit_code = 3
+
+
+class ClusterLost(AslamError):
+    """The Dask cluster could not run the tasks, or went away (exit 2): no row for tasks that never
+    ran; those done are saved, so a run again finishes the rest."""
+
+
+#: How long a cluster may have no worker (none at the start, or all gone) before the sweep gives up.
+WORKERS_WAIT_S = 30.0
+#: How often, while no task finishes, the sweep asks the scheduler whether it still has workers.
+WORKERS_CHECK_S = 5.0
+#: How long a scheduler has to say who it is.
+SCHEDULER_ANSWER_S = 10.0
 
 
 def _digest(value: Any) -> str:
@@ -391,7 +406,6 @@ def open_client(*, workers: int | None, scheduler: str | None) -> Any:
     turns off glibc's adaptive mmap threshold, and every decoded image then costs an mmap/munmap
     and its page faults (measured: twice the CPU time of a task).
     """
-    import logging
 
     import dask
     from distributed import Client, LocalCluster
@@ -401,10 +415,11 @@ def open_client(*, workers: int | None, scheduler: str | None) -> Any:
             raise InputError(
                 "--workers sizes a local cluster; the cluster at --scheduler has its own workers"
             )
+        _probe_scheduler(scheduler)
         try:
             return Client(scheduler, timeout="10s")
-        except (OSError, TimeoutError, ValueError) as err:  # ValueError: not an address
-            message = f"cannot reach the Dask scheduler at {scheduler}: {err}"
+        except (OSError, TimeoutError, ValueError, TypeError) as err:  # ValueError: not an address
+            message = f"cannot reach the Dask scheduler at {scheduler}: {error_text(err)}"
         # The half-made Client is a reference cycle (its own handlers) that only the garbage collector
         # frees, closing it then: at a random later moment, and if that is inside another Client's
         # start, distributed deadlocks (the loop runner's lock, held, taken again by the dying
@@ -425,6 +440,56 @@ def open_client(*, workers: int | None, scheduler: str | None) -> Any:
             silence_logs=logging.CRITICAL,  # a failing task is a row; shutdown chatter is noise
         )
     return Client(cluster)
+
+
+def _probe_scheduler(address: str) -> None:
+    """Ask ``address`` who it is, within ``SCHEDULER_ANSWER_S``: a port where something else
+    listens would keep the client waiting for ever; ``tls://`` without its settings fails in the
+    client's innards."""
+    import asyncio
+
+    from distributed.core import rpc
+
+    async def identity() -> Any:
+        remote = rpc(address, timeout=5)
+        try:
+            return await asyncio.wait_for(remote.identity(), SCHEDULER_ANSWER_S)
+        finally:
+            await remote.close_rpc()
+
+    try:
+        asyncio.run(identity())
+    except TimeoutError:
+        raise InputError(
+            f"nothing answers as a Dask scheduler at {address} within {SCHEDULER_ANSWER_S:g} s"
+        ) from None
+    except Exception as err:  # refused, not an address, a transport without its settings (tls, ucx)
+        raise InputError(f"cannot reach the Dask scheduler at {address}: {error_text(err)}") from err
+
+
+def check_workers(client: Any, address: str) -> None:
+    """A cluster of one's own must have workers, and every one must run this aslam: a worker
+    without it never takes a task (the sweep would wait for ever), and one of another version
+    would file its results under this version's task keys."""
+
+    try:
+        client.wait_for_workers(1, timeout=WORKERS_WAIT_S)
+    except TimeoutError:
+        raise ClusterLost(
+            f"the Dask cluster at {address} has no workers (waited {WORKERS_WAIT_S:g} s)"
+        ) from None
+    try:
+        versions = client.run(tool_version)  # pickled by reference: a worker must import aslam
+    except Exception as err:
+        raise ClusterLost(
+            f"a worker of the Dask cluster at {address} cannot run aslam: {error_text(err)}"
+        ) from err
+    ours = tool_version()
+    for worker, version in sorted(versions.items()):
+        if version != ours:
+            raise ClusterLost(
+                f"worker {worker} of the Dask cluster at {address} runs aslam {version}; this is aslam {ours}"
+            )
 
 
 def run_sweep(
@@ -507,24 +572,37 @@ def _run_in(
             on_result(tasks[index], results[index], True)
     if pending:
         own = client is None
-        client = open_client(workers=workers, scheduler=scheduler) if own else client
-        try:
-            for task, result in _compute(client, pending, force=force):
-                save_result(results_dir, result)
-                results[task.index] = result
-                if on_result is not None:
-                    on_result(task, result, False)
-        finally:
-            if own:
-                _close(client, local=scheduler is None)
+        with _dask_logs_quiet():
+            client = open_client(workers=workers, scheduler=scheduler) if own else client
+            try:
+                if own and scheduler is not None:
+                    check_workers(client, scheduler)
+                computed = _compute(client, pending, force=force, done_before=reused, total=len(tasks))
+                for task, result in computed:
+                    save_result(results_dir, result)
+                    results[task.index] = result
+                    if on_result is not None:
+                        on_result(task, result, False)
+            finally:
+                if own:
+                    _close(client, local=scheduler is None)
     ordered = tuple(results[task.index] for task in tasks)
     parquet, csv = write_tables(results_dir, sweep, tasks, ordered, extra_figures)
     return SweepRun(tuple(tasks), ordered, reused, parquet, csv)
 
 
-def _compute(client: Any, tasks: Sequence[Task], *, force: bool) -> Iterable[tuple[Task, TaskResult]]:
-    """Submit the render tasks, then the estimate tasks depending on them; yield as they finish."""
-    from distributed import as_completed
+def _compute(
+    client: Any, tasks: Sequence[Task], *, force: bool, done_before: int = 0, total: int | None = None
+) -> Iterable[tuple[Task, TaskResult]]:
+    """Submit the render tasks, then the estimate tasks depending on them; yield as they finish.
+
+    While none finishes, the scheduler is asked every ``WORKERS_CHECK_S`` whether it still has
+    workers: with none for ``WORKERS_WAIT_S``, or the scheduler gone, the sweep stops (``ClusterLost``)
+    instead of waiting for ever; tasks that never ran get no row.
+    """
+    from concurrent.futures import CancelledError
+
+    from distributed import wait
 
     renders: dict[Path, Any] = {}
     futures: dict[Any, Task] = {}
@@ -539,18 +617,79 @@ def _compute(client: Any, tasks: Sequence[Task], *, force: bool) -> Iterable[tup
             dependency = renders[task.source.path]
         future = client.submit(run_task, task, dependency, key=f"estimate-{task.key[:16]}", retries=0)
         futures[future] = task
-    for future in as_completed(futures):
-        task = futures[future]
-        if future.status == "finished":
-            result = future.result()
-        else:  # the worker died, or the task could not be shipped: still one row
+    finished = done_before
+    total = len(tasks) + done_before if total is None else total
+
+    def lost(why: str) -> ClusterLost:
+        return ClusterLost(
+            f"lost the Dask cluster ({why}): {finished} of {total} tasks done and saved; run again to finish"
+        )
+
+    alone_since: float | None = None
+
+    def still_served() -> None:
+        """Raise ``ClusterLost`` once the scheduler is gone or has had no worker for too long."""
+        nonlocal alone_since
+        try:
+            workers = len(client.nthreads())
+        except Exception as err:  # the scheduler itself is gone
+            raise lost(f"its scheduler does not answer: {error_text(err)}") from err
+        alone_since = None if workers else (alone_since or time.monotonic())
+        if alone_since is not None and time.monotonic() - alone_since > WORKERS_WAIT_S:
+            raise lost(f"no worker for {WORKERS_WAIT_S:g} s")
+
+    def result_of(future: Any) -> Any:
+        # A result held by a worker that died is computed again, which needs a worker.
+        while True:
             try:
-                error = error_text(future.exception())
-            except Exception as err:  # cancelled futures have no exception to fetch
-                error = error_text(err)
-            result = TaskResult(task.index, task.key, None, error, (), None, None, "")
-        future.release()
-        yield task, result
+                return future.result(timeout=WORKERS_CHECK_S)
+            except TimeoutError:
+                still_served()
+            except CancelledError:
+                raise lost("its scheduler went away") from None
+
+    pending = set(futures)
+    while pending:
+        try:
+            done, pending = wait(pending, timeout=WORKERS_CHECK_S, return_when="FIRST_COMPLETED")
+        except TimeoutError:
+            still_served()
+            continue
+        except CancelledError:  # every future, when the client loses its scheduler
+            raise lost("its scheduler went away") from None
+        for future in sorted(done, key=lambda f: futures[f].index):
+            task = futures[future]
+            if future.status == "finished":
+                result = result_of(future)
+            elif future.status == "cancelled":  # cancelled by no one here: the scheduler went away
+                raise lost("its scheduler went away")
+            else:  # the worker died, or the task could not be shipped: still one row
+                try:
+                    error = error_text(future.exception())
+                except Exception as err:
+                    error = error_text(err)
+                result = TaskResult(task.index, task.key, None, error, (), None, None, "")
+            future.release()
+            finished += 1
+            yield task, result
+
+
+@contextlib.contextmanager
+def _dask_logs_quiet() -> Iterator[None]:
+    """Dask's own log lines (a lost scheduler's tracebacks, a killed worker's) are not the sweep's
+    output: a failure is a row or one error line. Its loggers are hushed while the tasks run."""
+    import distributed  # noqa: F401  (its loggers exist once it is imported)
+
+    names = [name for name in logging.root.manager.loggerDict if name.startswith("distributed.")]
+    loggers = [logging.getLogger(name) for name in ("distributed", "asyncio", "tornado", *names)]
+    levels = [logger.level for logger in loggers]
+    for logger in loggers:
+        logger.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        for logger, level in zip(loggers, levels, strict=True):
+            logger.setLevel(level)
 
 
 def _close(client: Any, *, local: bool) -> None:

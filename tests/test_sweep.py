@@ -587,3 +587,70 @@ def test_every_summary_figure_has_the_direction_a_user_means():
     for key in ("loop_closure.precision", "loop_closure.recall", "loop_closure.auc", "committed.recall"):
         assert key in larger
     assert {"timing.keyframes_per_second", "trajectory.closures"} <= larger
+
+
+def _scheduler(tmp_path: Path) -> tuple[subprocess.Popen, str]:
+    """A real `dask scheduler` process with no workers, and its address."""
+    scheduler_file = tmp_path / "scheduler.json"
+    dask = Path(sys.executable).with_name("dask")
+    process = subprocess.Popen(
+        [str(dask), "scheduler", "--port", "0", "--no-dashboard", "--scheduler-file", str(scheduler_file)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    deadline = time.monotonic() + 60
+    while not scheduler_file.exists() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    return process, json.loads(scheduler_file.read_text())["address"]
+
+
+def test_a_cluster_that_cannot_run_the_tasks_is_one_line_not_a_wait_for_ever(
+    recordings, tmp_path, capsys, monkeypatch
+):
+    """A scheduler with no workers, one whose workers run another aslam, a port where no scheduler
+    answers, a transport without its settings: exit 2 with one line, and nothing left behind."""
+    import socket
+
+    from aslam.app import sweep as sweep_module
+
+    monkeypatch.setattr(sweep_module, "WORKERS_WAIT_S", 1.0)
+    monkeypatch.setattr(sweep_module, "SCHEDULER_ANSWER_S", 1.0)
+    sweep_file = _write_sweep(recordings)
+    process, address = _scheduler(tmp_path)
+    try:
+        results = tmp_path / "none"
+        code = main(["sweep", str(sweep_file), "-o", str(results), "--scheduler", address, "-q"])
+        err = capsys.readouterr().err
+        assert code == 2, err
+        assert f"the Dask cluster at {address} has no workers (waited 1 s)" in err
+        assert not results.exists()
+        dask = Path(sys.executable).with_name("dask")
+        worker = subprocess.Popen(
+            [str(dask), "worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard"],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        try:
+            monkeypatch.setattr("aslam.data_formats.provenance.VERSION", "0.0.0-another")  # here, not there
+            assert main(["sweep", str(sweep_file), "-o", str(results), "--scheduler", address, "-q"]) == 2
+            err = capsys.readouterr().err
+            assert "runs aslam" in err and "this is aslam 0.0.0-another" in err and err.count("\n") == 1
+        finally:
+            worker.terminate()
+            worker.wait(timeout=30)
+    finally:
+        process.terminate()
+        process.wait(timeout=30)
+    silent = socket.socket()
+    silent.bind(("127.0.0.1", 0))
+    silent.listen(1)
+    port = silent.getsockname()[1]
+    try:
+        args = ["sweep", str(sweep_file), "-o", str(tmp_path / "x"), "--scheduler", f"tcp://127.0.0.1:{port}"]
+        assert main([*args, "-q"]) == 2
+        assert "nothing answers as a Dask scheduler" in capsys.readouterr().err
+    finally:
+        silent.close()
+    tls = ["sweep", str(sweep_file), "-o", str(tmp_path / "y"), "--scheduler", "tls://127.0.0.1:1", "-q"]
+    assert main(tls) == 2
+    assert "cannot reach the Dask scheduler at tls://127.0.0.1:1" in capsys.readouterr().err
