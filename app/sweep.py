@@ -191,12 +191,16 @@ def plan_tasks(sweep: Sweep, results_dir: Path, *, hashes: HashCache | None = No
     """Every task of ``sweep``, in the stable order the rows take; a task two grids both name (the
     same recording and configuration) once, where it first comes.
 
-    Hashes each recording file (one sequential read), or takes its hash from ``hashes``.
+    Hashes each recording file (one sequential read), or takes its hash from ``hashes``. A listed
+    file under the results folder is the sweep's own output (a render, an estimate, matched by a
+    ``**`` glob on a second run), not a recording: left out.
     """
     results_dir = full_path(results_dir)
     hashes = hashes if hashes is not None else HashCache(None)
     sources = []
     for path in sweep.recordings:
+        if full_path(path).is_relative_to(results_dir):
+            continue
         sources.append(Source(path, hashes.sha256(path)))
     for config in sweep.renders:
         path, identity = render_path(results_dir, config)

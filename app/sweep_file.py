@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import glob
 import itertools
+import math
 import os
 import re
 from collections.abc import Iterator
@@ -35,6 +36,9 @@ DEFAULT_FIGURES = (
 )
 
 TOP_LEVEL_KEYS = ("figures", "recordings", "render", "grid", "score")
+#: The most parameter sets one grid (or recordings one [[render]] table) may make: each is checked
+#: by building it, and a 1,000 × 1,000 grid took minutes and gigabytes before saying anything.
+MAX_COMBINATIONS = 10_000
 RECORDINGS_KEYS = ("paths",)
 SCORE_KEYS = {"radius_m": float, "heading_deg": float}
 #: Keys of a ``[[render]]`` table and their types; each may also be a list of such values.
@@ -188,6 +192,9 @@ def _renders(value: Any, base: Path, problems: list[str]) -> tuple[RecordConfig,
             continue
         lists.setdefault("route", ["paper"])
         lists.setdefault("seeds", [0])
+        if (count := math.prod(len(values) for values in lists.values())) > MAX_COMBINATIONS:
+            problems.append(f"{where}: {count:,} recordings; at most {MAX_COMBINATIONS:,} (split the sweep)")
+            continue
         names = list(lists)
         for combination in itertools.product(*(lists[name] for name in names)):
             config = _record_config(dict(zip(names, combination, strict=True)), base, where, problems)
@@ -300,6 +307,9 @@ def _grid(value: dict[str, Any], where: str, problems: list[str]) -> Grid:
         return ()
     # A value listed twice (``[1, 1.0]``) is one value: every combination runs once.
     grid = [(key, tuple(dict.fromkeys(types[key](v) for v in values))) for key, values in lists.items()]
+    if (count := math.prod(len(values) for _name, values in grid)) > MAX_COMBINATIONS:
+        problems.append(f"{where}: {count:,} parameter sets; at most {MAX_COMBINATIONS:,} (split the sweep)")
+        return ()
     names = [name for name, _values in grid]
     for combination in itertools.product(*(values for _name, values in grid)):
         try:

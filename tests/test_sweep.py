@@ -216,7 +216,7 @@ def test_task_keys_follow_the_recording_bytes_and_the_parameters(recordings, tmp
     copy.write_bytes((recordings / "good.mcap").read_bytes())
     other = tmp_path / "sweep.toml"
     other.write_text(f'[recordings]\npaths = ["{copy}"]\n[grid]\nbeta = [3.0, 2.0]\n')
-    copied = plan_tasks(read_sweep_file(other), tmp_path)
+    copied = plan_tasks(read_sweep_file(other), tmp_path / "results")
     assert copied[0].key == first[0].key  # the same bytes and parameters: the same task
     assert copied[1].key != first[0].key
     assert [t.parameters for t in copied] == [(("beta", 3.0),), (("beta", 2.0),)]
@@ -654,3 +654,25 @@ def test_a_cluster_that_cannot_run_the_tasks_is_one_line_not_a_wait_for_ever(
     tls = ["sweep", str(sweep_file), "-o", str(tmp_path / "y"), "--scheduler", "tls://127.0.0.1:1", "-q"]
     assert main(tls) == 2
     assert "cannot reach the Dask scheduler at tls://127.0.0.1:1" in capsys.readouterr().err
+
+
+def test_a_glob_never_takes_the_sweeps_own_outputs_and_grids_are_bounded(recordings, tmp_path, monkeypatch):
+    """Run twice with `**/*.mcap` and the results inside the sweep's folder: the second run's glob
+    matches the first run's renders and estimates, which are outputs, not recordings."""
+    folder = tmp_path / "s"
+    folder.mkdir()
+    (folder / "good.mcap").write_bytes((recordings / "good.mcap").read_bytes())
+    (folder / "results" / "renders").mkdir(parents=True)
+    (folder / "results" / "renders" / "old.mcap").write_bytes((recordings / "good.mcap").read_bytes())
+    path = folder / "s.toml"
+    path.write_text("[recordings]\npaths = ['**/*.mcap']\n")
+    sweep = read_sweep_file(path)
+    assert len(sweep.recordings) == 2
+    assert [t.source.path.name for t in plan_tasks(sweep, folder / "results")] == ["good.mcap"]
+    monkeypatch.setattr("aslam.app.sweep_file.MAX_COMBINATIONS", 10)
+    path.write_text(f"[grid]\nbeta = {[1.0 + i / 10 for i in range(11)]}\n")
+    with pytest.raises(ConfigError, match="grid: 11 parameter sets; at most 10 "):
+        read_sweep_file(path)
+    path.write_text(f"[[render]]\nseeds = {list(range(11))}\n")
+    with pytest.raises(ConfigError, match="render #1: 11 recordings; at most 10 "):
+        read_sweep_file(path)
