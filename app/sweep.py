@@ -33,7 +33,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from aslam.app.sweep_file import ScoreOptions, Sweep
+from aslam.app.sweep_file import ScoreOptions, Sweep, estimator_config
 from aslam.core.config import EstimatorConfig
 from aslam.core.errors import AslamError, InputError, one_line
 from aslam.data_formats.files import (
@@ -209,7 +209,7 @@ def plan_tasks(sweep: Sweep, results_dir: Path, *, hashes: HashCache | None = No
     planned: set[str] = set()
     for source in sources:
         for parameters in sweep.parameter_sets():
-            config = EstimatorConfig(**dict(parameters))
+            config = estimator_config(parameters)
             key = _digest(
                 {
                     "recording": source.identity,

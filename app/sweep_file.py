@@ -13,8 +13,8 @@ import itertools
 import math
 import os
 import re
-from collections.abc import Iterator
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -118,7 +118,7 @@ def _type_problem(where: str, value: Any, kind: type) -> str | None:
         want = "a whole number"
     else:
         ok = isinstance(value, kind)
-        want = "a string"
+        want = "true or false" if kind is bool else "a string"
     return None if ok else f"{where} must be {want}, got {value!r}"
 
 
@@ -300,8 +300,17 @@ def _grids(value: Any, problems: list[str]) -> tuple[Grid, ...]:
     )
 
 
+def estimator_config(parameters: Iterable[tuple[str, Any]]) -> EstimatorConfig:
+    """A parameter set's configuration: ``paper_faithful = true`` starts from the paper's estimator
+    (as ``aslam estimate --paper-faithful``), the other keys change it; else from the defaults."""
+    values = dict(parameters)
+    base = EstimatorConfig.paper_faithful() if values.pop("paper_faithful", False) else EstimatorConfig()
+    return replace(base, **values)
+
+
 def _grid(value: dict[str, Any], where: str, problems: list[str]) -> Grid:
     types = {name: kind for name, kind, _default, _help in EstimatorConfig.parameters()}
+    types["paper_faithful"] = bool
     lists = _typed_lists(_table(value, "grid", types, problems), types, where, problems)
     if lists is None:  # the problems are raised before any grid is used
         return ()
@@ -313,7 +322,7 @@ def _grid(value: dict[str, Any], where: str, problems: list[str]) -> Grid:
     names = [name for name, _values in grid]
     for combination in itertools.product(*(values for _name, values in grid)):
         try:
-            EstimatorConfig(**dict(zip(names, combination, strict=True)))
+            estimator_config(zip(names, combination, strict=True))
         except ConfigError as err:
             problems.append(f"{where}: {err.problem}")
     return tuple(grid)

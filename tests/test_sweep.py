@@ -410,11 +410,21 @@ def test_the_pareto_front_leaves_out_failed_and_unmeasured_results():
     assert [r.index for r in front] == [1]
 
 
-def test_the_example_sweep_file_is_valid(tmp_path):
+def test_the_example_sweep_file_is_valid_and_its_paper_grid_is_the_paper_estimator(tmp_path):
+    """docs/examples/sweep.toml: every parameter set builds, and `paper_faithful = true` is
+    `aslam estimate --paper-faithful`'s configuration with the grid's keys changed, not a guess at it."""
+    from dataclasses import replace
+
+    from aslam.app.sweep_file import estimator_config
+    from aslam.core.config import EstimatorConfig
+
     example = Path(__file__).resolve().parents[1] / "docs" / "examples" / "sweep.toml"
     sweep = read_sweep_file(example)
-    assert len(sweep.renders) == 5 and len(list(sweep.parameter_sets())) == 7
-    assert len(plan_tasks(sweep, tmp_path)) == 35
+    sets = list(sweep.parameter_sets())
+    assert len(sweep.renders) == 5 and len(sets) == 6 + 2
+    assert len(plan_tasks(sweep, tmp_path)) == 40
+    assert estimator_config(sets[-1]) == replace(EstimatorConfig.paper_faithful(), beta=3.0)
+    assert estimator_config(sets[0]).observation_model == "thumbnail"
 
 
 def test_estimate_with_the_reader_in_process_writes_the_same_bytes(recordings, tmp_path):
