@@ -186,6 +186,20 @@ def summary_key(name: str, known: set[str]) -> str:
     return matches[0]
 
 
+#: The summary's whole-number figures (and its one boolean): their type whether measured or null,
+#: so the tables of a sweep whose every task failed keep the columns' types.
+COUNT_KEYS = frozenset(
+    {
+        "keyframes", "states", "links", "hypotheses.max", "hypotheses.final",
+        "relocalisation.episodes", "relocalisation.first_delay_keyframes",
+        "loop_closure.claims", "loop_closure.unjudged_claims", "loop_closure.correct",
+        "loop_closure.ground_truth_revisits", "committed.claims", "committed.correct",
+        "trajectory.closures", "trajectory.closures_outvoted",
+    }
+)  # fmt: skip
+BOOLEAN_KEYS = frozenset({"ground_truth"})
+
+
 def summary_keys() -> set[str]:
     """Every dotted leaf key of the summary (what ``--fail-on`` may test)."""
     empty = Evaluation(

@@ -783,13 +783,21 @@ def arrow_table(
     arrays = {}
     for name in names:
         values = [row.get(name) for row in data]
-        arrays[name] = pa.array(values, type=_arrow_type(values))
+        arrays[name] = pa.array(values, type=_arrow_type(name, values))
     return pa.table(arrays)
 
 
-def _arrow_type(values: list[Any]) -> Any:
+def _arrow_type(name: str, values: list[Any]) -> Any:
+    """The summary's own type for its figures (a column of failed tasks is null, not a double);
+    for the other columns, what the values are."""
     import pyarrow as pa
 
+    from aslam.app.score import BOOLEAN_KEYS, COUNT_KEYS
+
+    if name in COUNT_KEYS:
+        return pa.int64()
+    if name in BOOLEAN_KEYS:
+        return pa.bool_()
     present = [v for v in values if v is not None]
     if present and all(isinstance(v, bool) for v in present):
         return pa.bool_()

@@ -686,3 +686,28 @@ def test_a_glob_never_takes_the_sweeps_own_outputs_and_grids_are_bounded(recordi
     path.write_text(f"[[render]]\nseeds = {list(range(11))}\n")
     with pytest.raises(ConfigError, match="render #1: 11 recordings; at most 10 "):
         read_sweep_file(path)
+
+
+def test_the_tables_keep_the_summarys_types_even_when_every_task_failed(local_run, recordings, tmp_path):
+    """A count is an int64 column and ground_truth a bool one, measured or null: two sweeps' tables
+    concatenate whatever failed. The list of counts is checked against a real summary's ints."""
+    from aslam.app.score import BOOLEAN_KEYS, COUNT_KEYS
+    from aslam.app.sweep import arrow_table, load_result
+
+    _code, results = local_run
+    sweep = read_sweep_file(_write_sweep(recordings))
+    tasks = plan_tasks(sweep, results)
+    done = [load_result(results, task) for task in tasks]
+    summary = next(r.summary for r in done if r is not None and r.summary is not None)
+    ints = {k for k, v in summary.items() if isinstance(v, int) and not isinstance(v, bool)}
+    assert ints <= COUNT_KEYS and {k for k, v in summary.items() if isinstance(v, bool)} == BOOLEAN_KEYS
+    measured = {k for k in COUNT_KEYS if summary.get(k) is not None}
+    assert measured == ints  # every count the summary measured is an int, and no other key is
+    failed = [TaskResult(t.index, t.key, None, "failed", (), None, None, "") for t in tasks]
+    extra = arrow_table(sweep, tasks, failed, ["loop_closure.claims", "ground_truth"])
+    assert str(extra.schema.field("keyframes").type) == "int64"
+    assert str(extra.schema.field("loop_closure.claims").type) == "int64"
+    assert str(extra.schema.field("ground_truth").type) == "bool"
+    good = pyarrow.parquet.read_table(results / "results.parquet")
+    table = arrow_table(sweep, tasks, failed)
+    assert pyarrow.concat_tables([good, table]).num_rows == 2 * len(tasks)
