@@ -87,7 +87,7 @@ class Evaluation:
     def scored_revisits(self) -> np.ndarray:
         """bool (n,): the true revisits recall counts: not those where the claim made cannot be judged
         (a revisit of this run named as the map's place, whose truth is unknown, is no miss)."""
-        return self.true_revisit & ~(self.claims & ~self.judged_claims)
+        return scored_revisits(self.true_revisit, self.claims, self.judged_claims)
 
     @property
     def precision(self) -> float | None:
@@ -187,8 +187,14 @@ class AssignmentScore:
 
     @property
     def recall(self) -> float | None:
-        revisits = int((self.true_revisit & ~(self.claims & ~self.judged)).sum())
+        revisits = int(scored_revisits(self.true_revisit, self.claims, self.claims & self.judged).sum())
         return None if revisits == 0 else float(self.correct.sum() / revisits)
+
+
+def scored_revisits(true_revisit: np.ndarray, claims: np.ndarray, judged_claims: np.ndarray) -> np.ndarray:
+    """bool (n,): the true revisits recall counts: all but those whose claim cannot be judged (a
+    revisit named as a place of a map session without truth is no miss)."""
+    return true_revisit & ~(claims & ~judged_claims)
 
 
 def score_assignment(
@@ -342,7 +348,7 @@ def evaluate(
         correct,
         best_error,
         weighted_error,
-        _episodes(true_revisit & ~(claims & ~judged), correct),
+        _episodes(scored_revisits(true_revisit, claims, claims & judged), correct),
         confidence,
         judged,
     )

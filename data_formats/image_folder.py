@@ -173,11 +173,8 @@ def _named_stamps(images: list[Path]) -> list[int] | None:
     strictly increasing; else None (frame numbers, say)."""
     stamps = []
     for path in images:
-        try:
-            value = Decimal(path.stem)
-        except InvalidOperation:
-            return None
-        if not value.is_finite() or value < 0:
+        value = _number(path.stem)
+        if value is None or value < 0:
             return None
         try:
             stamps.append(stamp_text_ns(path.stem))

@@ -28,14 +28,14 @@ MAX_PENDING_IMAGES = 512
 # fast one (400 Hz fused odometry, a motion-capture truth) loses a late camera; at most
 # POSE_HISTORY_MAX, which bounds the memory whatever the rate.
 POSE_HISTORY = 256
+POSE_HISTORY_NS = 10_000_000_000
+POSE_HISTORY_MAX = 65_536
 # Images stamped before an image logged earlier are dropped one by one (frames logged swapped);
 # once at least this many are, and more than a quarter of the images so far, the stamps are refused.
 OUT_OF_ORDER_MIN = 3
 # Ground truth is interpolated between two messages at most this far apart; inside a longer gap
 # (a motion-capture dropout) it is unknown. Odometry is interpolated across any gap: the run needs it.
 TRUTH_MAX_GAP_NS = 1_000_000_000
-POSE_HISTORY_NS = 10_000_000_000
-POSE_HISTORY_MAX = 65_536
 
 
 class Sample(NamedTuple):
