@@ -461,8 +461,11 @@ def _probe_scheduler(address: str) -> None:
         finally:
             await remote.close_rpc()
 
-    try:
-        asyncio.run(identity())
+    from concurrent.futures import ThreadPoolExecutor
+
+    try:  # in a thread of its own: a caller's running event loop (a notebook's) is not disturbed
+        with ThreadPoolExecutor(1) as thread:
+            thread.submit(asyncio.run, identity()).result()
     except TimeoutError:
         raise InputError(
             f"nothing answers as a Dask scheduler at {address} within {SCHEDULER_ANSWER_S:g} s"
@@ -475,7 +478,6 @@ def check_workers(client: Any, address: str) -> None:
     """A cluster of one's own must have workers, and every one must run this aslam: a worker
     without it never takes a task (the sweep would wait for ever), and one of another version
     would file its results under this version's task keys."""
-
     try:
         client.wait_for_workers(1, timeout=WORKERS_WAIT_S)
     except TimeoutError:

@@ -641,6 +641,10 @@ def test_a_cluster_that_cannot_run_the_tasks_is_one_line_not_a_wait_for_ever(
             stderr=subprocess.DEVNULL,
         )
         try:
+            with Client(
+                address, timeout=30
+            ) as client:  # the worker has joined (1 s is the sweep's patience here)
+                client.wait_for_workers(1, timeout=60)
             monkeypatch.setattr("aslam.data_formats.provenance.VERSION", "0.0.0-another")  # here, not there
             assert main(["sweep", str(sweep_file), "-o", str(results), "--scheduler", address, "-q"]) == 2
             err = capsys.readouterr().err
@@ -711,3 +715,21 @@ def test_the_tables_keep_the_summarys_types_even_when_every_task_failed(local_ru
     good = pyarrow.parquet.read_table(results / "results.parquet")
     table = arrow_table(sweep, tasks, failed)
     assert pyarrow.concat_tables([good, table]).num_rows == 2 * len(tasks)
+
+
+def test_a_scheduler_is_asked_who_it_is_even_from_inside_an_event_loop(tmp_path):
+    """A notebook runs an event loop; the probe of --scheduler must not need the caller's thread."""
+    import asyncio
+
+    from aslam.app.sweep import _probe_scheduler
+
+    process, address = _scheduler(tmp_path)
+    try:
+
+        async def from_a_loop() -> None:
+            _probe_scheduler(address)  # raises InputError if it cannot ask
+
+        asyncio.run(from_a_loop())
+    finally:
+        process.terminate()
+        process.wait(timeout=30)
