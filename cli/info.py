@@ -38,14 +38,14 @@ def info(
 
     Exit 0 when the whole recording reads (warnings such as a truncated file go to stderr), 2 when not.
     """
+    from aslam.app.info import describe
     from aslam.data_formats.files import check_output_path, write_text_output
-    from aslam.data_formats.sources import TopicChoice, open_input
+    from aslam.data_formats.sources import TopicChoice
 
     terminal = output.Terminal(quiet=quiet, verbose=verbose)
     if json_out is not None and json_out != "-":  # before reading the whole recording
         check_output_path(Path(json_out), force=force, inputs=[recording])
     topics = TopicChoice(image=image_topic, odometry=odometry_topic, ground_truth=ground_truth_topic)
-    source = open_input(recording, topics, on_warning=terminal.warning)
     if terminal.shows_progress:  # every image is decoded: a large bag takes minutes
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -58,11 +58,16 @@ def info(
             console=terminal.console,
             transient=True,
         )
-        task = progress.add_task("info", total=source.image_count())
+        task = progress.add_task("info", total=None)
         with progress:
-            result = source.describe(on_sample=lambda n: progress.update(task, completed=n))
+            result = describe(
+                recording,
+                topics,
+                on_progress=lambda done, total: progress.update(task, completed=done, total=total),
+                on_warning=terminal.warning,
+            )
     else:
-        result = source.describe()
+        result = describe(recording, topics, on_warning=terminal.warning)
     if json_out is not None:
         written = write_text_output(json_out, json.dumps(result.as_dict(), indent=2, sort_keys=False) + "\n")
         if written is not None:

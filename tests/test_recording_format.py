@@ -397,6 +397,17 @@ def test_info_json_describes_the_recording(tmp_path, capsys):
     assert report["truncated"] is False and report["warnings"] == []
 
 
+def test_info_reports_progress_against_the_image_count(tmp_path):
+    """The application function the command, bench and tests share: one call per image read."""
+    from aslam.app.info import describe
+
+    path = write_recording(tmp_path / "r.mcap", random_frames(4))
+    calls: list[tuple[int, int | None]] = []
+    info = describe(path, on_progress=lambda done, total: calls.append((done, total)))
+    assert info.samples == 4 and calls == [(1, 4), (2, 4), (3, 4), (4, 4)]
+    assert describe(path) == info
+
+
 def test_info_json_output_is_checked_first_and_obeys_force(tmp_path, capsys):
     path = write_recording(tmp_path / "r.mcap", random_frames(3))
     out = tmp_path / "info.json"
