@@ -5,6 +5,7 @@ option > ``--config`` file (TOML, an ``[estimator]`` table) > ``--paper-faithful
 
 from __future__ import annotations
 
+import sys
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -42,6 +43,10 @@ def read_toml(path: Path, *, what: str) -> dict[str, Any]:
         raise ConfigError(f"cannot read: {err.strerror or err}", path=path) from err
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
         raise ConfigError(f"not valid TOML ({err})", path=path) from err
+    except ValueError as err:  # Python refuses to read an integer of thousands of digits
+        raise ConfigError(
+            f"a number of more than {sys.get_int_max_str_digits():,} digits", path=path
+        ) from err
 
 
 def read_config_file(path: Path) -> dict[str, Any]:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 import re
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -31,8 +32,9 @@ _STRING = re.compile(r'"(?:[^"\\]|\\.)*"', re.DOTALL)
 _BRACKET = re.compile(r"[\[\]{}]")
 
 
-def read_route_text(path: Path | str) -> str:
-    """The text of a route file, refused (RouteError naming the file and the bound) beyond the bounds above.
+def read_route_document(path: Path | str) -> Any:
+    """The JSON document of a route file, refused (RouteError naming the file and the bound) beyond
+    the bounds above or when it is not JSON.
 
     The file must be a regular file (a FIFO is refused, not waited on) of UTF-8 text. Values the
     route parser itself checks (types, a forward leg's sign and length) are left to it.
@@ -53,12 +55,16 @@ def read_route_text(path: Path | str) -> str:
         if deepest > MAX_DEPTH:
             raise RouteError(f"JSON nested deeper than {MAX_DEPTH} levels", path=path)
     try:
-        doc = json.loads(text)
-    except (ValueError, RecursionError):
-        return text  # the route parser reports the syntax error with its line and column
+        doc = json.loads(text)  # no RecursionError: the nesting is bounded above
+    except json.JSONDecodeError as err:
+        raise RouteError(
+            f"invalid JSON at line {err.lineno} column {err.colno}: {err.msg}", path=path
+        ) from err
+    except ValueError as err:  # Python refuses to read an integer of thousands of digits
+        raise RouteError(f"a number of more than {sys.get_int_max_str_digits():,} digits", path=path) from err
     if isinstance(doc, dict):
         _check_values(doc, path)
-    return text
+    return doc
 
 
 def _finite(value: Any) -> float | None:

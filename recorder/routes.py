@@ -28,7 +28,7 @@ import numpy as np
 
 from aslam.core import se2
 from aslam.recorder.errors import RouteError
-from aslam.recorder.route_limits import MAX_ACTIONS, read_route_text
+from aslam.recorder.route_limits import MAX_ACTIONS, read_route_document
 
 #: A route is closed when its last commanded pose is its start pose within these tolerances.
 CLOSE_TOL_M = 1e-6
@@ -292,13 +292,7 @@ def parse_route(doc: Any, *, name: str = "route", path: Path | str | None = None
 
 
 def load_route_file(path: Path) -> Route:
-    text = read_route_text(path)  # read errors and bounds: recorder/route_limits.py
-    try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as err:
-        raise RouteError(
-            f"invalid JSON at line {err.lineno} column {err.colno}: {err.msg}", path=path
-        ) from err
+    doc = read_route_document(path)  # read errors, JSON syntax and bounds: recorder/route_limits.py
     return parse_route(doc, name=Path(path).stem, path=path)
 
 

@@ -467,6 +467,8 @@ def test_extreme_report_options_are_one_line(estimate_file: Path, capsys, option
         ('{"actions": [{"forward_m": 1}, {"kidnap": {"x_m": 1e300}}, {"forward_m": 1}]}',
          "kidnap to x=1e+300 m, y=0 m is beyond ±1000 m"),
         ('{"actions": [{"kidnap": {"x_m": 900}}, {"forward_m": 1000}]}', "beyond ±1000 m"),
+        ('{"actions": [{"forward_m": ' + "1" * 5000 + "}]}", "a number of more than 4,300 digits"),
+        ('{"actions": [{"forward_m": 1}', "invalid JSON at line 1 column 30"),
     ],
 )  # fmt: skip
 def test_hostile_route_files_are_one_line_before_any_rendering(tmp_path: Path, capsys, text, needle):
