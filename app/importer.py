@@ -26,7 +26,7 @@ from aslam.data_formats.image_folder import (
     open_image_folder,
     read_image,
 )
-from aslam.data_formats.pose_files import PoseFormat
+from aslam.data_formats.pose_files import PoseFormat, StampUnit
 from aslam.data_formats.provenance import tool_version
 
 #: Horizontal field of view written when none is given (image folders rarely say); the metadata
@@ -58,6 +58,7 @@ def import_image_folder(
     odometry: Path | None = None,
     fmt: PoseFormat | str | None = None,
     rate_hz: float | None = None,
+    stamp_unit: StampUnit | str | None = None,
     fov_deg: float | None = None,
     force: bool = False,
     on_progress: Progress | None = None,
@@ -77,7 +78,9 @@ def import_image_folder(
     started = time.perf_counter()
     output = Path(output)
     check_output_path(output, force=force)
-    source = open_image_folder(folder, ground_truth=ground_truth, odometry=odometry, fmt=fmt, rate_hz=rate_hz)
+    source = open_image_folder(
+        folder, ground_truth=ground_truth, odometry=odometry, fmt=fmt, rate_hz=rate_hz, stamp_unit=stamp_unit
+    )
     # Never an input, even with --force: a pose file, or a frame (found by name, the output's own or
     # the one it resolves to through a link, rather than by resolving every frame).
     names = {output.name, real_path(output).name}

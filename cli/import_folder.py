@@ -12,7 +12,7 @@ import typer
 
 from aslam.cli.app import app
 from aslam.cli.output import ForceOption, QuietOption, Terminal, VerboseOption
-from aslam.data_formats.format_names import PoseFormat
+from aslam.data_formats.format_names import PoseFormat, StampUnit
 
 
 @app.command("import")
@@ -35,6 +35,14 @@ def import_folder(
     ] = None,
     rate_hz: Annotated[
         float | None, typer.Option("--rate", help="Images per second, for stamps when no pose file has them.")
+    ] = None,
+    stamp_unit: Annotated[
+        StampUnit | None,
+        typer.Option(
+            help="Unit of the stamps in pose files and file names. \\[default: seconds, or nanoseconds"
+            " for whole numbers of 18+ digits]",
+            show_default=False,
+        ),
     ] = None,
     fov_deg: Annotated[
         float | None,
@@ -68,6 +76,7 @@ def import_folder(
             odometry=odometry,
             fmt=pose_format,
             rate_hz=rate_hz,
+            stamp_unit=stamp_unit,
             fov_deg=fov_deg,
             force=force,
             on_progress=lambda done, total: progress.update(task, completed=done, total=total),

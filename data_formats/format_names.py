@@ -17,6 +17,16 @@ class PoseFormat(StrEnum):
     CSV = "csv"
 
 
+class StampUnit(StrEnum):
+    """The unit of the stamps in pose files and file names, when ``aslam import`` is told it
+    (see :func:`aslam.data_formats.pose_files.stamp_text_ns`)."""
+
+    S = "s"
+    MS = "ms"
+    US = "us"
+    NS = "ns"
+
+
 class TrajectoryFormat(StrEnum):
     """Trajectory files ``aslam report`` writes (see :mod:`aslam.data_formats.trajectory`)."""
 

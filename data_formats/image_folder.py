@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import heapq
 import re
+from array import array
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from decimal import Decimal, InvalidOperation
@@ -34,8 +35,16 @@ from pathlib import Path
 import numpy as np
 
 from aslam.core.errors import InputError
+from aslam.data_formats.format_names import StampUnit
 from aslam.data_formats.images import ImageFormat, LazyImage, sniffed_format
-from aslam.data_formats.pose_files import PoseFileError, PoseFormat, detect_format, iter_poses, stamp_text_ns
+from aslam.data_formats.pose_files import (
+    PoseFileError,
+    PoseFormat,
+    detect_format,
+    iter_poses,
+    spacing_doubt,
+    stamp_text_ns,
+)
 from aslam.data_formats.pose_sync import Sample, SampleAssembler
 from aslam.data_formats.ros_msgs import LAST_STAMP_NS
 
@@ -144,17 +153,25 @@ class PoseSource:
     stamped: bool
     last_line: int
     first_stamp_ns: int | None
+    unit: StampUnit | None  # of its stamps; None: seconds, or nanoseconds of 18+ digits
 
 
-def _check_pose_file(path: Path, fmt: PoseFormat | str | None, what: str) -> PoseSource:
+def _check_pose_file(
+    path: Path, fmt: PoseFormat | str | None, what: str, unit: StampUnit | None, warnings: list[str]
+) -> PoseSource:
+    """The file read whole: every bad line, and stamps spaced as no seconds are, refused now; a
+    doubtful spacing (``spacing_doubt``) added to ``warnings``."""
     path = Path(path)
     fmt = detect_format(path) if fmt is None else PoseFormat(fmt)
     rows = 0
     last_line = 0
     previous: int | None = None
     first: int | None = None
-    for row in iter_poses(path, fmt):
+    stamps = array("q")  # 8 bytes a row, for the median step
+    for row in iter_poses(path, fmt, unit):
         first = row.stamp_ns if rows == 0 else first
+        if row.stamp_ns is not None and unit is None:
+            stamps.append(row.stamp_ns)
         if row.stamp_ns is not None and previous is not None and row.stamp_ns == previous:
             raise PoseFileError(
                 f"line {row.line}: the same stamp as the line before; {what} poses need increasing stamps",
@@ -165,23 +182,38 @@ def _check_pose_file(path: Path, fmt: PoseFormat | str | None, what: str) -> Pos
         last_line = row.line
     if rows == 0:
         raise PoseFileError("has no pose lines", path=path)
-    return PoseSource(path, fmt, rows, fmt is not PoseFormat.KITTI, last_line, first)
+    _judge_spacing(stamps, path, PoseFileError, warnings, "")
+    return PoseSource(path, fmt, rows, fmt is not PoseFormat.KITTI, last_line, first, unit)
 
 
-def _named_stamps(images: list[Path]) -> list[int] | None:
-    """Stamps from file names that are all times (seconds, or EuRoC's nanoseconds: ``stamp_text_ns``),
-    strictly increasing; else None (frame numbers, say)."""
+def _judge_spacing(
+    stamps: array[int] | list[int], path: Path, error: type[InputError], warnings: list[str], what: str
+) -> None:
+    doubt = spacing_doubt(stamps)
+    if doubt is not None and doubt.refused:
+        raise error(what + doubt.message, path=path)
+    if doubt is not None:
+        warnings.append(f"{path}: {what}{doubt.message}")
+
+
+def _named_stamps(
+    folder: Path, images: list[Path], unit: StampUnit | None, warnings: list[str]
+) -> list[int] | None:
+    """Stamps from file names that are all times (read as ``stamp_text_ns`` reads them, their spacing
+    judged as a pose file's), strictly increasing; else None (frame numbers, say)."""
     stamps = []
     for path in images:
         value = _number(path.stem)
         if value is None or value < 0:
             return None
         try:
-            stamps.append(stamp_text_ns(path.stem))
+            stamps.append(stamp_text_ns(path.stem, unit))
         except ValueError as err:
             raise ImageFolderError(f"file name: {err}", path=path) from err
     if any(b <= a for a, b in pairwise(stamps)):
         return None
+    if unit is None:
+        _judge_spacing(stamps, folder, ImageFolderError, warnings, "file names: ")
     return stamps
 
 
@@ -194,6 +226,7 @@ class ImageFolder:
     stamps: str  # where the stamps came from: "pose file <name>", "rate 10 Hz", "file names", "default 1 Hz"
     odometry: PoseSource | None
     ground_truth: PoseSource | None
+    warnings: tuple[str, ...]  # about the files, found when opening; given again by samples()
     _image_stamps: tuple[int, ...] | None  # None: from the per-image pose file (read while streaming)
     _stamp_file: PoseSource | None
 
@@ -205,7 +238,8 @@ class ImageFolder:
         return len(self.images)
 
     def samples(self, *, on_warning: Callable[[str], None] | None = None) -> Iterator[Sample]:
-        """One sample per image, in order (images outside a stamped pose file's span are dropped).
+        """One sample per image, in order (images outside a stamped pose file's span are dropped);
+        ``on_warning`` hears the folder's ``warnings`` first, then what the pairing dropped.
 
         Each image is a ``LazyImage`` holding the file's bytes, its ``encoding`` ``"png"`` or
         ``"jpeg"`` (an ``ImageFormat`` value), so the bytes can be passed on unchanged.
@@ -217,7 +251,7 @@ class ImageFolder:
             yield from self._image_stamps
             return
         assert self._stamp_file is not None
-        for row in iter_poses(self._stamp_file.path, self._stamp_file.format):
+        for row in iter_poses(self._stamp_file.path, self._stamp_file.format, self._stamp_file.unit):
             assert row.stamp_ns is not None
             yield row.stamp_ns
 
@@ -229,7 +263,7 @@ class ImageFolder:
             for i, stamp in enumerate(stamps):
                 yield stamp, np.array([i * SYNTHETIC_STEP_M, 0.0, 0.0])
             return
-        rows = iter_poses(source.path, source.format)
+        rows = iter_poses(source.path, source.format, source.unit)
         if source.rows == len(self.images):
             for stamp, row in zip(stamps, rows, strict=True):
                 yield stamp, row.pose
@@ -239,6 +273,9 @@ class ImageFolder:
             yield row.stamp_ns, row.pose
 
     def _samples(self, warn: Callable[[str], None]) -> Iterator[Sample]:
+        for line in self.warnings:
+            warn(line)
+
         # Time-ordered streams merged by stamp; at equal stamps the poses come before the image.
         def images() -> Iterator[tuple[int, int, object]]:
             for path, stamp in zip(self.images, self._stamp_stream(), strict=True):
@@ -273,18 +310,25 @@ def open_image_folder(
     odometry: Path | None = None,
     fmt: PoseFormat | str | None = None,
     rate_hz: float | None = None,
+    stamp_unit: StampUnit | str | None = None,
 ) -> ImageFolder:
     """List the images and check the pose files whole (every bad line is an error now, not later).
 
-    ``fmt`` applies to both pose files; None detects each from its content.
+    ``fmt`` applies to both pose files; None detects each from its content. ``stamp_unit`` is the
+    unit of every stamp read (pose files, file names); None: seconds, or nanoseconds of 18+ digits,
+    with stamps spaced as seconds never are refused (``pose_files.spacing_doubt``).
     """
     folder = Path(folder)
     if rate_hz is not None and not (rate_hz > 0 and np.isfinite(rate_hz)):
         raise ImageFolderError(f"--rate must be a positive number of images per second, got {rate_hz}")
+    unit = None if stamp_unit is None else StampUnit(stamp_unit)
     images = list_images(folder)
     n = len(images)
-    odo = None if odometry is None else _check_pose_file(odometry, fmt, "odometry")
-    truth = None if ground_truth is None else _check_pose_file(ground_truth, fmt, "ground-truth")
+    warnings: list[str] = []
+    odo = None if odometry is None else _check_pose_file(odometry, fmt, "odometry", unit, warnings)
+    truth = (
+        None if ground_truth is None else _check_pose_file(ground_truth, fmt, "ground-truth", unit, warnings)
+    )
     for source in (odo, truth):
         if source is None or (source.stamped and source.rows != n) or source.rows == n:
             continue
@@ -298,8 +342,9 @@ def open_image_folder(
     # A stamped file with another count is interpolated: the images need stamps on its clock.
     interpolated = next((s for s in (odo, truth) if s is not None and s.stamped and s.rows != n), None)
     image_stamps: tuple[int, ...] | None = None
+    in_unit = "" if unit is None else f" ({unit})"
     if stamp_file is not None:
-        how = f"pose file {stamp_file.path.name}"
+        how = f"pose file {stamp_file.path.name}{in_unit}"
     elif rate_hz is not None:
         start = START_STAMP_NS if interpolated is None else interpolated.first_stamp_ns
         assert start is not None
@@ -312,8 +357,8 @@ def open_image_folder(
         how = f"rate {rate_hz:g} Hz" + (
             "" if interpolated is None else f" from the first stamp of {interpolated.path.name}"
         )
-    elif (named := _named_stamps(images)) is not None:
-        image_stamps, how = tuple(named), "file names"
+    elif (named := _named_stamps(folder, images, unit, warnings)) is not None:
+        image_stamps, how = tuple(named), f"file names{in_unit}"
     elif interpolated is not None:
         raise PoseFileError(
             f"{interpolated.rows} poses for {n} images in {folder}, and the images have no stamps: give "
@@ -325,4 +370,4 @@ def open_image_folder(
         how = f"default {DEFAULT_RATE_HZ:g} Hz"
     if image_stamps is not None and any(b <= a for a, b in pairwise(image_stamps)):
         raise ImageFolderError(f"--rate {rate_hz:g} Hz is too fast to give {n} distinct nanosecond stamps")
-    return ImageFolder(folder, tuple(images), how, odo, truth, image_stamps, stamp_file)
+    return ImageFolder(folder, tuple(images), how, odo, truth, tuple(warnings), image_stamps, stamp_file)

@@ -10,15 +10,17 @@ pose is the one on the ground plane a robot would use: forward ``z`` → ``x_m``
 ``y_m``, and the heading of the optical axis as ``yaw_rad``.
 
 Lines starting with ``#`` and blank lines are skipped. Stamps are parsed as decimals, so
-``1305031102.175304`` becomes exactly ``1305031102175304000`` ns. The format is detected from the
-first pose line when not given. Hand-written rather than through evo because every malformed line
+``1305031102.175304`` becomes exactly ``1305031102175304000`` ns; their unit is seconds (or
+nanoseconds for whole numbers of 18+ digits) unless a ``StampUnit`` is given. The format is detected
+from the first pose line when not given. Hand-written rather than through evo because every malformed line
 must be reported with its file and line number, and the rows are streamed.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from decimal import Decimal, InvalidOperation
 from pathlib import Path
 from typing import NamedTuple
@@ -27,7 +29,7 @@ import numpy as np
 
 from aslam.core.errors import InputError
 from aslam.data_formats import ros_msgs
-from aslam.data_formats.format_names import PoseFormat
+from aslam.data_formats.format_names import PoseFormat, StampUnit
 from aslam.data_formats.pose_limits import implausible
 
 
@@ -100,31 +102,84 @@ NANOSECOND_STAMP_MIN = 10**17
 as seconds it would be three billion years on."""
 
 
-def stamp_text_ns(text: str) -> int:
-    """Nanoseconds of a stamp as datasets write it: decimal seconds, or whole nanoseconds of 18 or
-    more digits. Raises ``ValueError`` saying why a stamp is none (milliseconds, say, read as
-    seconds are past the last time a ROS message holds)."""
+NS_PER_UNIT = {StampUnit.S: 10**9, StampUnit.MS: 10**6, StampUnit.US: 10**3, StampUnit.NS: 1}
+
+
+def stamp_text_ns(text: str, unit: StampUnit | str | None = None) -> int:
+    """Nanoseconds of a stamp as datasets write it: a number of ``unit``, or without one decimal
+    seconds or whole nanoseconds of 18 or more digits. Raises ``ValueError`` saying why a stamp is
+    none (milliseconds since 1970, say, read as seconds are past the last time a ROS message holds;
+    relative ones are not, see :func:`spacing_doubt`)."""
     try:
         value = Decimal(text)
     except InvalidOperation as err:
         raise ValueError(f"stamp '{text}' is not a number") from err
     if not value.is_finite() or value < 0:
         raise ValueError(f"stamp '{text}' is not a finite, non-negative time")
-    if value >= NANOSECOND_STAMP_MIN and value == value.to_integral_value():
+    if unit is not None:
+        stamp_ns = int(value * NS_PER_UNIT[StampUnit(unit)])
+    elif value >= NANOSECOND_STAMP_MIN and value == value.to_integral_value():
         stamp_ns = int(value)
     else:
         stamp_ns = int(value * ros_msgs.NS_PER_S)
     if stamp_ns > ros_msgs.LAST_STAMP_NS:
+        if unit is not None:
+            raise ValueError(f"stamp '{text}' {unit} is after 2038, the last year a ROS time holds")
         raise ValueError(
             f"stamp '{text}' is after 2038 read as seconds, the last year a ROS time holds: stamps are "
-            "seconds, or whole nanoseconds of 18 or more digits (milliseconds or microseconds are neither)"
+            "seconds, or whole nanoseconds of 18 or more digits; for other units give --stamp-unit ms, us"
+            " or ns"
         )
     return stamp_ns
 
 
-def _stamp_ns(text: str, path: Path, number: int) -> int:
+SECONDS_STEP_DOUBTED_S = 5.0
+"""Stamps read as seconds (no unit given) a median step of this or more apart get a warning: a camera
+or odometry up to 200 Hz stamped in milliseconds looks like this, seconds rarely do."""
+SECONDS_STEP_REFUSED_S = 3600.0
+"""... and beyond this (an hour) are refused: nanoseconds or microseconds counted from a start
+(0, 33333333, …) are below 2³¹ and pass for seconds, and would put the frames days or years apart."""
+
+
+@dataclass(frozen=True)
+class SpacingDoubt:
+    """Stamps spaced as no poses in seconds are: ``refused`` above an hour, else a warning."""
+
+    refused: bool
+    message: str
+
+
+def spacing_doubt(stamps_ns: Sequence[int]) -> SpacingDoubt | None:
+    """Whether the spacing of stamps read without a unit says they are not seconds (None: plausible).
+
+    The median step, so that a pause or a gap between two sessions in the file does not count.
+    Only for stamps read by ``stamp_text_ns``'s default rule: a unit given is the user's word.
+    """
+    if len(stamps_ns) < 2:
+        return None
+    step_s = float(np.median(np.diff(np.asarray(stamps_ns, dtype=np.int64)))) / ros_msgs.NS_PER_S
+    if step_s < SECONDS_STEP_DOUBTED_S:
+        return None
+    refused = step_s > SECONDS_STEP_REFUSED_S
+    judged = ", implausible for poses" if refused else ""
+    return SpacingDoubt(
+        refused,
+        f"stamps a median {_duration(step_s)} apart read as seconds{judged}: if they are milliseconds,"
+        " microseconds or nanoseconds, give --stamp-unit ms, us or ns (--stamp-unit s if they are seconds)",
+    )
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.3g} s"
+    if seconds < 48 * 3600:
+        return f"{seconds / 3600:.3g} h" if seconds >= 3600 else f"{seconds / 60:.3g} min"
+    return f"{seconds / 86400:.3g} days"
+
+
+def _stamp_ns(text: str, path: Path, number: int, unit: StampUnit | None) -> int:
     try:
-        return stamp_text_ns(text)
+        return stamp_text_ns(text, unit)
     except ValueError as err:
         raise PoseFileError(f"line {number}: {err}", path=path) from err
 
@@ -141,17 +196,20 @@ def _planar(fmt: PoseFormat, values: list[float]) -> np.ndarray:
     return np.array([m[2, 3], -m[0, 3], math.atan2(-m[0, 2], m[2, 2])])
 
 
-def iter_poses(path: Path, fmt: PoseFormat | str | None = None) -> Iterator[PoseRow]:
+def iter_poses(
+    path: Path, fmt: PoseFormat | str | None = None, unit: StampUnit | str | None = None
+) -> Iterator[PoseRow]:
     """Every pose of ``path``, in file order; a malformed line is a PoseFileError naming it.
 
-    Stamps must not go backwards (TUM and CSV). The format is detected when ``fmt`` is None.
+    Stamps must not go backwards (TUM and CSV); ``unit`` as ``stamp_text_ns`` takes it. The format
+    is detected when ``fmt`` is None.
     """
     path = Path(path)
     fmt = detect_format(path) if fmt is None else PoseFormat(fmt)
-    return _iter_poses(path, fmt)
+    return _iter_poses(path, fmt, None if unit is None else StampUnit(unit))
 
 
-def _iter_poses(path: Path, fmt: PoseFormat) -> Iterator[PoseRow]:
+def _iter_poses(path: Path, fmt: PoseFormat, unit: StampUnit | None) -> Iterator[PoseRow]:
     expected = _FIELDS[fmt]
     previous: int | None = None
     previous_pose: np.ndarray | None = None
@@ -175,10 +233,10 @@ def _iter_poses(path: Path, fmt: PoseFormat) -> Iterator[PoseRow]:
             raise PoseFileError(f"line {number}: not finite (NaN or infinite)", path=path)
         stamp = None
         if fmt is not PoseFormat.KITTI:
-            stamp = _stamp_ns(fields[0], path, number)
+            stamp = _stamp_ns(fields[0], path, number, unit)
             if previous is not None and stamp < previous:
                 raise PoseFileError(
-                    f"line {number}: stamp {fields[0]} s is before the previous line's", path=path
+                    f"line {number}: stamp {fields[0]} {unit or 's'} is before the previous line's", path=path
                 )
             previous = stamp
         if fmt is PoseFormat.TUM and math.isclose(sum(v * v for v in values[4:]), 0.0):

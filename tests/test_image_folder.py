@@ -9,6 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from conftest import one_error_line
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -123,6 +124,120 @@ def test_millisecond_file_names_are_one_line_naming_the_file(tmp_path):
         InputError, match=r"1403636579763\.png: file name: stamp '1403636579763' is after 2038"
     ):
         open_image_folder(tmp_path / "ms")
+
+
+# --- the unit of the stamps -------------------------------------------------------------------------
+
+NS_PER = {"s": 10**9, "ms": 10**6, "us": 10**3, "ns": 1}
+
+
+@settings(deadline=None)
+@given(unit=st.sampled_from(["s", "ms", "us", "ns"]), value=st.integers(0, 2**31 - 1))
+def test_a_stamp_unit_is_taken_at_its_word(unit, value):
+    from aslam.data_formats.pose_files import stamp_text_ns
+
+    assert stamp_text_ns(str(value), unit) == value * NS_PER[unit]
+
+
+@settings(deadline=None)
+@given(
+    rate_hz=st.floats(0.21, 1000.0),
+    start_s=st.one_of(st.just(0.0), st.floats(0.0, 2.0e9)),
+    n=st.integers(2, 200),
+)
+def test_stamps_in_seconds_are_never_doubted(rate_hz, start_s, n):
+    """TUM RGB-D's Unix seconds, relative seconds from 0: whatever the rate of a camera or odometry
+    (a pose every 4.8 s up to 1 kHz), the default reading stands, with no word."""
+    from aslam.data_formats.pose_files import spacing_doubt, stamp_text_ns
+
+    stamps = [stamp_text_ns(f"{start_s + i / rate_hz:.6f}") for i in range(n)]
+    assert spacing_doubt(stamps) is None
+
+
+@settings(deadline=None)
+@given(unit=st.sampled_from(["ms", "us", "ns"]), rate_hz=st.floats(1.0, 200.0), n=st.integers(3, 200))
+def test_relative_stamps_of_another_unit_are_never_taken_for_seconds_in_silence(unit, rate_hz, n):
+    """0, 33333333, 66666666 ns (or µs, ms) from a start are below 2³¹ and pass for seconds: their
+    spacing gives them away, refused (ns, µs) or at least a warning (ms)."""
+    from aslam.data_formats.pose_files import spacing_doubt, stamp_text_ns
+
+    raw = [round(i * NS_PER["s"] / NS_PER[unit] / rate_hz) for i in range(n)]
+    assert spacing_doubt([stamp_text_ns(str(v), unit) for v in raw]) is None
+    try:
+        as_seconds = [stamp_text_ns(str(v)) for v in raw]
+    except ValueError as err:  # past 2038 as seconds: refused line by line, as before
+        assert "give --stamp-unit ms, us or ns" in str(err)
+        return
+    doubt = spacing_doubt(as_seconds)
+    assert doubt is not None and "give --stamp-unit ms, us or ns" in doubt.message
+    assert doubt.refused == (unit != "ms")
+
+
+def _relative_pose_file(path: Path, step: int, n: int) -> Path:
+    path.write_text("\n".join(f"{i * step} {0.1 * i} 0 0 0 0 0 1" for i in range(n)) + "\n")
+    return path
+
+
+@pytest.mark.parametrize(("unit", "step"), [("ns", 33_333_333), ("us", 33_333)])
+def test_relative_nanoseconds_or_microseconds_are_refused_unless_the_unit_is_given(
+    tmp_path, capsys, unit, step
+):
+    """They were read as seconds: frames a year (ns) or 9 hours (µs) apart, exit 0."""
+    from aslam.cli.app import main
+
+    write_images(tmp_path / "imgs", 4)
+    odometry = _relative_pose_file(tmp_path / "odom.txt", step, 4)
+    out = tmp_path / "rec.mcap"
+    assert main(["import", str(tmp_path / "imgs"), "-o", str(out), "--odometry", str(odometry)]) == 2
+    line = one_error_line(capsys.readouterr().err)
+    assert f"{odometry}: stamps a median" in line and "give --stamp-unit ms, us or ns" in line
+    assert not out.exists()
+    args = [
+        "import",
+        str(tmp_path / "imgs"),
+        "-o",
+        str(out),
+        "--odometry",
+        str(odometry),
+        "--stamp-unit",
+        unit,
+    ]
+    assert main(args) == 0
+    assert "warning" not in capsys.readouterr().err
+    assert [s.stamp_ns for s in Recording(out).samples()] == [i * step * NS_PER[unit] for i in range(4)]
+    assert Recording(out).metadata()["stamps"] == f"pose file odom.txt ({unit})"
+
+
+def test_relative_milliseconds_get_a_warning_and_the_unit_reads_them(tmp_path, capsys):
+    """0, 33, 66 ms as seconds are 33 s apart: possible, so a warning naming the file and the
+    option; with ``--stamp-unit ms`` the frames are 33 ms apart."""
+    from aslam.cli.app import main
+
+    write_images(tmp_path / "imgs", 4)
+    odometry = _relative_pose_file(tmp_path / "odom.txt", 33, 4)
+    out = tmp_path / "rec.mcap"
+    assert main(["import", str(tmp_path / "imgs"), "-o", str(out), "--odometry", str(odometry)]) == 0
+    err = capsys.readouterr().err
+    assert f"aslam: warning: {odometry}: stamps a median 33 s apart read as seconds" in err
+    assert "--stamp-unit ms" in err
+    args = ["import", str(tmp_path / "imgs"), "-o", str(out), "--odometry", str(odometry), "--force"]
+    assert main([*args, "--stamp-unit", "ms"]) == 0
+    assert "warning" not in capsys.readouterr().err
+    assert [s.stamp_ns for s in Recording(out).samples()] == [i * 33_000_000 for i in range(4)]
+
+
+def test_the_stamp_unit_reads_file_names_too(tmp_path):
+    """Microseconds since 1970 in the names (16 digits) are past 2038 as seconds: refused, or read."""
+    stamps_us = [1403636579763555, 1403636579813555, 1403636579863555]
+    for stamp in stamps_us:
+        write_images(tmp_path / "us", 1, name=lambda _i, stamp=stamp: f"{stamp}.png")
+    with pytest.raises(
+        InputError, match=r"1403636579763555\.png: file name: .* give --stamp-unit ms, us or ns"
+    ):
+        open_image_folder(tmp_path / "us")
+    folder = open_image_folder(tmp_path / "us", stamp_unit="us")
+    assert folder.stamps == "file names (us)"
+    assert [s.stamp_ns for s in folder.samples()] == [v * 1000 for v in stamps_us]
 
 
 @pytest.mark.parametrize(
