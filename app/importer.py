@@ -142,6 +142,13 @@ def import_image_folder(
             done += 1
             if on_progress is not None:
                 on_progress(done, total)
+        if done == 0:  # a recording of no frames: estimate would find no image topic in it
+            within = "the odometry" if source.odometry is None else source.odometry.path.name
+            raise ImageFolderError(
+                f"none of its {total} images is stamped within {within} (the images' stamps: "
+                f"{source.stamps}); nothing to import",
+                path=folder,
+            )
     return ImportResult(
         output=output,
         images=total,

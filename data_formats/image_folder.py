@@ -9,9 +9,12 @@ decoded only on request, so memory does not grow with the folder.
 
 1. a stamped pose file (TUM, CSV) with exactly one row per image gives the images its stamps
    (the odometry file first, then the ground-truth file);
-2. ``rate_hz``: image ``i`` at ``START_STAMP_NS + i / rate_hz``;
-3. file names that are all numbers of seconds (TUM RGB-D's ``1305031102.175304.png``);
-4. otherwise 1 Hz, and the folder says so (``stamps`` = ``"default 1 Hz"``).
+2. ``rate_hz``: image ``i`` at ``START_STAMP_NS + i / rate_hz`` (from the first stamp of a pose
+   file to be interpolated);
+3. file names that are all times (TUM RGB-D's seconds ``1305031102.175304.png``, EuRoC's
+   nanoseconds), not frame numbers (``FRAME_NUMBER_MAX``);
+4. otherwise 1 Hz, and the folder says so (``stamps`` = ``"default 1 Hz"``); with a stamped pose
+   file of another length that is an error: the images have no stamps on its clock.
 
 **Poses**: a pose file with one row per image (always so for KITTI) pairs row ``i`` with image
 ``i``; a stamped file with another count is interpolated to the image stamps (the recording
@@ -53,6 +56,11 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".jfif")
 START_STAMP_NS = 1_600_000_000_000_000_000
 DEFAULT_RATE_HZ = 1.0
 SYNTHETIC_STEP_M = 1.0
+FRAME_NUMBER_MAX = 10**9
+"""File names that are all whole numbers below this are frame numbers (KITTI's ``000000.png``, KITTI
+raw's ``0000000000.png``), not stamps, unless a stamp unit is given: as seconds they would be before
+2001, no dataset's clock, and frame ``i`` would be ``i`` seconds after 1970, paired with the poses of
+that second."""
 
 
 class ImageFolderError(InputError):
@@ -186,6 +194,11 @@ def _check_pose_file(
     return PoseSource(path, fmt, rows, fmt is not PoseFormat.KITTI, last_line, first, unit)
 
 
+def _frame_numbers(images: list[Path]) -> bool:
+    """Whether every name is a whole number below ``FRAME_NUMBER_MAX`` (``0000.png``, ``17.png``)."""
+    return all(re.fullmatch(r"[0-9]+", image.stem) and int(image.stem) < FRAME_NUMBER_MAX for image in images)
+
+
 def _judge_spacing(
     stamps: array[int] | list[int], path: Path, error: type[InputError], warnings: list[str], what: str
 ) -> None:
@@ -201,6 +214,8 @@ def _named_stamps(
 ) -> list[int] | None:
     """Stamps from file names that are all times (read as ``stamp_text_ns`` reads them, their spacing
     judged as a pose file's), strictly increasing; else None (frame numbers, say)."""
+    if unit is None and _frame_numbers(images):
+        return None
     stamps = []
     for path in images:
         value = _number(path.stem)
@@ -360,9 +375,12 @@ def open_image_folder(
     elif (named := _named_stamps(folder, images, unit, warnings)) is not None:
         image_stamps, how = tuple(named), f"file names{in_unit}"
     elif interpolated is not None:
+        names = " (their names are frame numbers)" if _frame_numbers(images) else ""
+        unit_hint = ", or --stamp-unit if the names are times" if names and unit is None else ""
         raise PoseFileError(
-            f"{interpolated.rows} poses for {n} images in {folder}, and the images have no stamps: give "
-            "--rate HZ (the images then start at this file's first stamp) or one pose per image",
+            f"{interpolated.rows} poses for {n} images in {folder}, and the images have no stamps{names}: "
+            f"give --rate HZ (the images then start at this file's first stamp) or one pose per image"
+            f"{unit_hint}",
             path=interpolated.path,
         )
     else:

@@ -375,6 +375,67 @@ def test_stamped_file_of_another_count_needs_image_stamps(tmp_path):
         open_image_folder(tmp_path / "imgs", ground_truth=truth)
 
 
+@pytest.mark.parametrize("start_s", [0.0, 1305031102.0])
+def test_numbered_frames_and_a_pose_file_of_another_length_need_a_rate(tmp_path, capsys, start_s):
+    """``0000.png`` … are frame numbers, not stamps: they were read as seconds since 1970, so frame
+    i took the poses of second i (relative stamps), or none at all (Unix stamps), exit 0."""
+    from aslam.cli.app import main
+
+    write_images(tmp_path / "imgs", 4, name=lambda i: f"{i:04d}.png")
+    truth = tmp_path / "gt.txt"
+    truth.write_text("\n".join(tum_line(start_s + 0.05 * k, (0.05 * k, 0, 0)) for k in range(25)) + "\n")
+    out = tmp_path / "rec.mcap"
+    assert main(["import", str(tmp_path / "imgs"), "-o", str(out), "--ground-truth", str(truth)]) == 2
+    line = one_error_line(capsys.readouterr().err)
+    assert f"{truth}: 25 poses for 4 images" in line and "their names are frame numbers" in line
+    assert "give --rate HZ" in line and "--stamp-unit" in line
+    assert not out.exists()
+    args = ["import", str(tmp_path / "imgs"), "-o", str(out), "--ground-truth", str(truth), "--rate", "10"]
+    assert main(args) == 0
+    samples = list(Recording(out).samples())
+    start_ns = round(start_s * 1e9)
+    assert [s.stamp_ns for s in samples] == [start_ns + i * 100_000_000 for i in range(4)]
+    for i, sample in enumerate(samples):  # 0.1 s is two rows of the truth
+        np.testing.assert_allclose(sample.ground_truth_pose, (0.1 * i, 0, 0), atol=1e-9)
+
+
+@settings(deadline=None, max_examples=25)
+@given(numbers=st.sets(st.integers(0, 10**9 - 1), min_size=1, max_size=4), width=st.integers(1, 10))
+def test_frame_numbers_are_never_stamps(tmp_path_factory, numbers, width):
+    """Whole-number names below 10⁹, zero-padded or not (KITTI's six digits, KITTI raw's ten), order
+    the frames and give no stamps; with a stamp unit they are stamps of that unit."""
+    folder = tmp_path_factory.mktemp("numbered")
+    for number in numbers:
+        write_images(folder, 1, name=lambda _i, number=number: f"{number:0{width}d}.png")
+    opened = open_image_folder(folder)
+    assert opened.stamps == "default 1 Hz"
+    assert [int(p.stem) for p in opened.images] == sorted(numbers)
+    assert [s.stamp_ns for s in opened.samples()] == [START_STAMP_NS + i * 10**9 for i in range(len(numbers))]
+    assert [s.stamp_ns for s in open_image_folder(folder, stamp_unit="ms").samples()] == [
+        n * 10**6 for n in sorted(numbers)
+    ]
+
+
+def test_an_import_that_pairs_no_image_is_refused(tmp_path, capsys):
+    """EuRoC's names and an odometry file on another clock: every image dropped, and a recording of
+    no frames written, exit 0 (which ``estimate`` then refused: no image topic)."""
+    from aslam.cli.app import main
+
+    for stamp in (1403636579763555584, 1403636579813555456):
+        write_images(tmp_path / "imgs", 1, name=lambda _i, stamp=stamp: f"{stamp}.png")
+    odometry = tmp_path / "odom.txt"
+    odometry.write_text("\n".join(tum_line(1305031102 + 0.05 * k, (0.05 * k, 0, 0)) for k in range(9)) + "\n")
+    out = tmp_path / "rec.mcap"
+    assert main(["import", str(tmp_path / "imgs"), "-o", str(out), "--odometry", str(odometry)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "dropped 2 image(s) stamped after the last odometry message" in err[0]
+    assert err[1] == (
+        f"aslam: error: {tmp_path / 'imgs'}: none of its 2 images is stamped within odom.txt (the images'"
+        " stamps: file names); nothing to import"
+    )
+    assert not out.exists() and list(tmp_path.glob(".rec.mcap*")) == []
+
+
 @pytest.mark.parametrize(("rows", "line"), [(4, 4), (6, 6)])
 def test_kitti_count_mismatch_names_file_and_line(tmp_path, rows, line):
     write_images(tmp_path / "imgs", 5)
