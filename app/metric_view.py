@@ -452,14 +452,15 @@ def embed_run(
     first_keyframe: int = 0,
 ) -> Embedding | None:
     """The metric view of a run's best map (``states`` and ``links`` as ``Estimator.result()`` or the
-    estimate file give them), with the run's own motion noise and place tolerance; None below 2
-    keyframes. With a prior map (``first_keyframe`` > 0) only this run's keyframes are embedded: a
-    revisit of a prior place has no first visit in this run to close on. An action whose map link
+    estimate file give them), with the run's own motion noise and place tolerance; None without
+    keyframes (one keyframe is one pose, at the origin: a trajectory still, which evo reads). With a
+    prior map (``first_keyframe`` > 0) only this run's keyframes are embedded: a revisit of a prior
+    place has no first visit in this run to close on. An action whose map link
     the estimator marked as no constraint (a relocalisation after a kidnap or an odometry reset:
     variance ≥ ``JUMP_VARIANCE``) is not trusted either.
     """
     actions = np.asarray(actions, dtype=float).reshape(-1, 3)
-    if len(actions) < 2:
+    if not len(actions):
         return None
     # This run's keyframes only, each place named by its first visit in this run (a prior map's
     # place first seen here is, for the pose graph, first seen here).

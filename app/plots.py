@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +26,8 @@ from aslam.data_formats.graph_json import is_loop_closure_link
 
 DPI = 120
 PLOT_NAMES = ("hypotheses.png", "errors.png", "map.png", "pr.png", "trajectory.png")
-"""The figures ``write_plots`` may write (the last only where the map has a metric view)."""
+"""The figures ``write_plots`` may write (the last only where the map has a metric view: a run of one
+keyframe or more)."""
 
 
 def _save(fig: Any, path: Path) -> None:
@@ -40,8 +42,9 @@ def _save(fig: Any, path: Path) -> None:
         plt.close(fig)
 
 
-def write_plots(folder: Path, report: Report) -> list[Path]:
-    """Write the figures into ``folder`` (created if missing); returns their paths."""
+def write_plots(folder: Path, report: Report, on_warning: Callable[[str], None] | None = None) -> list[Path]:
+    """Write the figures into ``folder`` (created if missing); returns their paths. ``on_warning``
+    hears of a figure left out (the trajectory of an estimate without keyframes)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -55,6 +58,8 @@ def write_plots(folder: Path, report: Report) -> list[Path]:
     if report.embedding is not None:
         paths.append(folder / PLOT_NAMES[4])
         _save(_trajectory_figure(report, title), paths[-1])
+    elif on_warning is not None:
+        on_warning(f"{folder / PLOT_NAMES[4]}: not drawn: the estimate has no keyframes")
     return paths
 
 
@@ -92,11 +97,13 @@ def _trajectory_figure(report: Report, title: str) -> Any:
             frame = "in the frame of the first keyframe (a straight run cannot be aligned)"
     else:
         odometry_xy, optimised_xy = odometry[:, :2], optimised[:, :2]
-        frame = "in the frame of the first keyframe (no ground truth)"
-    ax.plot(odometry_xy[:, 0], odometry_xy[:, 1], "--", color="tab:gray", linewidth=1, label="odometry alone")
-    ax.plot(
-        optimised_xy[:, 0], optimised_xy[:, 1], "-", color="tab:blue", linewidth=1.2, label="embedded map"
-    )
+        known_poses = 0 if known is None else int(known.sum())
+        frame = "in the frame of the first keyframe " + (
+            "(no ground truth)" if not known_poses else "(truth at one pose only)"
+        )
+    one = {"marker": "o"} if len(optimised) == 1 else {}  # a run of one keyframe: a point, not a line
+    ax.plot(*odometry_xy.T, "--", color="tab:gray", linewidth=1, label="odometry alone", **one)
+    ax.plot(*optimised_xy.T, "-", color="tab:blue", linewidth=1.2, label="embedded map", **one)
     ax.set_aspect("equal", adjustable="datalim")
     ax.grid(True, alpha=0.3)
     ax.set_xlabel("x (m)")

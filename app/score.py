@@ -244,7 +244,7 @@ class Report:
     """(n, 3) true poses at this run's keyframes; None without ground truth (or by index)."""
     evaluation: Evaluation
     embedding: Embedding | None
-    """The best map embedded as a pose graph (GTSAM); None below two keyframes."""
+    """The best map embedded as a pose graph (GTSAM); None without keyframes."""
     metric: MetricScores | None
     """evo's scores of the embedding and of odometry alone; None without ground truth."""
     summary: dict[str, Any]

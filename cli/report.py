@@ -155,7 +155,7 @@ def report(
     if plots is not None:
         from aslam.app.plots import write_plots
 
-        written += write_plots(plots, result)
+        written += write_plots(plots, result, on_warning=terminal.warning)
     if json_out is not None:
         written += _write_json(json_out, result.summary, indent=2)
     for path in written:
@@ -171,8 +171,9 @@ def _write_trajectories(
 ) -> list[Path]:
     from aslam.app.metric_view import export_trajectories
 
-    if result.embedding is None:
-        raise InputError("fewer than two keyframes: no trajectory to write", path=path)
+    if result.embedding is None:  # as a run without ground truth writes no truth file
+        warn(f"{path}: not written (nor its .odometry and .truth files): the estimate has no keyframes")
+        return []
     paths = export_trajectories(
         path, result.embedding, result.stamps_ns, result.true_poses, fmt, force=force, on_warning=warn
     )

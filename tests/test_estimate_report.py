@@ -497,6 +497,66 @@ def test_report_trajectory_files_score_the_same_with_evo_ape(estimate_file: Path
     assert len((tmp_path / "k.txt").read_text().splitlines()) == summary["keyframes"]
 
 
+@pytest.mark.parametrize("fmt", ["tum", "kitti"])
+def test_report_of_one_keyframe_writes_a_trajectory_of_one_pose(tmp_path: Path, capsys, fmt: str):
+    """One keyframe is a trajectory still: one pose at the origin (the view's frame), its truth
+    beside it, a valid file for evo. It was exit 2 (`fewer than two keyframes`), after the tables."""
+    import numpy as np
+    from conftest import random_frames, write_recording
+
+    from aslam.data_formats.pose_files import iter_poses
+
+    frames = random_frames(1)
+    recording = write_recording(tmp_path / "one.mcap", frames)
+    estimate = tmp_path / "one.est.mcap"
+    assert main(["estimate", str(recording), "-o", str(estimate), "-q"]) == 0
+    run, plots = tmp_path / f"run.{fmt}", tmp_path / "plots"
+    outputs = ["--trajectory", str(run), "--json", str(tmp_path / "s.json"), "--plots", str(plots)]
+    assert main(["report", str(estimate), *outputs]) == 0
+    assert "warning" not in capsys.readouterr().err
+    names = ("", ".odometry", ".truth")
+    rows = {name: list(iter_poses(tmp_path / f"run{name}.{fmt}", fmt)) for name in names}
+    assert [len(r) for r in rows.values()] == [1, 1, 1]
+    np.testing.assert_allclose(rows[""][0].pose, [0, 0, 0], atol=1e-9)
+    np.testing.assert_allclose(rows[".odometry"][0].pose, [0, 0, 0], atol=1e-9)
+    np.testing.assert_allclose(rows[".truth"][0].pose, frames[0][3], atol=1e-9)
+    if fmt == "tum":
+        assert rows[""][0].stamp_ns == frames[0][0]
+    summary = json.loads((tmp_path / "s.json").read_text())
+    assert summary["keyframes"] == 1 and summary["trajectory"]["closures"] == 0
+    assert summary["trajectory"]["ape_m"]["rmse"] is None  # nothing to align with one pose
+    assert (plots / "trajectory.png").exists()
+
+
+def test_report_of_no_keyframes_writes_the_rest_and_says_what_it_left_out(tmp_path: Path, capsys):
+    """An estimate of no keyframes (every image before the odometry) is an empty result, not bad
+    input: no trajectory files and no trajectory figure, each with a warning, the rest written,
+    exit 0 (it was exit 2, the summary and graph unwritten)."""
+    from conftest import FRAME_NS, T0_NS, ForeignRecording, random_frames
+
+    from aslam.data_formats.images import encode_image
+
+    png = encode_image(random_frames(1)[0][1]).data
+    recording = tmp_path / "late.mcap"
+    with ForeignRecording(recording) as rec:
+        for k in range(3):
+            rec.compressed_image("/camera/image/compressed", T0_NS + k * FRAME_NS, png, "png")
+        for k in range(3):
+            rec.odometry("/odom", T0_NS + (10 + k) * FRAME_NS, float(k), 0.0, 0.0)
+    estimate = tmp_path / "late.est.mcap"
+    assert main(["estimate", str(recording), "-o", str(estimate), "-q"]) == 0
+    run, plots = tmp_path / "run.tum", tmp_path / "plots"
+    outputs = ["--graph", str(tmp_path / "g.json"), "--json", str(tmp_path / "s.json"), "--plots", str(plots)]
+    assert main(["report", str(estimate), "--trajectory", str(run), *outputs]) == 0
+    err = capsys.readouterr().err
+    assert f"aslam: warning: {run}: not written (nor its .odometry and .truth files): the estimate has" in err
+    assert f"aslam: warning: {plots / 'trajectory.png'}: not drawn: the estimate has no keyframes" in err
+    assert not list(tmp_path.glob("run*"))
+    assert json.loads((tmp_path / "s.json").read_text())["keyframes"] == 0
+    assert (tmp_path / "g.json").exists()
+    assert sorted(p.name for p in plots.iterdir()) == ["errors.png", "hypotheses.png", "map.png", "pr.png"]
+
+
 def test_report_refuses_a_trajectory_format_with_no_trajectory_and_a_stream_before_any_work(
     estimate_file: Path, tmp_path: Path, capsys
 ):
