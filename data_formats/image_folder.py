@@ -41,6 +41,7 @@ from aslam.core.errors import InputError
 from aslam.data_formats.format_names import StampUnit
 from aslam.data_formats.images import ImageFormat, LazyImage, sniffed_format
 from aslam.data_formats.pose_files import (
+    SPACING_SAMPLE,
     PoseFileError,
     PoseFormat,
     detect_format,
@@ -175,10 +176,10 @@ def _check_pose_file(
     last_line = 0
     previous: int | None = None
     first: int | None = None
-    stamps = array("q")  # 8 bytes a row, for the median step
+    stamps = array("q")  # the first SPACING_SAMPLE stamps, for the median step
     for row in iter_poses(path, fmt, unit):
         first = row.stamp_ns if rows == 0 else first
-        if row.stamp_ns is not None and unit is None:
+        if row.stamp_ns is not None and unit is None and len(stamps) < SPACING_SAMPLE:
             stamps.append(row.stamp_ns)
         if row.stamp_ns is not None and previous is not None and row.stamp_ns == previous:
             raise PoseFileError(

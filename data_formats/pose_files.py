@@ -139,6 +139,9 @@ or odometry up to 200 Hz stamped in milliseconds looks like this, seconds rarely
 SECONDS_STEP_REFUSED_S = 3600.0
 """... and beyond this (an hour) are refused: nanoseconds or microseconds counted from a start
 (0, 33333333, …) are below 2³¹ and pass for seconds, and would put the frames days or years apart."""
+SPACING_SAMPLE = 10_001
+"""Stamps judged: a file's first ten thousand steps tell its unit, and a pose file of millions of
+rows is not held (the import streams)."""
 
 
 @dataclass(frozen=True)
