@@ -28,8 +28,8 @@ import os
 import shutil
 import socket
 import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
-from dataclasses import asdict, dataclass
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -128,6 +128,9 @@ class Task:
     score: ScoreOptions
     key: str
     estimate_path: Path
+    same_as: int | None = None
+    """The earlier task with this key (the same recording bytes under another name, the same
+    configuration): computed once, its result is this row's too. None for a task computed itself."""
 
 
 def render_path(results_dir: Path, config: RecordConfig) -> tuple[Path, str]:
@@ -188,12 +191,14 @@ class HashCache:
 
 
 def plan_tasks(sweep: Sweep, results_dir: Path, *, hashes: HashCache | None = None) -> list[Task]:
-    """Every task of ``sweep``, in the stable order the rows take; a task two grids both name (the
-    same recording and configuration) once, where it first comes.
+    """Every task of ``sweep``, in the stable order the rows take; a configuration two grids both
+    name on one recording once, where it first comes.
 
     Hashes each recording file (one sequential read), or takes its hash from ``hashes``. A listed
     file under the results folder is the sweep's own output (a render, an estimate, matched by a
-    ``**`` glob on a second run), not a recording: left out.
+    ``**`` glob on a second run), not a recording: left out. Two names of the same bytes (a copy, a
+    link) each get their tasks, so every recording named has its rows; the later one's tasks have
+    ``same_as`` set and share the first's results, computed once.
     """
     results_dir = full_path(results_dir)
     hashes = hashes if hashes is not None else HashCache(None)
@@ -206,7 +211,8 @@ def plan_tasks(sweep: Sweep, results_dir: Path, *, hashes: HashCache | None = No
         path, identity = render_path(results_dir, config)
         sources.append(Source(path, identity, config))
     tasks: list[Task] = []
-    planned: set[str] = set()
+    first: dict[str, int] = {}  # key -> the task that computes it
+    planned: set[tuple[Path, str]] = set()
     for source in sources:
         for parameters in sweep.parameter_sets():
             config = estimator_config(parameters)
@@ -218,9 +224,9 @@ def plan_tasks(sweep: Sweep, results_dir: Path, *, hashes: HashCache | None = No
                     "version": tool_version(),
                 }
             )
-            if key in planned:
+            if (source.path, key) in planned:
                 continue
-            planned.add(key)
+            planned.add((source.path, key))
             tasks.append(
                 Task(
                     index=len(tasks),
@@ -230,8 +236,10 @@ def plan_tasks(sweep: Sweep, results_dir: Path, *, hashes: HashCache | None = No
                     score=sweep.score,
                     key=key,
                     estimate_path=results_dir / ESTIMATES_FOLDER / f"{key[:16]}.mcap",
+                    same_as=first.get(key),
                 )
             )
+            first.setdefault(key, len(tasks) - 1)
     return tasks
 
 
@@ -374,6 +382,53 @@ def load_result(results_dir: Path, task: Task) -> TaskResult | None:
     return result if result.ok and result.key == task.key else None
 
 
+@dataclass(frozen=True)
+class SweepPlan:
+    """What a sweep has to do in its results folder, found by reading only."""
+
+    tasks: tuple[Task, ...]
+    """Every row, in task order."""
+    done: Mapping[int, TaskResult]
+    """The saved successful results, by task index (none with ``force``)."""
+    to_run: tuple[Task, ...]
+    """The tasks to compute: those not done, a key once (a copy's rows share the first's result)."""
+
+    @property
+    def reused(self) -> int:
+        """Tasks computed by an earlier run (rows sharing another's result not counted)."""
+        return sum(task.same_as is None and task.index in self.done for task in self.tasks)
+
+    @property
+    def shared(self) -> int:
+        """Rows whose result is another row's (the same bytes under another name)."""
+        return sum(task.same_as is not None for task in self.tasks)
+
+    def copies(self) -> list[tuple[Path, Path]]:
+        """Each recording named whose bytes an earlier one has, with that earlier one."""
+        pairs = {
+            (task.source.path, self.tasks[task.same_as].source.path): None
+            for task in self.tasks
+            if task.same_as is not None
+        }
+        return list(pairs)
+
+
+def plan_sweep(
+    sweep: Sweep, results_dir: Path, *, force: bool = False, hashes: HashCache | None = None
+) -> SweepPlan:
+    """Plan ``sweep`` (:func:`plan_tasks`) and find the tasks done in ``results_dir``; writes nothing."""
+    results_dir = full_path(results_dir)
+    tasks = tuple(plan_tasks(sweep, results_dir, hashes=hashes))
+    done: dict[int, TaskResult] = {}
+    if not force:
+        for task in tasks:
+            saved = load_result(results_dir, task)
+            if saved is not None:
+                done[task.index] = saved
+    to_run = tuple(task for task in tasks if task.same_as is None and task.index not in done)
+    return SweepPlan(tasks, done, to_run)
+
+
 # --- running ---------------------------------------------------------------------------------------
 
 
@@ -385,7 +440,11 @@ class SweepRun:
     results: tuple[TaskResult, ...]
     """In task order."""
     reused: int
-    """Results taken from an earlier run instead of computed."""
+    """Tasks whose results an earlier run saved (rows sharing another's result not counted)."""
+    computed: int
+    """Tasks computed by this run."""
+    shared: int
+    """Rows whose result is another row's: the same recording bytes under another name."""
     parquet: Path
     csv: Path
 
@@ -507,13 +566,15 @@ def run_sweep(
     force: bool = False,
     extra_figures: Sequence[str] = (),
     client: Any | None = None,
-    on_plan: Callable[[Sequence[Task], Sequence[Task]], None] | None = None,
+    on_plan: Callable[[SweepPlan], None] | None = None,
     on_result: Callable[[Task, TaskResult, bool], None] | None = None,
+    on_warning: Callable[[str], None] | None = None,
 ) -> SweepRun:
     """Run every task of ``sweep`` not already done in ``results_dir``; write the tables.
 
-    ``on_plan(tasks, to_run)`` is called once before work starts (every task, and those to run);
-    ``on_result(task, result, reused)`` once per task as it finishes (reused ones first). Results
+    ``on_plan(plan)`` is called once before work starts (every task, those done, those to run);
+    ``on_result(task, result, reused)`` once per task (row) as it finishes (reused ones first);
+    ``on_warning(line)`` for what the user should know (a recording named twice under two names). Results
     arrive in completion order; the tables are in task order and hold the sweep's figures and
     ``extra_figures``. A failed task does not stop the others; :meth:`SweepRun.check` says whether
     any failed.
@@ -532,7 +593,16 @@ def run_sweep(
         raise InputError(f"cannot create: {err.strerror or err}", path=results_dir) from err
     try:
         return _run_in(
-            sweep, results_dir, workers, scheduler, force, extra_figures, client, on_plan, on_result
+            sweep,
+            results_dir,
+            workers,
+            scheduler,
+            force,
+            extra_figures,
+            client,
+            on_plan,
+            on_result,
+            on_warning,
         )
     except BaseException:
         # A sweep that made its folder and then failed before any work was kept (a scheduler out of
@@ -551,8 +621,9 @@ def _run_in(
     force: bool,
     extra_figures: Sequence[str],
     client: Any | None,
-    on_plan: Callable[[Sequence[Task], Sequence[Task]], None] | None,
+    on_plan: Callable[[SweepPlan], None] | None,
     on_result: Callable[[Task, TaskResult, bool], None] | None,
+    on_warning: Callable[[str], None] | None,
 ) -> SweepRun:
     # What an interrupted run's workers were writing when they were killed (renders, estimates).
     for folder in (
@@ -561,40 +632,50 @@ def _run_in(
     ):
         remove_stale_partials(folder)
     hashes = HashCache(results_dir / HASHES_FILE, use=not force)
-    tasks = plan_tasks(sweep, results_dir, hashes=hashes)
+    plan = plan_sweep(sweep, results_dir, force=force, hashes=hashes)
     hashes.save()
-    results: dict[int, TaskResult] = {}
-    if not force:
-        for task in tasks:
-            saved = load_result(results_dir, task)
-            if saved is not None:
-                results[task.index] = saved
-    reused = len(results)
-    pending = [task for task in tasks if task.index not in results]
+    if on_warning is not None:
+        for copy, original in plan.copies():
+            on_warning(
+                f"{copy}: the same bytes as {original};"
+                " its rows share that recording's results (computed once)"
+            )
     if on_plan is not None:
-        on_plan(tasks, pending)
+        on_plan(plan)
+    results = dict(plan.done)
     if on_result is not None:
         for index in sorted(results):
-            on_result(tasks[index], results[index], True)
-    if pending:
+            on_result(plan.tasks[index], results[index], True)
+    if plan.to_run:
+        rows_of: dict[str, list[Task]] = {}
+        for task in plan.tasks:
+            rows_of.setdefault(task.key, []).append(task)
         own = client is None
         with _dask_logs_quiet():
             client = open_client(workers=workers, scheduler=scheduler) if own else client
             try:
                 if own and scheduler is not None:
                     check_workers(client, scheduler)
-                computed = _compute(client, pending, force=force, done_before=reused, total=len(tasks))
+                computed = _compute(
+                    client,
+                    plan.to_run,
+                    force=force,
+                    done_before=plan.reused,
+                    total=plan.reused + len(plan.to_run),
+                )
                 for task, result in computed:
                     save_result(results_dir, result)
-                    results[task.index] = result
-                    if on_result is not None:
-                        on_result(task, result, False)
+                    for row in rows_of[task.key]:  # a copy's rows too
+                        shared = result if row is task else replace(result, index=row.index)
+                        results[row.index] = shared
+                        if on_result is not None:
+                            on_result(row, shared, False)
             finally:
                 if own:
                     _close(client, local=scheduler is None)
-    ordered = tuple(results[task.index] for task in tasks)
-    parquet, csv = write_tables(results_dir, sweep, tasks, ordered, extra_figures)
-    return SweepRun(tuple(tasks), ordered, reused, parquet, csv)
+    ordered = tuple(results[task.index] for task in plan.tasks)
+    parquet, csv = write_tables(results_dir, sweep, plan.tasks, ordered, extra_figures)
+    return SweepRun(plan.tasks, ordered, plan.reused, len(plan.to_run), plan.shared, parquet, csv)
 
 
 def _compute(

@@ -77,11 +77,12 @@ def sweep(
             extra_figures=[o.key for o in objectives],
             on_plan=display.plan,
             on_result=display.result,
+            on_warning=terminal.warning,
         )
-    computed = len(run.tasks) - run.reused
+    shared = f", {run.shared} shared with an identical recording" if run.shared else ""
     terminal.info(
         f"wrote {run.parquet} and {run.csv.name} ({len(run.tasks)} tasks: {len(run.tasks) - run.failed} ok,"
-        f" {run.failed} failed; {computed} run, {run.reused} already done)"
+        f" {run.failed} failed; {run.computed} run, {run.reused} already done{shared})"
     )
     if objectives:
         _print_pareto(run, objectives)

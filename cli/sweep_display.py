@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 from aslam.cli.output import Terminal
 
 if TYPE_CHECKING:
-    from aslam.app.sweep import Task, TaskResult
+    from aslam.app.sweep import SweepPlan, Task, TaskResult
 
 #: Finished tasks the live table shows (the newest); the files hold them all.
 LIVE_ROWS = 15
@@ -37,6 +37,16 @@ def renders_due(to_run: Any, *, force: bool) -> int:
     return len(paths) if force else sum(not path.exists() for path in paths)
 
 
+def plan_text(plan: SweepPlan, *, force: bool) -> str:
+    """``12 tasks, 4 already done, 6 to run, 2 shared with an identical recording (first rendering
+    1 recording)``: the tasks computed before, to compute now, and rows sharing another's result."""
+    shared = f", {plan.shared} shared with an identical recording" if plan.shared else ""
+    renders = renders_due(plan.to_run, force=force)
+    rendering = f" (first rendering {renders} recording{'s' if renders != 1 else ''})" if renders else ""
+    counts = f"{len(plan.tasks)} tasks, {plan.reused} already done, {len(plan.to_run)} to run"
+    return counts + shared + rendering
+
+
 class PlainDisplay:
     """One line per finished task (logs, pipes, --quiet: nothing but the summary line)."""
 
@@ -53,13 +63,9 @@ class PlainDisplay:
     def __exit__(self, *exc: object) -> None:
         return None
 
-    def plan(self, tasks: Any, to_run: Any) -> None:
-        self.total = len(tasks)
-        renders = renders_due(to_run, force=self.force)
-        rendering = f" (first rendering {renders} recording{'s' if renders != 1 else ''})" if renders else ""
-        self.terminal.info(
-            f"{len(tasks)} tasks, {len(tasks) - len(to_run)} already done, {len(to_run)} to run{rendering}"
-        )
+    def plan(self, plan: SweepPlan) -> None:
+        self.total = len(plan.tasks)
+        self.terminal.info(plan_text(plan, force=self.force))
 
     def result(self, task: Task, result: TaskResult, reused: bool) -> None:
         self.done += 1
@@ -69,6 +75,8 @@ class PlainDisplay:
         if result.ok and result.summary is not None:
             figures = " ".join(f"{_short_key(k)}={figure_text(result.summary.get(k))}" for k in self.figures)
             timing = "already done" if reused else f"{result.estimate_wall_s:.2f} s on {result.worker}"
+            if task.same_as is not None:
+                timing += f"; task {task.same_as}'s result, the same bytes"
             self.terminal.info(f"{head} {figures} ({timing})")
         else:
             self.terminal.info(f"{head} failed: {result.error}")
@@ -116,9 +124,9 @@ class LiveDisplay:
     def __exit__(self, *exc: object) -> None:
         self.live.__exit__(None, None, None)
 
-    def plan(self, tasks: Any, to_run: Any) -> None:
-        self.progress.update(self.bar, total=len(tasks))
-        renders = renders_due(to_run, force=self.force)
+    def plan(self, plan: SweepPlan) -> None:
+        self.progress.update(self.bar, total=len(plan.tasks))
+        renders = renders_due(plan.to_run, force=self.force)
         if renders:
             self.terminal.console.print(f"rendering {renders} recording{'s' if renders != 1 else ''} first")
 

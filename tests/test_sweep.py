@@ -342,6 +342,41 @@ def test_a_combination_named_twice_runs_once(tmp_path):
     assert len({t.estimate_path for t in tasks}) == 3
 
 
+def test_a_recording_copied_under_another_name_keeps_its_rows_computed_once(recordings, tmp_path, capsys):
+    """``cp a.mcap b.mcap``, both matched: each name has its rows (the user finds every recording
+    named), the copy's sharing the first's result, computed once; one warning line names both."""
+    folder = tmp_path / "recs"
+    folder.mkdir()
+    for name in ("a.mcap", "b.mcap"):
+        (folder / name).write_bytes((recordings / "good.mcap").read_bytes())
+    sweep = folder / "s.toml"
+    sweep.write_text('figures = ["keyframes"]\n[recordings]\npaths = ["*.mcap"]\n[grid]\nbeta = [2.0, 3.0]\n')
+    results = tmp_path / "out"
+    assert main(["sweep", str(sweep), "-o", str(results), "--workers", "1"]) == 0
+    err = capsys.readouterr().err
+    warning = [line for line in err.splitlines() if "warning" in line]
+    assert warning == [
+        f"aslam: warning: {folder / 'b.mcap'}: the same bytes as {folder / 'a.mcap'};"
+        " its rows share that recording's results (computed once)"
+    ]
+    assert "4 tasks, 0 already done, 2 to run, 2 shared with an identical recording" in err
+    rows = _rows(results)
+    assert [(Path(r["recording"]).name, r["param.beta"]) for r in rows] == [
+        ("a.mcap", 2.0),
+        ("a.mcap", 3.0),
+        ("b.mcap", 2.0),
+        ("b.mcap", 3.0),
+    ]
+    assert [r["key"] for r in rows[2:]] == [r["key"] for r in rows[:2]]
+    assert all(r["status"] == "ok" for r in rows)
+    assert _figures(rows[2:]) == [{**row, "task": row["task"] + 2} for row in _figures(rows[:2])]
+    assert len(list((results / "estimates").glob("*.mcap"))) == 2  # computed once each
+    tasks = plan_tasks(read_sweep_file(sweep), results)
+    assert [t.same_as for t in tasks] == [None, None, 0, 1]
+    assert main(["sweep", str(sweep), "-o", str(results), "-q"]) == 0  # all done: no cluster needed
+    assert _rows(results) == rows
+
+
 def test_recording_paths_with_brackets_are_names_and_globs_only_in_the_pattern(tmp_path):
     """A sweep file in ``dir[1]/`` lists its own ``rec.mcap`` (not ``dir1/rec.mcap``, which the
     folder's name read as a glob would match); a file whose name holds brackets is taken as named;
