@@ -9,7 +9,8 @@ estimate tasks that read it depend on, so it is rendered once, before them, on s
 
 Tasks never raise: a failure becomes a row with its error, and the sweep goes on. Each finished
 task is saved at once as ``RESULTS_DIR/tasks/KEY.json``, so an interrupted sweep loses nothing;
-a re-run skips tasks whose successful result is saved (``force`` recomputes). A task's key is the
+a re-run skips tasks whose successful result is saved (``force`` recomputes), and with nothing
+left to do writes nothing, so a read-only results folder still gives its rows. A task's key is the
 SHA-256 of its recording's identity (the file's SHA-256, or for a recording to render its
 configuration, which decides its bytes), its full estimator configuration, the scoring options
 and the aslam version. The tables (``results.parquet``, ``results.csv``) hold one row per task, in task order
@@ -42,6 +43,7 @@ from aslam.data_formats.files import (
     remove_stale_partials,
     source_sha256,
     write_atomically,
+    write_problem,
 )
 from aslam.data_formats.provenance import tool_version
 from aslam.recorder.config import RecordConfig
@@ -392,6 +394,9 @@ class SweepPlan:
     """The saved successful results, by task index (none with ``force``)."""
     to_run: tuple[Task, ...]
     """The tasks to compute: those not done, a key once (a copy's rows share the first's result)."""
+    cannot_write: str | None = None
+    """Why no result could be saved in the results folder (``FOLDER: Read-only file system``), or
+    None. A plan with nothing to run needs no writing: a read-only finished sweep is shown as it is."""
 
     @property
     def reused(self) -> int:
@@ -426,7 +431,20 @@ def plan_sweep(
             if saved is not None:
                 done[task.index] = saved
     to_run = tuple(task for task in tasks if task.same_as is None and task.index not in done)
-    return SweepPlan(tasks, done, to_run)
+    return SweepPlan(tasks, done, to_run, _write_problem(results_dir))
+
+
+def _write_problem(results_dir: Path) -> str | None:
+    """The first of the folders a run writes into (the tables and hashes, the tasks' results, the
+    estimates, the renders) that exists and cannot be written, and why."""
+    for folder in (
+        results_dir,
+        *(results_dir / name for name in (TASKS_FOLDER, ESTIMATES_FOLDER, RENDERS_FOLDER)),
+    ):
+        problem = write_problem(folder)
+        if problem is not None:
+            return f"{folder}: {problem}"
+    return None
 
 
 # --- running ---------------------------------------------------------------------------------------
@@ -447,6 +465,9 @@ class SweepRun:
     """Rows whose result is another row's: the same recording bytes under another name."""
     parquet: Path
     csv: Path
+    tables_written: bool
+    """False when the tables already held these bytes (a re-run with nothing to do), or the
+    results folder could not be written and nothing was run."""
 
     @property
     def failed(self) -> int:
@@ -572,6 +593,9 @@ def run_sweep(
 ) -> SweepRun:
     """Run every task of ``sweep`` not already done in ``results_dir``; write the tables.
 
+    Only a sweep with tasks to run needs to write (else :class:`InputError` before any, exit 2):
+    one with nothing left to do in a read-only results folder gives its results as they are.
+
     ``on_plan(plan)`` is called once before work starts (every task, those done, those to run);
     ``on_result(task, result, reused)`` once per task (row) as it finishes (reused ones first);
     ``on_warning(line)`` for what the user should know (a recording named twice under two names). Results
@@ -587,10 +611,11 @@ def run_sweep(
     results_dir = full_path(results_dir)
     check_output_folder(results_dir, what="results folder")
     created = not results_dir.exists()
-    try:
-        (results_dir / TASKS_FOLDER).mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise InputError(f"cannot create: {err.strerror or err}", path=results_dir) from err
+    if created:
+        try:
+            (results_dir / TASKS_FOLDER).mkdir(parents=True)
+        except OSError as err:
+            raise InputError(f"cannot create: {err.strerror or err}", path=results_dir) from err
     try:
         return _run_in(
             sweep,
@@ -625,15 +650,22 @@ def _run_in(
     on_result: Callable[[Task, TaskResult, bool], None] | None,
     on_warning: Callable[[str], None] | None,
 ) -> SweepRun:
-    # What an interrupted run's workers were writing when they were killed (renders, estimates).
-    for folder in (
-        results_dir,
-        *(results_dir / name for name in (RENDERS_FOLDER, ESTIMATES_FOLDER, TASKS_FOLDER)),
-    ):
-        remove_stale_partials(folder)
     hashes = HashCache(results_dir / HASHES_FILE, use=not force)
     plan = plan_sweep(sweep, results_dir, force=force, hashes=hashes)
-    hashes.save()
+    if plan.to_run and plan.cannot_write is not None:
+        count = len(plan.to_run)
+        raise InputError(
+            f"{plan.cannot_write}; the results folder must be writable for the {count}"
+            f" task{'s' if count != 1 else ''} to run"
+        )
+    if plan.cannot_write is None:
+        # What an interrupted run's workers were writing when they were killed (renders, estimates).
+        for folder in (
+            results_dir,
+            *(results_dir / name for name in (RENDERS_FOLDER, ESTIMATES_FOLDER, TASKS_FOLDER)),
+        ):
+            remove_stale_partials(folder)
+        hashes.save()  # a cache: a read-only folder's is only read
     if on_warning is not None:
         for copy, original in plan.copies():
             on_warning(
@@ -647,6 +679,7 @@ def _run_in(
         for index in sorted(results):
             on_result(plan.tasks[index], results[index], True)
     if plan.to_run:
+        (results_dir / TASKS_FOLDER).mkdir(exist_ok=True)
         rows_of: dict[str, list[Task]] = {}
         for task in plan.tasks:
             rows_of.setdefault(task.key, []).append(task)
@@ -674,8 +707,17 @@ def _run_in(
                 if own:
                     _close(client, local=scheduler is None)
     ordered = tuple(results[task.index] for task in plan.tasks)
-    parquet, csv = write_tables(results_dir, sweep, plan.tasks, ordered, extra_figures)
-    return SweepRun(plan.tasks, ordered, plan.reused, len(plan.to_run), plan.shared, parquet, csv)
+    written = write_tables(results_dir, sweep, plan.tasks, ordered, extra_figures, on_warning=on_warning)
+    return SweepRun(
+        plan.tasks,
+        ordered,
+        plan.reused,
+        len(plan.to_run),
+        plan.shared,
+        results_dir / RESULTS_PARQUET,
+        results_dir / RESULTS_CSV,
+        written,
+    )
 
 
 def _compute(
@@ -891,23 +933,59 @@ def _arrow_type(name: str, values: list[Any]) -> Any:
     return pa.string()
 
 
+def table_bytes(
+    sweep: Sweep,
+    tasks: Sequence[Task],
+    results: Sequence[TaskResult],
+    extra_figures: Iterable[str] = (),
+) -> dict[str, bytes]:
+    """``results.parquet`` and ``results.csv`` as they should read, by file name."""
+    import pyarrow as pa
+    import pyarrow.csv
+    import pyarrow.parquet
+
+    table = arrow_table(sweep, tasks, results, extra_figures)
+    parquet, csv = pa.BufferOutputStream(), pa.BufferOutputStream()
+    pyarrow.parquet.write_table(table, parquet)
+    pyarrow.csv.write_csv(table, csv)
+    return {RESULTS_PARQUET: parquet.getvalue().to_pybytes(), RESULTS_CSV: csv.getvalue().to_pybytes()}
+
+
 def write_tables(
     results_dir: Path,
     sweep: Sweep,
     tasks: Sequence[Task],
     results: Sequence[TaskResult],
     extra_figures: Iterable[str] = (),
-) -> tuple[Path, Path]:
-    """``results.parquet`` and ``results.csv``, each written under a temporary name and renamed."""
-    import pyarrow.csv
-    import pyarrow.parquet
+    *,
+    on_warning: Callable[[str], None] | None = None,
+) -> bool:
+    """Write the tables that do not already hold these bytes, each under a temporary name and
+    renamed; whether any was written. A re-run with nothing to do writes nothing; in a folder that
+    cannot be written, tables out of date (another ``--pareto``'s columns, recordings moved) are
+    left as they are, with a warning."""
+    tables = table_bytes(sweep, tasks, results, extra_figures)
+    stale = {name: data for name, data in tables.items() if not _holds(results_dir / name, data)}
+    if not stale:
+        return False
+    problem = write_problem(results_dir)
+    if problem is not None:
+        if on_warning is not None:
+            names = " and ".join(stale)
+            on_warning(
+                f"{results_dir}: {problem}; {names} left as {'they were' if len(stale) > 1 else 'it was'}"
+            )
+        return False
+    for name, data in stale.items():
+        write_atomically(results_dir / name, lambda temporary, data=data: temporary.write_bytes(data))
+    return True
 
-    table = arrow_table(sweep, tasks, results, extra_figures)
-    parquet = results_dir / RESULTS_PARQUET
-    csv = results_dir / RESULTS_CSV
-    write_atomically(parquet, lambda temporary: pyarrow.parquet.write_table(table, temporary))
-    write_atomically(csv, lambda temporary: pyarrow.csv.write_csv(table, temporary))
-    return parquet, csv
+
+def _holds(path: Path, data: bytes) -> bool:
+    try:
+        return path.stat().st_size == len(data) and path.read_bytes() == data
+    except OSError:
+        return False
 
 
 # --- selection -------------------------------------------------------------------------------------

@@ -80,8 +80,9 @@ def sweep(
             on_warning=terminal.warning,
         )
     shared = f", {run.shared} shared with an identical recording" if run.shared else ""
+    tables = f"{'wrote' if run.tables_written else 'kept'} {run.parquet} and {run.csv.name}"
     terminal.info(
-        f"wrote {run.parquet} and {run.csv.name} ({len(run.tasks)} tasks: {len(run.tasks) - run.failed} ok,"
+        f"{tables} ({len(run.tasks)} tasks: {len(run.tasks) - run.failed} ok,"
         f" {run.failed} failed; {run.computed} run, {run.reused} already done{shared})"
     )
     if objectives:

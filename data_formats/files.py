@@ -22,6 +22,7 @@ command opened, whenever it opened it.
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import os
 import stat
@@ -251,6 +252,19 @@ def check_output_folder(path: Path, *, what: str = "folder") -> None:
         above = next(folder for folder in path.absolute().parents if folder.exists())
         if not above.is_dir():
             raise InputError(f"cannot make the {what}: {above} is not a folder", path=path)
+
+
+def write_problem(folder: Path) -> str | None:
+    """Why no file can be made in the existing ``folder`` (``Read-only file system``, ``Permission
+    denied``: what the first write would say), or None; None too for a folder not there (whoever
+    makes it finds out). Asked by work that would otherwise fail only at its first write."""
+    try:
+        read_only = os.statvfs(folder).f_flag & os.ST_RDONLY
+    except OSError:
+        return None
+    if read_only:
+        return os.strerror(errno.EROFS)
+    return None if os.access(folder, os.W_OK | os.X_OK) else os.strerror(errno.EACCES)
 
 
 def check_output_path(

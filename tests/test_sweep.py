@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -117,6 +118,89 @@ def _figures(rows: list[dict]) -> list[dict]:
     """What must not depend on where or how fast a task ran."""
     drop = {*VARYING_COLUMNS, "recording"}  # a render's path is under its results folder
     return [{k: v for k, v in row.items() if k not in drop} for row in rows]
+
+
+def _finished_sweep(recordings: Path) -> Path:
+    """The local run's sweep without its corrupt recording: every task is done in its results."""
+    path = recordings / "finished.toml"
+    path.write_text(
+        _write_sweep(recordings).read_text().replace('"good.mcap", "corrupt.mcap"', '"good.mcap"')
+    )
+    return path
+
+
+def _files(folder: Path) -> dict[str, tuple[int, int]]:
+    return {str(p.relative_to(folder)): (p.stat().st_mtime_ns, p.stat().st_size) for p in folder.rglob("*")}
+
+
+@pytest.fixture
+def read_only_results(local_run, tmp_path):
+    """A copy of the local run's results folder that cannot be written (a colleague's, shared): for
+    root (whom mode bits do not stop) bind-mounted read-only, skipped where mounting is refused;
+    for anyone else ``chmod -R a-w``."""
+    copy = tmp_path / "copy"
+    shutil.copytree(local_run[1], copy)
+    if os.geteuid() != 0:
+        for path in (copy, *copy.rglob("*")):
+            path.chmod(path.stat().st_mode & ~0o222)
+        try:
+            yield copy, "Permission denied"
+        finally:
+            for path in (copy, *copy.rglob("*")):
+                path.chmod(path.stat().st_mode | 0o200)
+        return
+    mounted = tmp_path / "read-only"
+    mounted.mkdir()
+    bound = subprocess.run(["mount", "--bind", str(copy), str(mounted)], capture_output=True)
+    if bound.returncode != 0:
+        pytest.skip("cannot bind-mount here")
+    try:
+        remounted = subprocess.run(["mount", "-o", "remount,bind,ro", str(mounted)], capture_output=True)
+        if remounted.returncode != 0:
+            pytest.skip("cannot remount read-only here")
+        yield mounted, "Read-only file system"
+    finally:
+        subprocess.run(["umount", str(mounted)], check=False)
+
+
+def test_a_finished_sweep_in_a_read_only_folder_shows_its_results(read_only_results, recordings, capsys):
+    """Nothing to do: the Pareto set and the rows are read and printed, nothing written (tables out
+    of date are left, with a warning). Work to do: one line and exit 2 before any task runs."""
+    folder, problem = read_only_results
+    before = _files(folder)
+    args = ["sweep", str(_finished_sweep(recordings)), "-o", str(folder), "--pareto", "precision,recall"]
+    assert main(args) == 0
+    captured = capsys.readouterr()
+    assert "Pareto set:" in captured.out and "good.mcap" in captured.out
+    assert "2 tasks, 2 already done, 0 to run" in captured.err
+    # the folder's tables hold the corrupt recording's row too: out of date, and left so
+    assert (
+        f"aslam: warning: {folder}: {problem}; results.parquet and results.csv left as they were"
+        in captured.err
+    )
+    assert f"kept {folder / 'results.parquet'} and results.csv" in captured.err
+    assert _files(folder) == before
+    # the corrupt recording's failed task is to be tried again: that needs writing
+    assert main(["sweep", str(_write_sweep(recordings)), "-o", str(folder), "--workers", "1", "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err == (
+        f"aslam: error: {folder}: {problem}; the results folder must be writable for the 1 task to run\n"
+    )
+    assert _files(folder) == before
+
+
+def test_a_rerun_with_nothing_to_do_writes_nothing(local_run, recordings, tmp_path, capsys):
+    """The tables are rewritten only when they would change (here: once, without the corrupt
+    recording's row); then a re-run, --pareto or not, leaves every file of the folder as it was."""
+    folder = tmp_path / "copy"
+    shutil.copytree(local_run[1], folder)
+    sweep = str(_finished_sweep(recordings))
+    assert main(["sweep", sweep, "-o", str(folder), "-q"]) == 0
+    assert [row["status"] for row in _rows(folder)] == ["ok", "ok"]
+    before = _files(folder)
+    assert main(["sweep", sweep, "-o", str(folder), "--pareto", "precision,recall"]) == 0
+    assert "kept" in capsys.readouterr().err
+    assert _files(folder) == before
 
 
 def test_a_cluster_started_separately_gives_the_same_rows(local_run, recordings, tmp_path):
