@@ -397,6 +397,8 @@ class SweepPlan:
     cannot_write: str | None = None
     """Why no result could be saved in the results folder (``FOLDER: Read-only file system``), or
     None. A plan with nothing to run needs no writing: a read-only finished sweep is shown as it is."""
+    force: bool = False
+    """Planned for ``force``: every task to run, every render made again."""
 
     @property
     def reused(self) -> int:
@@ -407,6 +409,52 @@ class SweepPlan:
     def shared(self) -> int:
         """Rows whose result is another row's (the same bytes under another name)."""
         return sum(task.same_as is not None for task in self.tasks)
+
+    @property
+    def renders_due(self) -> int:
+        """Recordings the tasks to run render first: those not rendered yet (all, with ``force``; a
+        render already there is otherwise used as it is)."""
+        paths = {task.source.path for task in self.to_run if task.source.render is not None}
+        return len(paths) if self.force else sum(not path.exists() for path in paths)
+
+    def state(self, task: Task) -> str:
+        """``done``, ``to run``, or ``shared`` (its result is task ``same_as``'s)."""
+        if task.same_as is not None:
+            return "shared"
+        return "done" if task.index in self.done else "to run"
+
+    def check_writable(self) -> None:
+        """:class:`InputError` (exit 2) when there are tasks to run and their results could not be
+        saved: said before any task runs, not after the first finished."""
+        if self.to_run and self.cannot_write is not None:
+            count = len(self.to_run)
+            raise InputError(
+                f"{self.cannot_write}; the results folder must be writable for the {count}"
+                f" task{'s' if count != 1 else ''} to run"
+            )
+
+    def as_dict(self) -> dict[str, Any]:
+        """The plan as ``aslam sweep --dry-run --json`` writes it: the counts, then every task."""
+        return {
+            "tasks": len(self.tasks),
+            "done": self.reused,
+            "to_run": len(self.to_run),
+            "shared": self.shared,
+            "renders_due": self.renders_due,
+            "cannot_write": self.cannot_write,
+            "rows": [
+                {
+                    "task": task.index,
+                    "key": task.key[:16],
+                    "state": self.state(task),
+                    "same_as": task.same_as,
+                    "recording": str(task.source.path),
+                    "render": "" if task.source.render is None else _render_text(task.source.render),
+                    "parameters": dict(task.parameters),
+                }
+                for task in self.tasks
+            ],
+        }
 
     def copies(self) -> list[tuple[Path, Path]]:
         """Each recording named whose bytes an earlier one has, with that earlier one."""
@@ -419,9 +467,15 @@ class SweepPlan:
 
 
 def plan_sweep(
-    sweep: Sweep, results_dir: Path, *, force: bool = False, hashes: HashCache | None = None
+    sweep: Sweep,
+    results_dir: Path,
+    *,
+    force: bool = False,
+    hashes: HashCache | None = None,
+    on_warning: Callable[[str], None] | None = None,
 ) -> SweepPlan:
-    """Plan ``sweep`` (:func:`plan_tasks`) and find the tasks done in ``results_dir``; writes nothing."""
+    """Plan ``sweep`` (:func:`plan_tasks`) and find the tasks done in ``results_dir``; writes nothing.
+    ``on_warning`` hears of each recording named whose bytes an earlier one has."""
     results_dir = full_path(results_dir)
     tasks = tuple(plan_tasks(sweep, results_dir, hashes=hashes))
     done: dict[int, TaskResult] = {}
@@ -431,7 +485,41 @@ def plan_sweep(
             if saved is not None:
                 done[task.index] = saved
     to_run = tuple(task for task in tasks if task.same_as is None and task.index not in done)
-    return SweepPlan(tasks, done, to_run, _write_problem(results_dir))
+    plan = SweepPlan(tasks, done, to_run, _write_problem(results_dir), force)
+    if on_warning is not None:
+        for copy, original in plan.copies():
+            on_warning(
+                f"{copy}: the same bytes as {original};"
+                " its rows share that recording's results (computed once)"
+            )
+    return plan
+
+
+def dry_run(
+    sweep: Sweep,
+    results_dir: Path,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    force: bool = False,
+    on_warning: Callable[[str], None] | None = None,
+) -> SweepPlan:
+    """What :func:`run_sweep` with these arguments would do: its options checked, its tasks planned
+    and those done in ``results_dir`` found, without a cluster or a single write (not even the
+    hash cache: a recording not hashed before is read). :meth:`SweepPlan.check_writable` says
+    whether the run could save its results."""
+    _check_options(workers, scheduler)
+    results_dir = full_path(results_dir)
+    check_output_folder(results_dir, what="results folder")
+    hashes = HashCache(results_dir / HASHES_FILE, use=not force)
+    return plan_sweep(sweep, results_dir, force=force, hashes=hashes, on_warning=on_warning)
+
+
+def _check_options(workers: int | None, scheduler: str | None) -> None:
+    if scheduler is not None and workers is not None:
+        raise InputError("--workers sizes a local cluster; the cluster at --scheduler has its own workers")
+    if workers is not None and workers < 1:
+        raise InputError(f"--workers must be at least 1, got {workers}")
 
 
 def _write_problem(results_dir: Path) -> str | None:
@@ -604,10 +692,7 @@ def run_sweep(
     any failed.
     ``client``: a Dask client to use (and leave open) instead of starting one (a bench, a notebook).
     """
-    if scheduler is not None and workers is not None:
-        raise InputError("--workers sizes a local cluster; the cluster at --scheduler has its own workers")
-    if workers is not None and workers < 1:
-        raise InputError(f"--workers must be at least 1, got {workers}")
+    _check_options(workers, scheduler)
     results_dir = full_path(results_dir)
     check_output_folder(results_dir, what="results folder")
     created = not results_dir.exists()
@@ -651,13 +736,8 @@ def _run_in(
     on_warning: Callable[[str], None] | None,
 ) -> SweepRun:
     hashes = HashCache(results_dir / HASHES_FILE, use=not force)
-    plan = plan_sweep(sweep, results_dir, force=force, hashes=hashes)
-    if plan.to_run and plan.cannot_write is not None:
-        count = len(plan.to_run)
-        raise InputError(
-            f"{plan.cannot_write}; the results folder must be writable for the {count}"
-            f" task{'s' if count != 1 else ''} to run"
-        )
+    plan = plan_sweep(sweep, results_dir, force=force, hashes=hashes, on_warning=on_warning)
+    plan.check_writable()
     if plan.cannot_write is None:
         # What an interrupted run's workers were writing when they were killed (renders, estimates).
         for folder in (
@@ -666,12 +746,6 @@ def _run_in(
         ):
             remove_stale_partials(folder)
         hashes.save()  # a cache: a read-only folder's is only read
-    if on_warning is not None:
-        for copy, original in plan.copies():
-            on_warning(
-                f"{copy}: the same bytes as {original};"
-                " its rows share that recording's results (computed once)"
-            )
     if on_plan is not None:
         on_plan(plan)
     results = dict(plan.done)

@@ -1,8 +1,9 @@
 """`aslam sweep`: many recordings × estimator parameter sets, as tasks on Dask distributed.
 
 Thin: reads the sweep file (:mod:`aslam.app.sweep_file`), calls :func:`aslam.app.sweep.run_sweep`
-with a live rich table (stderr; plain lines when not a terminal), prints the Pareto set on stdout.
-Dask and pyarrow are imported only when the command runs.
+with a live rich table (stderr; plain lines when not a terminal), prints the Pareto set on stdout;
+``--dry-run`` prints :func:`aslam.app.sweep.dry_run`'s plan instead. Dask and pyarrow are imported
+only when the command runs.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import typer
 
 from aslam.cli.app import app
 from aslam.cli.output import QuietOption, Terminal, VerboseOption, table_console
-from aslam.cli.sweep_display import LiveDisplay, PlainDisplay, figure_text, parameters_text
+from aslam.cli.sweep_display import LiveDisplay, PlainDisplay, figure_text, parameters_text, plan_text
 
 
 @app.command()
@@ -49,6 +50,18 @@ def sweep(
     force: Annotated[
         bool, typer.Option("--force", help="Recompute every task, even those already done.")
     ] = False,
+    dry_run: Annotated[
+        bool,
+        typer.Option(
+            "--dry-run",
+            help="Check the sweep file and the options, and list the tasks, those done in the results"
+            " folder and those that would run; start no cluster, write nothing.",
+        ),
+    ] = False,
+    json_out: Annotated[
+        str | None,
+        typer.Option("--json", help="With --dry-run: write the plan as one JSON object here; '-': stdout."),
+    ] = None,
     quiet: QuietOption = False,
     verbose: VerboseOption = False,
 ) -> None:
@@ -58,14 +71,23 @@ def sweep(
     """
     from aslam.app.sweep import resolve_objectives, run_sweep
     from aslam.app.sweep_file import read_sweep_file
+    from aslam.core.errors import InputError
+    from aslam.data_formats.files import check_output_path
 
     terminal = Terminal(quiet=quiet, verbose=verbose)
+    if json_out is not None and not dry_run:
+        raise InputError("--json writes the plan of --dry-run; give both")
+    if json_out is not None and json_out != "-":  # before the recordings are hashed
+        check_output_path(Path(json_out), force=True, inputs=[sweep_file])
     objectives = resolve_objectives(pareto) if pareto is not None else []
     spec = read_sweep_file(sweep_file)
+    if dry_run:
+        _dry_run(spec, output, workers, scheduler, force, json_out, terminal)
+        return
     display = (
-        LiveDisplay(terminal, spec.figures, force=force)
+        LiveDisplay(terminal, spec.figures)
         if terminal.shows_progress
-        else PlainDisplay(terminal, spec.figures, force=force)
+        else PlainDisplay(terminal, spec.figures)
     )
     with display:
         run = run_sweep(
@@ -88,6 +110,46 @@ def sweep(
     if objectives:
         _print_pareto(run, objectives)
     run.check()
+
+
+def _dry_run(
+    spec: Any,
+    output: Path,
+    workers: int | None,
+    scheduler: str | None,
+    force: bool,
+    json_out: str | None,
+    terminal: Terminal,
+) -> None:
+    """The plan on stdout (a line and the tasks to run, or JSON); exit 2 as the run would, when it
+    could not save its results."""
+    import json
+
+    from rich.table import Table
+
+    from aslam.app.sweep import dry_run
+    from aslam.data_formats.files import write_text_output
+
+    plan = dry_run(
+        spec, output, workers=workers, scheduler=scheduler, force=force, on_warning=terminal.warning
+    )
+    if json_out is not None:
+        written = write_text_output(json_out, json.dumps(plan.as_dict(), indent=2) + "\n")
+        if written is not None:
+            terminal.info(f"wrote {written}")
+    else:
+        console = table_console()
+        console.print(plan_text(plan), soft_wrap=True)
+        if plan.to_run:
+            table = Table(
+                title=f"To run: {len(plan.to_run)} of {len(plan.tasks)} tasks", title_justify="left"
+            )
+            for name in ("task", "recording", "parameters"):
+                table.add_column(name)
+            for task in plan.to_run:
+                table.add_row(str(task.index), task.source.label, parameters_text(task))
+            console.print(table)
+    plan.check_writable()
 
 
 def _print_pareto(run: Any, objectives: list[Any]) -> None:

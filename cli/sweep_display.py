@@ -30,18 +30,11 @@ def parameters_text(task: Task) -> str:
     return " ".join(f"{name}={value}" for name, value in task.parameters) or "defaults"
 
 
-def renders_due(to_run: Any, *, force: bool) -> int:
-    """How many recordings the tasks to run render first: those not rendered yet (or, with
-    --force, all of them; a render already there is otherwise used as it is)."""
-    paths = {t.source.path for t in to_run if t.source.render is not None}
-    return len(paths) if force else sum(not path.exists() for path in paths)
-
-
-def plan_text(plan: SweepPlan, *, force: bool) -> str:
+def plan_text(plan: SweepPlan) -> str:
     """``12 tasks, 4 already done, 6 to run, 2 shared with an identical recording (first rendering
     1 recording)``: the tasks computed before, to compute now, and rows sharing another's result."""
     shared = f", {plan.shared} shared with an identical recording" if plan.shared else ""
-    renders = renders_due(plan.to_run, force=force)
+    renders = plan.renders_due
     rendering = f" (first rendering {renders} recording{'s' if renders != 1 else ''})" if renders else ""
     counts = f"{len(plan.tasks)} tasks, {plan.reused} already done, {len(plan.to_run)} to run"
     return counts + shared + rendering
@@ -50,10 +43,9 @@ def plan_text(plan: SweepPlan, *, force: bool) -> str:
 class PlainDisplay:
     """One line per finished task (logs, pipes, --quiet: nothing but the summary line)."""
 
-    def __init__(self, terminal: Terminal, figures: tuple[str, ...], *, force: bool = False) -> None:
+    def __init__(self, terminal: Terminal, figures: tuple[str, ...]) -> None:
         self.terminal = terminal
         self.figures = figures
-        self.force = force
         self.total = 0
         self.done = 0
 
@@ -65,7 +57,7 @@ class PlainDisplay:
 
     def plan(self, plan: SweepPlan) -> None:
         self.total = len(plan.tasks)
-        self.terminal.info(plan_text(plan, force=self.force))
+        self.terminal.info(plan_text(plan))
 
     def result(self, task: Task, result: TaskResult, reused: bool) -> None:
         self.done += 1
@@ -85,13 +77,12 @@ class PlainDisplay:
 class LiveDisplay:
     """A progress bar over a table of the newest finished tasks, redrawn in place on stderr."""
 
-    def __init__(self, terminal: Terminal, figures: tuple[str, ...], *, force: bool = False) -> None:
+    def __init__(self, terminal: Terminal, figures: tuple[str, ...]) -> None:
         from rich.live import Live
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
         self.terminal = terminal
         self.figures = figures
-        self.force = force
         self.progress = Progress(
             TextColumn("sweep"),
             BarColumn(),
@@ -126,7 +117,7 @@ class LiveDisplay:
 
     def plan(self, plan: SweepPlan) -> None:
         self.progress.update(self.bar, total=len(plan.tasks))
-        renders = renders_due(plan.to_run, force=self.force)
+        renders = plan.renders_due
         if renders:
             self.terminal.console.print(f"rendering {renders} recording{'s' if renders != 1 else ''} first")
 

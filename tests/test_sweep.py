@@ -186,6 +186,11 @@ def test_a_finished_sweep_in_a_read_only_folder_shows_its_results(read_only_resu
     assert err == (
         f"aslam: error: {folder}: {problem}; the results folder must be writable for the 1 task to run\n"
     )
+    # a dry run says so too, with the plan
+    assert main(["sweep", str(_write_sweep(recordings)), "-o", str(folder), "--dry-run", "--json", "-"]) == 2
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["cannot_write"] == f"{folder}: {problem}"
+    assert captured.err == err
     assert _files(folder) == before
 
 
@@ -201,6 +206,45 @@ def test_a_rerun_with_nothing_to_do_writes_nothing(local_run, recordings, tmp_pa
     assert main(["sweep", sweep, "-o", str(folder), "--pareto", "precision,recall"]) == 0
     assert "kept" in capsys.readouterr().err
     assert _files(folder) == before
+
+
+def test_a_dry_run_lists_what_would_run_without_a_cluster_or_a_write(local_run, recordings, tmp_path, capsys):
+    """--dry-run checks the file and the options, counts the tasks done in the results folder and
+    lists those to run; it contacts no scheduler (one where nothing listens is never asked) and
+    writes nothing, not even a new results folder. --json - is the same plan for a program."""
+    sweep = str(_write_sweep(recordings))
+    folder = tmp_path / "copy"
+    shutil.copytree(local_run[1], folder)
+    before = _files(folder)
+    nowhere = ["--scheduler", "tcp://127.0.0.1:1"]  # a run would stop here: cannot reach it
+    assert main(["sweep", sweep, "-o", str(folder), "--dry-run", *nowhere]) == 0
+    out = capsys.readouterr().out
+    assert out.splitlines()[0] == "3 tasks, 2 already done, 1 to run"
+    assert "To run: 1 of 3 tasks" in out and "corrupt.mcap" in out and "good.mcap" not in out
+    assert main(["sweep", sweep, "-o", str(folder), "--dry-run", "--json", "-", *nowhere]) == 0
+    plan = json.loads(capsys.readouterr().out)
+    assert {k: plan[k] for k in ("tasks", "done", "to_run", "shared", "renders_due", "cannot_write")} == {
+        "tasks": 3,
+        "done": 2,
+        "to_run": 1,
+        "shared": 0,
+        "renders_due": 0,
+        "cannot_write": None,
+    }
+    assert [row["state"] for row in plan["rows"]] == ["done", "to run", "done"]
+    assert [row["key"] for row in plan["rows"]] == [row["key"] for row in _rows(folder)]
+    assert plan["rows"][1]["recording"] == str(recordings / "corrupt.mcap")
+    assert plan["rows"][1]["parameters"] == {"beta": 3.0}
+    assert _files(folder) == before
+    fresh = tmp_path / "fresh"
+    assert main(["sweep", sweep, "-o", str(fresh), "--dry-run", "--force", "--json", "-"]) == 0
+    plan = json.loads(capsys.readouterr().out)
+    assert (plan["done"], plan["to_run"], plan["renders_due"]) == (0, 3, 1)
+    assert not fresh.exists()
+    assert main(["sweep", sweep, "-o", str(fresh), "--json", "-"]) == 2
+    assert capsys.readouterr().err == "aslam: error: --json writes the plan of --dry-run; give both\n"
+    assert main(["sweep", sweep, "-o", str(fresh), "--dry-run", "--workers", "0"]) == 2
+    assert "--workers must be at least 1" in capsys.readouterr().err
 
 
 def test_a_cluster_started_separately_gives_the_same_rows(local_run, recordings, tmp_path):
@@ -688,7 +732,7 @@ def test_the_plan_counts_only_the_renders_still_to_make(tmp_path):
     them all again; a recording file is never a render."""
     from types import SimpleNamespace
 
-    from aslam.cli.sweep_display import renders_due
+    from aslam.app.sweep import SweepPlan
 
     made, missing = tmp_path / "made.mcap", tmp_path / "missing.mcap"
     made.write_bytes(b"x")
@@ -696,9 +740,9 @@ def test_the_plan_counts_only_the_renders_still_to_make(tmp_path):
     def task(path: Path, render: object) -> SimpleNamespace:
         return SimpleNamespace(source=SimpleNamespace(path=path, render=render))
 
-    to_run = [task(made, "cfg"), task(made, "cfg"), task(missing, "cfg"), task(tmp_path / "rec.mcap", None)]
-    assert renders_due(to_run, force=False) == 1
-    assert renders_due(to_run, force=True) == 2
+    to_run = (task(made, "cfg"), task(made, "cfg"), task(missing, "cfg"), task(tmp_path / "rec.mcap", None))
+    assert SweepPlan((), {}, to_run).renders_due == 1  # type: ignore[arg-type]
+    assert SweepPlan((), {}, to_run, force=True).renders_due == 2  # type: ignore[arg-type]
 
 
 def test_every_summary_figure_has_the_direction_a_user_means():
