@@ -29,4 +29,5 @@ def describe(
     if on_progress is None:
         return source.describe()
     total = source.image_count()
+    on_progress(0, total)  # the total shown before the first image is read
     return source.describe(on_sample=lambda done: on_progress(done, total))

@@ -11,7 +11,7 @@ from typing import Annotated
 import typer
 
 from aslam.cli.app import app
-from aslam.cli.output import ForceOption, QuietOption, Terminal, VerboseOption
+from aslam.cli.output import ForceOption, QuietOption, Terminal, VerboseOption, counted_progress
 from aslam.data_formats.format_names import PoseFormat, StampUnit
 
 
@@ -53,22 +53,10 @@ def import_folder(
     verbose: VerboseOption = False,
 ) -> None:
     """Import an image-folder dataset (Nordland, KITTI, TUM RGB-D, St Lucia…) as a recording."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
     from aslam.app.importer import import_image_folder
 
     terminal = Terminal(quiet=quiet, verbose=verbose)
-    progress = Progress(
-        TextColumn("import"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeRemainingColumn(),
-        console=terminal.console,
-        disable=not terminal.shows_progress,
-        transient=True,
-    )
-    task = progress.add_task("import", total=None)
-    with progress:
+    with counted_progress(terminal, "import") as on_progress:
         result = import_image_folder(
             folder,
             output,
@@ -79,7 +67,7 @@ def import_folder(
             stamp_unit=stamp_unit,
             fov_deg=fov_deg,
             force=force,
-            on_progress=lambda done, total: progress.update(task, completed=done, total=total),
+            on_progress=on_progress,
             on_warning=terminal.warning,
         )
     odometry_note = "odometry" if result.odometry_known else "no odometry (equal steps assumed)"

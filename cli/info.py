@@ -46,28 +46,8 @@ def info(
     if json_out is not None and json_out != "-":  # before reading the whole recording
         check_output_path(Path(json_out), force=force, inputs=[recording])
     topics = TopicChoice(image=image_topic, odometry=odometry_topic, ground_truth=ground_truth_topic)
-    if terminal.shows_progress:  # every image is decoded: a large bag takes minutes
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-        progress = Progress(
-            TextColumn("info"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TextColumn("images"),
-            TimeRemainingColumn(),
-            console=terminal.console,
-            transient=True,
-        )
-        task = progress.add_task("info", total=None)
-        with progress:
-            result = describe(
-                recording,
-                topics,
-                on_progress=lambda done, total: progress.update(task, completed=done, total=total),
-                on_warning=terminal.warning,
-            )
-    else:
-        result = describe(recording, topics, on_warning=terminal.warning)
+    with output.counted_progress(terminal, "info", unit="images") as on_progress:  # every image is decoded
+        result = describe(recording, topics, on_progress=on_progress, on_warning=terminal.warning)
     if json_out is not None:
         written = write_text_output(json_out, json.dumps(result.as_dict(), indent=2, sort_keys=False) + "\n")
         if written is not None:

@@ -6,8 +6,10 @@ to stderr, so a pipeline can take stdout as it is.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
+from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Annotated
 
 import typer
@@ -135,3 +137,22 @@ class Terminal:
         """A line only --verbose shows."""
         if self.verbose:
             self._line(message)
+
+
+@contextlib.contextmanager
+def counted_progress(
+    terminal: Terminal, label: str, *, unit: str = ""
+) -> Iterator[Callable[[int, int | None], None] | None]:
+    """A bar counting the items done of their total (None until known), with the time left, gone
+    when the work ends: yields its update callback ``(done, total)``, or None where no bar is shown
+    (logs, pipes, --quiet), and there rich's progress module is not even imported."""
+    if not terminal.shows_progress:
+        yield None
+        return
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    columns = [TextColumn(label), BarColumn(), MofNCompleteColumn()]
+    columns += [TextColumn(unit)] if unit else []
+    with Progress(*columns, TimeRemainingColumn(), console=terminal.console, transient=True) as bar:
+        task = bar.add_task(label, total=None)
+        yield lambda done, total: bar.update(task, completed=done, total=total)

@@ -13,7 +13,7 @@ from typing import Annotated
 import typer
 
 from aslam.cli.app import app
-from aslam.cli.output import ForceOption, QuietOption, Terminal, VerboseOption
+from aslam.cli.output import ForceOption, QuietOption, Terminal, VerboseOption, counted_progress
 from aslam.recorder.config import (
     DEFAULT_CAMERA_HEIGHT_M,
     DEFAULT_FOV_DEG,
@@ -151,29 +151,11 @@ def record(
     )
     config.validate()  # before the slow imports, so bad options fail instantly
 
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
     from aslam.recorder.record import record as run_record
 
     terminal = Terminal(quiet=quiet, verbose=verbose)
-    console = terminal.console
-    if not terminal.shows_progress:  # no bar in logs, pipes or with --quiet: just the summary line
-        result = run_record(config, output, force=force)
-    else:
-        with Progress(
-            TextColumn("rendering"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeRemainingColumn(),
-            console=console,
-            transient=True,
-        ) as bar:
-            task = bar.add_task("render", total=None)
-
-            def on_progress(done: int, total: int) -> None:
-                bar.update(task, completed=done, total=total)
-
-            result = run_record(config, output, force=force, progress=on_progress)
+    with counted_progress(terminal, "rendering") as on_progress:  # no bar in logs, pipes, with --quiet
+        result = run_record(config, output, force=force, progress=on_progress)
     rate = result.frames / result.seconds if result.seconds > 0 else float("inf")
     terminal.info(
         f"wrote {result.output} ({result.frames} frames, {result.keyframes} keyframes, "

@@ -404,7 +404,7 @@ def test_info_reports_progress_against_the_image_count(tmp_path):
     path = write_recording(tmp_path / "r.mcap", random_frames(4))
     calls: list[tuple[int, int | None]] = []
     info = describe(path, on_progress=lambda done, total: calls.append((done, total)))
-    assert info.samples == 4 and calls == [(1, 4), (2, 4), (3, 4), (4, 4)]
+    assert info.samples == 4 and calls == [(0, 4), (1, 4), (2, 4), (3, 4), (4, 4)]
     assert describe(path) == info
 
 
