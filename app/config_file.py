@@ -49,6 +49,21 @@ def read_toml(path: Path, *, what: str) -> dict[str, Any]:
         ) from err
 
 
+def type_problem(where: str, value: Any, kind: type) -> str | None:
+    """Why a TOML ``value`` is not a ``kind`` (ints are accepted for floats, booleans for nothing),
+    or None: the one type check of configuration files and sweep files."""
+    if kind is float:
+        ok = isinstance(value, int | float) and not isinstance(value, bool)
+        want = "a number"
+    elif kind is int:
+        ok = isinstance(value, int) and not isinstance(value, bool)
+        want = "a whole number"
+    else:
+        ok = isinstance(value, kind)
+        want = "true or false" if kind is bool else "a string"
+    return None if ok else f"{where} must be {want}, got {value!r}"
+
+
 def read_config_file(path: Path) -> dict[str, Any]:
     """The ``[estimator]`` table of a TOML file, checked: every unknown key and wrong type at once."""
     document = read_toml(path, what="a TOML file")
@@ -67,19 +82,12 @@ def read_config_file(path: Path) -> dict[str, Any]:
         )
     problems = []
     values: dict[str, Any] = {}
-    for key, value in table.items():
-        kind = types[key]
-        if kind is str:
-            if isinstance(value, str):
-                values[key] = value  # its allowed values are checked with the rest of the configuration
-            else:
-                problems.append(f"{key} must be a string, got {value!r}")
-        elif isinstance(value, bool) or not isinstance(value, int | float):
-            problems.append(f"{key} must be a number, got {value!r}")
-        elif kind is int and not isinstance(value, int):
-            problems.append(f"{key} must be a whole number, got {value!r}")
+    for key, value in table.items():  # allowed values are checked with the rest of the configuration
+        problem = type_problem(key, value, types[key])
+        if problem is None:
+            values[key] = types[key](value)
         else:
-            values[key] = kind(value)
+            problems.append(problem)
     if problems:
         raise ConfigError("; ".join(problems), path=path)
     return values

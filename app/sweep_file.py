@@ -18,7 +18,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from aslam.app.config_file import read_toml
+from aslam.app.config_file import read_toml, type_problem
 from aslam.core.config import REPORT_RANGES, REVISIT_HEADING_DEG, REVISIT_RADIUS_M, EstimatorConfig
 from aslam.core.errors import ConfigError
 from aslam.data_formats.files import full_path
@@ -106,20 +106,6 @@ class Sweep:
 
 def _as_list(value: Any) -> list[Any]:
     return list(value) if isinstance(value, list) else [value]
-
-
-def _type_problem(where: str, value: Any, kind: type) -> str | None:
-    """Why ``value`` is not a ``kind`` (ints are accepted for floats, booleans for nothing), or None."""
-    if kind is float:
-        ok = isinstance(value, int | float) and not isinstance(value, bool)
-        want = "a number"
-    elif kind is int:
-        ok = isinstance(value, int) and not isinstance(value, bool)
-        want = "a whole number"
-    else:
-        ok = isinstance(value, kind)
-        want = "true or false" if kind is bool else "a string"
-    return None if ok else f"{where} must be {want}, got {value!r}"
 
 
 def read_sweep_file(path: Path) -> Sweep:
@@ -216,7 +202,7 @@ def _typed_lists(
             problems.append(f"{where}: {key} is an empty list")
             bad = True
         for one in items:
-            problem = _type_problem(f"{where}: {key}", one, types[key])
+            problem = type_problem(f"{where}: {key}", one, types[key])
             if problem:
                 problems.append(problem)
                 bad = True
@@ -345,7 +331,7 @@ def _score(value: Any, problems: list[str]) -> ScoreOptions:
     table = _table(value, "score", SCORE_KEYS, problems)
     values = {}
     for key, item in table.items():
-        problem = _type_problem(f"score.{key}", item, float)
+        problem = type_problem(f"score.{key}", item, float)
         if problem:
             problems.append(problem)
         else:
