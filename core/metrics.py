@@ -218,16 +218,25 @@ def score_assignment(
     claims = (states >= 0) & (states < index)
     correct = np.zeros(n, dtype=bool)
     judged = np.zeros(n, dtype=bool)
-    if claims.any():
-        t = index[claims]
-        errors = pose_error(true_poses[t], true_poses[states[claims]])
-        finite = np.isfinite(errors).all(axis=1)
-        good = (np.hypot(errors[:, 0], errors[:, 1]) <= radius_m) & (np.abs(errors[:, 2]) <= heading_deg)
-        correct[t] = finite & good
-        judged[t] = finite
+    heading_rad = math.radians(heading_deg)
+    claimed = index[claims]
+    deltas = np.asarray(true_poses, float)[claimed] - np.asarray(true_poses, float)[states[claimed]]
+    for t, delta in zip(claimed.tolist(), deltas.tolist(), strict=True):
+        if all(math.isfinite(v) for v in delta):
+            judged[t] = True
+            correct[t] = same_place(*delta, radius_m, heading_rad)
     true_revisit = ground_truth_revisits(true_poses, radius_m, heading_deg)
     run = slice(first_keyframe, None)
     return AssignmentScore(claims[run], correct[run], true_revisit[run], judged[run])
+
+
+def same_place(dx_m: float, dy_m: float, dyaw_rad: float, radius_m: float, heading_rad: float) -> bool:
+    """The one test of "the same place", for the truth's revisits, the claims and the committed map:
+    ``(dx_m, dy_m, dyaw_rad)`` is the true pose now minus the true pose then. One formula for all
+    three: two (``np.hypot`` or ``math.hypot``, the heading difference taken one way or the other, in
+    degrees or radians) disagree within an ulp of the radius or the heading, and a claim judged
+    right was then at no ground-truth revisit (a recall of 2)."""
+    return math.hypot(dx_m, dy_m) <= radius_m and abs(float(se2.wrap_angle(dyaw_rad))) <= heading_rad
 
 
 def pose_error(true_now: np.ndarray, true_then: np.ndarray) -> np.ndarray:
@@ -258,10 +267,7 @@ def ground_truth_revisits(true_poses: np.ndarray, radius_m: float, heading_deg: 
             for j in (cy - 1, cy, cy + 1):
                 for earlier in cells.get((i, j), ()):
                     ex, ey, eyaw = true_poses[earlier]
-                    if (
-                        math.hypot(ex - x, ey - y) <= radius_m
-                        and abs(float(se2.wrap_angle(eyaw - yaw))) <= heading_rad
-                    ):
+                    if same_place(x - ex, y - ey, yaw - eyaw, radius_m, heading_rad):
                         revisit[t] = True
                         break
                 if revisit[t]:
@@ -331,8 +337,8 @@ def evaluate(
         if claims[t] and finite[0] and hypotheses[0] is revisits[0]:
             judged[t] = True
             best_error[t] = errors[0]
-            distance = math.hypot(errors[0, 0], errors[0, 1])
-            correct[t] = distance <= radius_m and abs(math.radians(errors[0, 2])) <= heading_rad
+            delta = true_poses[first + t] - true_poses[revisits[0].state]
+            correct[t] = same_place(*delta.tolist(), radius_m, heading_rad)
     if seen != n:
         raise ValueError(f"{seen} steps, {n} counted")
     if not has_truth:

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from aslam.core import se2
 from aslam.core.metrics import evaluate, ground_truth_revisits
 from aslam.core.tree import Hypothesis
 
@@ -241,3 +243,73 @@ def test_a_stream_of_another_length_than_counted_is_refused(count):
     steps = [(t, [new(t)]) for t in range(4)]
     with pytest.raises(ValueError, match="counted"):
         evaluate(iter(steps), SQUARE[:count], count=count)
+
+
+# Where the revisit test's boundaries are: 0.5 m away, or (0.3, 0.4) whose length rounds either way.
+_BOUNDARY_PLACES = [(0.0, 0.0), (0.5, 0.0), (0.0, -0.5), (0.3, 0.4), (0.3, 0.4000000000000001), (0.6, 0.0)]
+
+
+def _nudged(value: float, ulps: int) -> float:
+    for _ in range(abs(ulps)):
+        value = float(np.nextafter(value, math.copysign(math.inf, ulps)))
+    return value
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    anchor=st.floats(-math.pi, math.pi, exclude_max=True),
+    heading_deg=st.one_of(st.just(45.0), st.floats(0.5, 180.0)),
+)
+def test_a_claim_is_judged_right_exactly_where_the_truth_has_a_revisit(anchor, heading_deg):
+    """One test of "the same place" for the truth's revisits, the claims and the committed map. A
+    keyframe whose one earlier keyframe it claims: the claim is right exactly when the keyframe is a
+    ground-truth revisit, and the map's assignment is scored alike, however the pair sits on the
+    radius and the heading (a few ulps either side; headings across ±π as often as not)."""
+    from aslam.core.metrics import score_assignment
+
+    heading = math.radians(heading_deg)
+    steps = [(0, [new(0)]), (1, [claim(0)])]
+    for (x, y), turn, ulps in itertools.product(_BOUNDARY_PLACES, (0.0, heading, -heading), range(-2, 3)):
+        poses = np.array([[0.0, 0.0, anchor], [x, y, _nudged(float(se2.wrap_angle(anchor + turn)), ulps)]])
+        result = evaluate(steps, poses, heading_deg=heading_deg)
+        assignment = score_assignment(np.array([0, 0]), poses, heading_deg=heading_deg)
+        assert result.correct[1] == result.true_revisit[1], poses
+        assert (
+            assignment.correct[1] == result.correct[1]
+            and assignment.true_revisit[1] == result.true_revisit[1]
+        )
+        assert result.recall in (None, 1.0) and result.precision in (0.0, 1.0)
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from([0.0, 0.3, 0.5]), st.sampled_from([0.0, 0.4]), st.floats(-math.pi, math.pi)
+        ),
+        min_size=1,
+        max_size=12,
+    ),
+    st.data(),
+)
+def test_precision_recall_and_the_curve_stay_within_zero_and_one(rows, data):
+    """Any run: right claims are judged claims at true revisits, precision, recall, the curve's area
+    and its recall at full precision lie in [0, 1], and the committed map agrees claim for claim."""
+    from aslam.core.metrics import score_assignment
+
+    true_poses = np.array(rows)
+    named = [data.draw(st.integers(-1, t - 1)) for t in range(len(rows))]  # -1: a new place
+    steps = [
+        (t, [new(t) if k < 0 else claim(k, data.draw(st.floats(0.01, 1.0)))]) for t, k in enumerate(named)
+    ]
+    result = evaluate(steps, true_poses)
+    assert not (result.correct & ~(result.judged_claims & result.true_revisit)).any()
+    curve = result.pr_curve()
+    for value in (result.precision, result.recall, curve.auc, curve.recall_at_full_precision):
+        assert value is None or 0.0 <= value <= 1.0
+    if curve.revisits:
+        assert curve.recall_at_full_precision <= (result.recall or 0.0)
+    assignment = score_assignment(np.array([t if k < 0 else k for t, k in enumerate(named)]), true_poses)
+    assert np.array_equal(assignment.claims, result.claims)
+    assert np.array_equal(assignment.correct, result.correct)
+    assert np.array_equal(assignment.true_revisit, result.true_revisit)
