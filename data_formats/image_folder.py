@@ -68,8 +68,12 @@ class ImageFolderError(InputError):
     """An image folder (or one of its files) that cannot be used; exit 2."""
 
 
-def _natural_key(path: Path) -> list[object]:
-    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", path.name)]
+def _natural_key(path: Path) -> tuple[list[object], str]:
+    """Numbers compared as numbers, text as text (the odd parts of the split are the digit runs:
+    ``str.isdigit`` would also take a superscript ``²``, which ``int`` refuses); the name breaks
+    ties (``1.png``, ``01.png``), so the order never depends on the folder's listing."""
+    parts = re.split(r"(\d+)", path.name)
+    return [int(part) if i % 2 else part for i, part in enumerate(parts)], path.name
 
 
 #: Image files import cannot store as they are (a recording holds PNG or JPEG bytes): among the
@@ -117,7 +121,13 @@ def list_images(folder: Path) -> list[Path]:
         raise ImageFolderError(f"cannot list: {err.strerror or err}", path=folder) from err
     if not images:
         raise ImageFolderError("has no .png or .jpg images", path=folder)
-    images.sort(key=_natural_key)
+    return frame_order(images)
+
+
+def frame_order(images: list[Path]) -> list[Path]:
+    """``images`` in natural file-name order, or by value where every name is a number (ties in
+    natural order): the same order whatever order they are listed in."""
+    images = sorted(images, key=_natural_key)
     values = [_number(image.stem) for image in images]
     if all(value is not None for value in values):
         images = [image for _, image in sorted(zip(values, images, strict=True), key=lambda pair: pair[0])]

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import cv2
@@ -297,6 +298,47 @@ def test_natural_order_and_stamps_from_file_names(tmp_path):
     assert [p.name for p in folder.images] == ["2.5.png", "3.png", "10.25.png"]
     assert folder.stamps == "file names"
     assert [s.stamp_ns for s in folder.samples()] == [2_500_000_000, 3_000_000_000, 10_250_000_000]
+
+
+# File names as datasets and people write them, from pieces: numbers (zero-padded too, other
+# scripts' digits, a superscript ², which str.isdigit takes for a digit and int refuses),
+# separators, letters, and any other characters.
+name_text = st.lists(
+    st.one_of(
+        st.sampled_from(["0", "1", "01", "2", "10", "0.5", "²", "①", "٣", "a", "B", ".", "_", "-", " "]),
+        st.text(st.characters(exclude_categories=("Cs",), exclude_characters="/\0"), min_size=1, max_size=3),
+    ),
+    min_size=1,
+    max_size=5,
+).map("".join)
+
+
+@settings(max_examples=200)
+@given(st.lists(name_text, min_size=1, max_size=8, unique=True))
+def test_frames_take_one_order_whatever_the_folder_lists_first(names):
+    """Any names (never an error), and one order from any listing order (here: reversed, which swaps
+    every two): frame i is paired with pose row i, so an order that followed the listing (``a1.png``
+    against ``a01.png``) would pair the frames differently from one disk to the next."""
+    from aslam.data_formats.image_folder import frame_order
+
+    twins = [re.sub(r"(\d+)", r"0\1", name, count=1) for name in names]  # "a1" → "a01": numbers alike
+    images = [Path(f"{name}.png") for name in dict.fromkeys(names + twins)]
+    ordered = frame_order(images)
+    assert frame_order(images[::-1]) == ordered
+    assert sorted(ordered) == sorted(images)
+
+
+@given(
+    st.lists(st.integers(0, 10**6), min_size=1, max_size=8, unique=True),
+    st.sampled_from(["", "frame", "img_", "KITTI-00-"]),
+    st.sampled_from(["", "_left", ".cam0"]),
+    st.integers(0, 8),
+)
+def test_numbers_in_names_are_compared_as_numbers(numbers, prefix, suffix, padding):
+    from aslam.data_formats.image_folder import frame_order
+
+    images = [Path(f"{prefix}{n:0{padding}d}{suffix}.png") for n in numbers]
+    assert frame_order(images[::-1]) == [images[numbers.index(n)] for n in sorted(numbers)]
 
 
 def test_default_stamps_without_anything(tmp_path):
