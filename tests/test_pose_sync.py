@@ -1,0 +1,116 @@
+"""Pairing images with poses (``data_formats.pose_sync.SampleAssembler``): whatever order the three
+streams interleave in, each image gets the poses at its stamp or is dropped, and counted, for the
+reason the documentation gives."""
+
+from __future__ import annotations
+
+import itertools
+import math
+from bisect import bisect_left
+from pathlib import Path
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from aslam.core import se2
+from aslam.data_formats.images import LazyImage
+from aslam.data_formats.pose_sync import TRUTH_MAX_GAP_NS, SampleAssembler
+
+PATH = Path("test.mcap")
+GAP = TRUTH_MAX_GAP_NS
+pose_values = st.tuples(
+    st.floats(-100, 100), st.floats(-100, 100), st.floats(-math.pi, math.pi, exclude_max=True)
+)
+
+
+@st.composite
+def track(draw, gaps: st.SearchStrategy[int], min_size: int) -> list[tuple[int, np.ndarray]]:
+    """Poses at strictly increasing stamps."""
+    stamp = draw(st.integers(0, 5 * GAP))
+    rows = []
+    for _ in range(draw(st.integers(min_size, 12))):
+        rows.append((stamp, np.array(draw(pose_values))))
+        stamp += draw(gaps)
+    return rows
+
+
+# gaps around the ground truth's limit, exactly at it, and anything else
+truth_gaps = st.one_of(st.sampled_from([GAP - 1, GAP, GAP + 1]), st.integers(1, 3 * GAP))
+
+
+def expected_pose(
+    rows: list[tuple[int, np.ndarray]], stamp: int, max_gap_ns: int | None
+) -> np.ndarray | None:
+    """The pose at ``stamp``: a message's own at its stamp, else interpolated between the two around
+    it (unless they are more than ``max_gap_ns`` apart); None outside the messages."""
+    stamps = [s for s, _ in rows]
+    if not rows or not stamps[0] <= stamp <= stamps[-1]:
+        return None
+    j = bisect_left(stamps, stamp)
+    if stamps[j] == stamp:
+        return rows[j][1]
+    (t0, p0), (t1, p1) = rows[j - 1], rows[j]
+    if max_gap_ns is not None and t1 - t0 > max_gap_ns:
+        return None
+    return se2.interpolate(p0, p1, (stamp - t0) / (t1 - t0))
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    odometry=track(st.integers(1, 3 * GAP), min_size=0),
+    truth=track(truth_gaps, min_size=0),
+    expect_truth=st.booleans(),
+    data=st.data(),
+)
+def test_every_image_gets_the_poses_at_its_stamp_or_is_counted_dropped(odometry, truth, expect_truth, data):
+    """Each image in stamp order is a sample with the odometry at its stamp (a message's own pose at
+    its stamp, interpolated between two otherwise) and the truth likewise, unknown outside the truth
+    or across a gap of more than ``TRUTH_MAX_GAP_NS``; or it is dropped before the first or after
+    the last odometry message. Every image is counted once: a sample or a reason."""
+    known = [s for s, _ in odometry + truth]
+    span = (min(known, default=0) - GAP, max(known, default=0) + GAP)
+    anywhere = st.integers(*span)
+    stamps = data.draw(
+        st.lists(st.one_of(st.sampled_from(known), anywhere) if known else anywhere, max_size=12)
+    )
+    stamps += [(a + b) // 2 for (a, _), (b, _) in itertools.pairwise(truth)]  # inside each truth gap
+    stamps.sort()  # never out of order: each image is paired or dropped for its stamp alone
+    # The order the three streams were logged in: each in its own order, interleaved any way.
+    order = data.draw(
+        st.permutations(["odometry"] * len(odometry) + ["truth"] * len(truth) + ["image"] * len(stamps))
+    )
+
+    assembler = SampleAssembler(PATH, expect_ground_truth=expect_truth)
+    streams = {"odometry": iter(odometry), "truth": iter(truth), "image": iter(stamps)}
+    samples = []
+    for kind in order:
+        if kind == "odometry":
+            samples += assembler.add_odometry(*next(streams[kind]))
+        elif kind == "truth":
+            samples += assembler.add_ground_truth(*next(streams[kind]))
+        else:
+            stamp = next(streams[kind])
+            samples += assembler.add_image(stamp, LazyImage(b"", "png", path=PATH, stamp_ns=stamp))
+    samples += assembler.finish()
+
+    expected = []
+    for stamp in stamps:
+        odometry_pose = expected_pose(odometry, stamp, None)
+        if odometry_pose is not None:
+            expected.append(
+                (stamp, odometry_pose, expected_pose(truth, stamp, GAP) if expect_truth else None)
+            )
+    assert [s.stamp_ns for s in samples] == [stamp for stamp, _, _ in expected]
+    for sample, (_, odometry_pose, truth_pose) in zip(samples, expected, strict=True):
+        assert np.array_equal(sample.odometry_pose, odometry_pose)
+        assert (sample.ground_truth_pose is None) == (truth_pose is None)
+        if truth_pose is not None:
+            assert np.array_equal(sample.ground_truth_pose, truth_pose)
+    counts = assembler.counts
+    first, last = (odometry[0][0], odometry[-1][0]) if odometry else (None, None)
+    assert counts.before_first == sum(first is not None and s < first for s in stamps)
+    assert counts.after_last == sum(first is None or s > last for s in stamps)
+    assert counts.out_of_order == counts.late == counts.gap == 0
+    assert len(samples) + counts.before_first + counts.after_last == len(stamps) == assembler.images
+    assert counts.no_ground_truth == sum(s.ground_truth_pose is None for s in samples) * expect_truth
