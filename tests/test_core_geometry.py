@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from aslam.core import se2
@@ -166,3 +166,95 @@ def test_interpolate_sweeps_a_known_turn_the_way_it_went(a, turn, error, fractio
     assert close_poses(se2.interpolate(a, b, 1.0, turn_rad=turn), b, 1e-6)
     if abs(made) < 3.0:  # within the shorter turn the known turn changes nothing
         np.testing.assert_array_equal(pose, se2.interpolate(a, b, fraction))
+
+
+@given(st.floats(-1e4, 1e4))
+@example(float(np.nextafter(-math.pi, -math.inf)))
+@example(-math.pi)
+@example(math.pi)
+def test_wrap_angle_keeps_the_direction_within_one_turn(angle):
+    """The same direction, within [-π, π]: half-open as documented, [-π, π), except for an angle an
+    ulp or so below −π, whose remainder rounds up to a whole turn and gives +π (the same direction;
+    every caller takes |·| or wraps again)."""
+    wrapped = float(se2.wrap_angle(angle))
+    assert -math.pi <= wrapped <= math.pi
+    assert wrapped < math.pi or angle < -math.pi
+    assert math.isclose(math.cos(wrapped), math.cos(angle), abs_tol=1e-9)
+    assert math.isclose(math.sin(wrapped), math.sin(angle), abs_tol=1e-9)
+    assert np.array_equal(se2.wrap_angle(np.array([angle, angle])), [wrapped, wrapped])
+
+
+# Any covariance: L Lᵀ plus a little, correlations between position and heading included.
+full_cov = st.lists(st.floats(-1.0, 1.0), min_size=6, max_size=6).map(
+    lambda v: (lambda low: low @ low.T + 1e-3 * np.eye(3))(
+        np.array([[v[0], 0.0, 0.0], [v[1], v[2], 0.0], [v[3], v[4], v[5]]])
+    )
+)
+rels = st.tuples(poses, full_cov).map(lambda pc: to_rel(*pc))
+
+
+def assert_same_rel(a, b, tol: float = 1e-9) -> None:
+    assert close_poses(rel_pose(a), rel_pose(b), tol)
+    ca, cb = rel_covariance(a), rel_covariance(b)
+    np.testing.assert_allclose(ca, cb, rtol=1e-9, atol=tol * max(1.0, np.abs(cb).max()))
+
+
+@settings(max_examples=80)
+@given(rels, rels, rels)
+def test_composing_links_is_associative_covariance_and_all(a, b, c):
+    """(a ⊕ b) ⊕ c and a ⊕ (b ⊕ c) are one function of a, b and c, so their first-order covariances
+    are one too (the chain rule): the graph search may compose a path from either end."""
+    assert_same_rel(compose_rel(compose_rel(a, b), c), compose_rel(a, compose_rel(b, c)), 1e-7)
+
+
+@settings(max_examples=80)
+@given(rels, rels)
+def test_a_path_walked_backwards_is_its_links_walked_backwards(a, b):
+    """⊖(a ⊕ b) = ⊖b ⊕ ⊖a, covariance included: ``inverse_rel``'s Jacobian agrees with
+    ``compose_rel``'s (the involution test alone cannot tell a wrong Jacobian that is its own inverse)."""
+    assert_same_rel(inverse_rel(compose_rel(a, b)), compose_rel(inverse_rel(b), inverse_rel(a)), 1e-7)
+
+
+@settings(max_examples=80)
+@given(rels, rels)
+def test_the_revisit_residual_is_the_state_walked_back_then_the_action(state, action):
+    """``revisit_residuals`` (vectorised, on the χ² gate's path) is ⊖T ⊕ u with the covariance the
+    rel algebra gives, for a stack of candidate states at once."""
+    from aslam.core.motion import revisit_residuals
+
+    expected = compose_rel(inverse_rel(state), action)
+    stack = np.array([rel_pose(state), rel_pose(action)])
+    covariances = np.array([rel_covariance(state), rel_covariance(action)])
+    residuals, covariance = revisit_residuals(stack, covariances, rel_pose(action), rel_covariance(action))
+    assert close_poses(residuals[0], rel_pose(expected), 1e-9)
+    np.testing.assert_allclose(covariance[0], rel_covariance(expected), rtol=1e-9, atol=1e-12)
+    second = compose_rel(inverse_rel(action), action)
+    np.testing.assert_allclose(covariance[1], rel_covariance(second), rtol=1e-9, atol=1e-12)
+
+
+@settings(max_examples=80)
+@given(poses, full_cov, st.tuples(coordinate, coordinate, angle).map(np.array), full_cov)
+def test_fusing_two_measurements_is_more_certain_than_either(pose_a, cov_a, pose_b, cov_b):
+    """A link traversed again: the fused covariance is positive definite and no larger than either
+    measurement's (Σ_a − Σ and Σ_b − Σ positive semidefinite); the order of the two does not matter
+    (unless the headings are opposite: then neither way round is the shorter); one measurement
+    fused with itself keeps its pose and halves its covariance."""
+    from aslam.core.motion import fuse_rel
+
+    a, b = to_rel(pose_a, cov_a), to_rel(pose_b, cov_b)
+    fused = fuse_rel(a, b)
+    covariance = rel_covariance(fused)
+    assert np.linalg.eigvalsh(covariance).min() > 0
+    for measured in (cov_a, cov_b):
+        assert np.linalg.eigvalsh(measured - covariance).min() >= -1e-9 * np.abs(measured).max()
+    if abs(se2.wrap_angle(pose_b[2] - pose_a[2])) < math.pi - 1e-6:  # opposite headings: no short arc
+        assert_same_rel(fuse_rel(b, a), fused, 1e-7)
+    assert_same_rel(fuse_rel(a, a), to_rel(pose_a, cov_a / 2), 1e-9)
+    # Headings uncorrelated with position: the fused heading lies on the short arc between the two.
+    block_a, block_b = cov_a.copy(), cov_b.copy()
+    block_a[:2, 2] = block_a[2, :2] = block_b[:2, 2] = block_b[2, :2] = 0.0
+    arc = se2.wrap_angle(pose_b[2] - pose_a[2])
+    along = se2.wrap_angle(
+        rel_pose(fuse_rel(to_rel(pose_a, block_a), to_rel(pose_b, block_b)))[2] - pose_a[2]
+    )
+    assert min(0.0, arc) - 1e-9 <= along <= max(0.0, arc) + 1e-9
