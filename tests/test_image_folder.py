@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import re
+from decimal import Decimal
 from pathlib import Path
 
 import cv2
@@ -17,8 +18,16 @@ from hypothesis import strategies as st
 from aslam.app.importer import import_image_folder
 from aslam.core.errors import InputError
 from aslam.data_formats.image_folder import START_STAMP_NS, SYNTHETIC_STEP_M, open_image_folder
-from aslam.data_formats.pose_files import PoseFileError, PoseFormat, detect_format, iter_poses
+from aslam.data_formats.pose_files import (
+    NANOSECOND_STAMP_MIN,
+    PoseFileError,
+    PoseFormat,
+    detect_format,
+    iter_poses,
+    stamp_text_ns,
+)
 from aslam.data_formats.recording import Recording
+from aslam.data_formats.ros_msgs import LAST_STAMP_NS
 
 W, H = 16, 12
 
@@ -100,6 +109,33 @@ def test_stamps_are_exact_decimals(tmp_path):
     path = tmp_path / "gt.txt"
     path.write_text("1305031102.175304 0 0 0 0 0 0 1\n")
     assert next(iter_poses(path)).stamp_ns == 1305031102_175304000
+
+
+@given(
+    st.one_of(st.integers(0, LAST_STAMP_NS), st.sampled_from([0, NANOSECOND_STAMP_MIN, LAST_STAMP_NS])),
+    st.text("0123456789", max_size=9),
+)
+def test_a_stamp_reads_to_the_nanosecond_however_it_is_written(stamp_ns, below):
+    """Decimal seconds however written (all nine digits, fewer, trailing zeros, an exponent; digits
+    below the nanosecond cut), or whole nanoseconds of 18 or more digits: the nanosecond exactly,
+    and one nanosecond past the last ROS time is refused, as seconds or as nanoseconds."""
+    seconds, fraction = divmod(stamp_ns, 10**9)
+    exact = Decimal(stamp_ns).scaleb(-9)
+    for text in (
+        f"{seconds}.{fraction:09d}",
+        f"{seconds}.{fraction:09d}".rstrip("0").rstrip("."),
+        f"{seconds}.{fraction:09d}000",
+        f"{exact:E}",
+        str(exact.normalize()),
+        f"{seconds}.{fraction:09d}{below}",
+    ):
+        assert stamp_text_ns(text) == stamp_ns, text
+    if stamp_ns >= NANOSECOND_STAMP_MIN:
+        assert stamp_text_ns(str(stamp_ns)) == stamp_ns
+    if stamp_ns == LAST_STAMP_NS:
+        for text in (f"{Decimal(stamp_ns + 1).scaleb(-9):f}", str(stamp_ns + 1)):
+            with pytest.raises(ValueError, match="after 2038"):
+                stamp_text_ns(text)
 
 
 def test_whole_nanosecond_stamps_are_read_as_euroc_writes_them(tmp_path):

@@ -17,6 +17,7 @@ from hypothesis.extra.numpy import arrays
 from aslam.app.metric_view import EmbedOptions, embed, score_trajectory
 from aslam.core import se2
 from aslam.data_formats.pose_files import PoseFormat, iter_poses
+from aslam.data_formats.ros_msgs import LAST_STAMP_NS
 from aslam.data_formats.trajectory import (
     TrajectoryError,
     TrajectoryFormat,
@@ -98,6 +99,35 @@ def test_any_planar_trajectory_survives_both_formats(poses: np.ndarray):
         write_trajectory(kitti, poses, fmt="kitti")
         same_poses(read_tum(tum)[1], poses, atol=1e-6)
         same_poses(read_kitti(kitti), poses, atol=1e-6)
+
+
+# The last stamp that survives: float64 seconds near 2³¹ s are 238 ns apart, so a stamp in the last
+# few hundred ns a ROS time holds is written as 2147483648.0 s, after 2038, and refused when read.
+LAST_ROUND_TRIP_NS = LAST_STAMP_NS - 1_000
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.lists(
+        st.one_of(st.integers(0, LAST_ROUND_TRIP_NS), st.sampled_from([0, 10**17, LAST_ROUND_TRIP_NS])),
+        min_size=1,
+        max_size=12,
+        unique=True,
+    ).map(sorted)
+)
+def test_tum_stamps_come_back_within_a_microsecond_and_in_order(stamps):
+    """Any increasing stamps a ROS time holds: written as evo writes TUM (float64 seconds), read as
+    ``aslam import`` reads it, each within a microsecond, and never going backwards (which the
+    reader would refuse)."""
+    import tempfile
+
+    poses = np.zeros((len(stamps), 3))
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "a.tum"
+        write_trajectory(path, poses, np.array(stamps, dtype=np.int64))
+        read_stamps, _ = read_tum(path)
+    assert np.all(np.abs(read_stamps - np.array(stamps, dtype=np.int64)) < 1_000)
+    assert np.all(np.diff(read_stamps) >= 0)
 
 
 def test_same_input_same_bytes(tmp_path: Path):
