@@ -294,6 +294,13 @@ def estimator_config(parameters: Iterable[tuple[str, Any]]) -> EstimatorConfig:
     return replace(base, **values)
 
 
+def _as_kind(kind: type, value: Any) -> Any:
+    """``value`` as ``kind``, -0.0 as 0.0: the same value, but JSON writes the sign, so the same
+    configuration would be another task (its key a digest of the configuration's JSON)."""
+    value = kind(value)
+    return value + 0.0 if kind is float else value
+
+
 def _grid(value: dict[str, Any], where: str, problems: list[str]) -> Grid:
     types = {name: kind for name, kind, _default, _help in EstimatorConfig.parameters()}
     types["paper_faithful"] = bool
@@ -301,7 +308,9 @@ def _grid(value: dict[str, Any], where: str, problems: list[str]) -> Grid:
     if lists is None:  # the problems are raised before any grid is used
         return ()
     # A value listed twice (``[1, 1.0]``) is one value: every combination runs once.
-    grid = [(key, tuple(dict.fromkeys(types[key](v) for v in values))) for key, values in lists.items()]
+    grid = [
+        (key, tuple(dict.fromkeys(_as_kind(types[key], v) for v in values))) for key, values in lists.items()
+    ]
     if (count := math.prod(len(values) for _name, values in grid)) > MAX_COMBINATIONS:
         problems.append(f"{where}: {count:,} parameter sets; at most {MAX_COMBINATIONS:,} (split the sweep)")
         return ()

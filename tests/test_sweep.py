@@ -6,6 +6,7 @@ corrupt one is garbage bytes under a .mcap name.
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import shutil
@@ -18,7 +19,7 @@ import pyarrow.csv
 import pyarrow.parquet
 import pytest
 from distributed import Client
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from aslam.app.sweep import (
@@ -896,3 +897,61 @@ def test_a_scheduler_is_asked_who_it_is_even_from_inside_an_event_loop(tmp_path)
     finally:
         process.terminate()
         process.wait(timeout=30)
+
+
+# Parameter values as a sweep file may give them: ints for floats (3 is 3.0), a default among them
+# (cells_x 2, beta 3.0, max_hypotheses 50, map_reference_scale 0.0), -0.0 (which is 0.0).
+GRID_VALUES = {
+    "cells_x": [1, 2, 3],
+    "beta": [2, 3, 3.0, 4.5],
+    "max_hypotheses": [10, 50],
+    "map_reference_scale": [0.0, -0.0, 1.0],
+}
+grid_tables = st.lists(
+    st.lists(st.sampled_from(sorted(GRID_VALUES)), min_size=1, max_size=3, unique=True).flatmap(
+        lambda names: st.tuples(
+            *[st.lists(st.sampled_from(GRID_VALUES[n]), min_size=1, max_size=3) for n in names]
+        ).map(lambda lists: dict(zip(names, lists, strict=True)))
+    ),
+    min_size=1,
+    max_size=3,
+)
+
+
+def _grid_sweep(path: Path, grids: list[dict[str, list]]) -> Path:
+    text = "[[render]]\nseeds = [1]\nsize = '64x48'\n"
+    for grid in grids:
+        text += "[[grid]]\n" + "".join(f"{name} = {json.dumps(values)}\n" for name, values in grid.items())
+    path.write_text(text)
+    return path
+
+
+@settings(max_examples=40, deadline=None)
+@given(grid_tables)
+def test_a_grid_is_the_product_of_its_values_and_each_configuration_one_task(tmp_path_factory, grids):
+    """Each [[grid]] is the product of its distinct values in file order (the last key fastest), the
+    grids in turn; the plan has one task per distinct configuration, in first-come order, with keys
+    that are the same on every plan and whatever order a grid's keys are written in."""
+    from dataclasses import replace
+
+    from aslam.core.config import EstimatorConfig
+
+    folder = tmp_path_factory.mktemp("grid")
+    sweep = read_sweep_file(_grid_sweep(folder / "a.toml", grids))
+    kinds = {name: kind for name, kind, _default, _help in EstimatorConfig.parameters()}
+    expected_sets = []
+    for grid in grids:
+        names = list(grid)
+        distinct = [list(dict.fromkeys(kinds[name](v) for v in grid[name])) for name in names]
+        expected_sets += [tuple(zip(names, values, strict=True)) for values in itertools.product(*distinct)]
+    assert list(sweep.parameter_sets()) == expected_sets
+
+    configs = list(dict.fromkeys(replace(EstimatorConfig(), **dict(s)) for s in expected_sets))
+    tasks = plan_tasks(sweep, folder / "results")
+    assert [t.config for t in tasks] == configs
+    assert [t.index for t in tasks] == list(range(len(tasks)))
+    assert len({t.key for t in tasks}) == len({t.estimate_path for t in tasks}) == len(tasks)
+    assert [t.key for t in plan_tasks(sweep, folder / "results")] == [t.key for t in tasks]
+    reordered = [dict(reversed(grid.items())) for grid in grids]
+    again = plan_tasks(read_sweep_file(_grid_sweep(folder / "b.toml", reordered)), folder / "results")
+    assert {t.key for t in again} == {t.key for t in tasks}
