@@ -1,0 +1,135 @@
+"""What a user's install holds: every module, no data file left behind, every import declared.
+
+The Makefile's editable install maps whole folders and runs in a venv that has every package any
+dependency brings, so a subpackage missing from pyproject's list, a data file beside the modules
+or an import of a package only a dependency pulls in would work here and fail for a user of the
+wheel (``pip install aslam-*.whl``, ``pip install .``). These checks read pyproject.toml and the
+sources; they build nothing.
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib.metadata
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+from packaging.requirements import Requirement
+from packaging.utils import canonicalize_name
+
+from aslam.cli.app import main
+
+ROOT = Path(__file__).resolve().parents[1]
+PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())
+SETUPTOOLS = PYPROJECT["tool"]["setuptools"]
+PACKAGE_DIRS = {name: (ROOT / folder).resolve() for name, folder in SETUPTOOLS["package-dir"].items()}
+
+
+def _package_files(name: str) -> list[Path]:
+    """The files of package ``name`` as the wheel would take them: its folder's, and its
+    subfolders' unless they are packages of their own (the root, ``aslam``, holds the others)."""
+    folder = PACKAGE_DIRS[name]
+    inner = {path for path in PACKAGE_DIRS.values() if folder in path.parents}
+    if name == "aslam":  # the repository root: its own files only (tests/, docs/ ... are not in it)
+        return [path for path in folder.iterdir() if path.is_file() and not path.name.startswith(".")]
+    files = []
+    for path in folder.rglob("*"):
+        if path.is_file() and "__pycache__" not in path.parts and not inner & set(path.parents):
+            files.append(path)
+    return files
+
+
+def _modules() -> list[Path]:
+    return [path for name in PACKAGE_DIRS for path in _package_files(name) if path.suffix == ".py"]
+
+
+def test_every_package_folder_is_listed_and_mapped():
+    """setuptools' ``packages`` list is explicit: a new subfolder of modules (core/index/) would be
+    imported from the source tree here and missing from the wheel."""
+    assert sorted(SETUPTOOLS["packages"]) == sorted(PACKAGE_DIRS)
+    for name, folder in PACKAGE_DIRS.items():
+        assert folder.is_dir(), f"{name} maps to {folder}, which is not a folder"
+        if name != "aslam":
+            assert (folder / "__init__.py").is_file(), f"{folder} has no __init__.py"
+    top_level = {path.parent.resolve() for path in ROOT.glob("*/__init__.py")}
+    nested = {path.parent for path in _modules() if path.parent != ROOT}
+    for folder in sorted(top_level | nested):
+        assert folder in PACKAGE_DIRS.values(), f"{folder} holds modules but is no package in pyproject.toml"
+
+
+def test_packages_hold_only_modules():
+    """No package data is declared (``include-package-data = false``: with the repository root a
+    package folder, it would be every file of the sdist), so a JSON schema, template or font read
+    beside the modules would be absent from the wheel: declare it in
+    ``[tool.setuptools.package-data]`` and let this test know."""
+    assert SETUPTOOLS.get("include-package-data") is False
+    assert "package-data" not in SETUPTOOLS
+    data = [
+        path.relative_to(ROOT)
+        for name in PACKAGE_DIRS
+        if name != "aslam"  # the root's README, Makefile ... are the sdist's, not the package's
+        for path in _package_files(name)
+        if path.suffix != ".py"
+    ]
+    assert data == []
+
+
+def _imported_top_level_names() -> set[str]:
+    names: set[str] = set()
+    for path in _modules():
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                names.update(alias.name.split(".")[0] for alias in node.names)
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                names.add(node.module.split(".")[0])
+    return names - set(sys.stdlib_module_names) - {"aslam", "__future__"}
+
+
+def _declared_distributions() -> set[str]:
+    """``[project] dependencies`` with what their extras (``dask[distributed]``) bring."""
+    declared: set[str] = set()
+    for text in PYPROJECT["project"]["dependencies"]:
+        requirement = Requirement(text)
+        declared.add(canonicalize_name(requirement.name))
+        for extra in requirement.extras:
+            for needed in importlib.metadata.requires(requirement.name) or []:
+                sub = Requirement(needed)
+                marker = sub.marker  # the extra's own requirements, not those every install has
+                if marker and marker.evaluate({"extra": extra}) and not marker.evaluate({"extra": ""}):
+                    declared.add(canonicalize_name(sub.name))
+    return declared
+
+
+def test_every_imported_package_is_a_declared_dependency():
+    """A package imported but only brought by another dependency (protobuf by the Foxglove schemas,
+    ruamel.yaml by rosbags) goes the day that dependency stops needing it."""
+    providers = importlib.metadata.packages_distributions()
+    declared = _declared_distributions()
+    undeclared = {}
+    for name in sorted(_imported_top_level_names()):
+        distributions = {canonicalize_name(dist) for dist in providers.get(name, [])}
+        if not distributions & declared:
+            undeclared[name] = sorted(distributions) or "not installed"
+    assert undeclared == {}
+
+
+def test_every_declared_dependency_is_imported():
+    providers = importlib.metadata.packages_distributions()
+    imported = {
+        canonicalize_name(dist) for name in _imported_top_level_names() for dist in providers.get(name, [])
+    }
+    direct = {canonicalize_name(Requirement(text).name) for text in PYPROJECT["project"]["dependencies"]}
+    assert direct - imported == set()
+
+
+def test_python_dash_m_aslam_is_the_console_script(capsys):
+    """``python -m aslam`` (__main__.py at the root, installed as aslam/__main__.py) for an
+    interpreter whose scripts folder is not on PATH."""
+    assert main(["--version"]) == 0
+    expected = capsys.readouterr().out
+    done = subprocess.run(
+        [sys.executable, "-m", "aslam", "--version"], capture_output=True, text=True, timeout=60
+    )
+    assert (done.returncode, done.stdout, done.stderr) == (0, expected, "")
