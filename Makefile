@@ -79,4 +79,4 @@ fuzz: $(VENV)/.dev-installed
 	nice -n 10 $(BIN)/python tests/fuzz.py $(FUZZ_CASES) --json fuzz-summary.json
 
 clean:
-	rm -rf $(VENV) $(DEMO) build *.egg-info .pytest_cache .ruff_cache
+	rm -rf $(VENV) $(DEMO) build dist *.egg-info .pytest_cache .ruff_cache
