@@ -30,7 +30,7 @@ from aslam.core.mapgraph import GrowableArray
 from aslam.core.metrics import AssignmentScore, Evaluation, evaluate, score_assignment
 from aslam.data_formats.errors import EstimateError, RecordingError
 from aslam.data_formats.estimate import EstimateFile, iter_keyframes, read_estimate
-from aslam.data_formats.files import full_path, source_files
+from aslam.data_formats.files import full_path, source_files, source_sha256
 from aslam.data_formats.graph_json import build_graph_json
 from aslam.data_formats.pose_sync import TRUTH_MAX_GAP_NS
 from aslam.data_formats.sources import TopicChoice, open_input
@@ -301,11 +301,11 @@ def score(
     stage("reading the ground truth")
     # every keyframe of the map: the prior map's, then this run's
     true_poses, recording_path = _session_truth(
-        info, stamps, truth_by_index, recording, warn, ground_truth_topic
+        info, estimate, stamps, truth_by_index, recording, warn, ground_truth_topic
     )
     if true_poses is not None and first:
         earlier = _map_truth(info, estimate, truth_by_index, warn, ground_truth_topic)
-        true_poses = None if earlier is None else np.concatenate([earlier, true_poses])
+        true_poses = np.concatenate([earlier, true_poses])
     stage("scoring the claims")
     with closing(iter_keyframes(estimate)) as keyframes:
         evaluation = evaluate(
@@ -377,6 +377,7 @@ def index_truth(keyframes: int) -> np.ndarray:
 
 def _session_truth(
     info: EstimateFile,
+    estimate: Path,
     stamps: list[int],
     truth_by_index: bool,
     recording: Path | None,
@@ -386,19 +387,25 @@ def _session_truth(
     of_the_map: bool = False,
 ) -> tuple[np.ndarray | None, Path | None]:
     """One session's truth at its keyframe stamps, and the recording it came from: by index, or
-    from ``recording`` (default: the one the estimate names), on ``ground_truth_topic`` if given
-    (default: the topic the estimate was made with); (None, …) with a warning if none. A topic
-    named for this run's own recording that it cannot read is an error, not a warning."""
+    from ``recording`` (default: the one the estimate ``info`` of file ``estimate`` names), on
+    ``ground_truth_topic`` if given (default: the topic the estimate was made with); (None, …) with
+    a warning if none. A topic named for this run's own recording that it cannot read is an error,
+    not a warning."""
     if truth_by_index:
         return index_truth(len(stamps)), None
-    path = _find_recording(recording, info, warn)
+    without = _MAP_UNSCORED if of_the_map else "reporting without ground truth"
+    path = _find_recording(recording, info, estimate, warn, without)
     if path is None:
         return None, None
     topics = TopicChoice.from_record(info.metadata.topics)
     if ground_truth_topic is not None:
         topics = replace(topics, ground_truth=ground_truth_topic)
     strict = ground_truth_topic is not None and not of_the_map
-    return _ground_truth(path, topics, stamps, warn, strict=strict, of_the_map=of_the_map), path
+    return _ground_truth(path, topics, stamps, warn, strict=strict, without=without), path
+
+
+_MAP_UNSCORED = "the map's keyframes from it are not scored"
+_MAP_LOST = "the keyframes of that map are not scored"
 
 
 def _map_truth(
@@ -407,36 +414,79 @@ def _map_truth(
     truth_by_index: bool,
     warn: Callable[[str], None],
     ground_truth_topic: str | None = None,
-) -> np.ndarray | None:
+) -> np.ndarray:
     """(first_keyframe, 3) truth of the prior map's keyframes, session by session back to the first
-    map (each prior estimate names its recording and its own prior); None, with a warning, when a
-    prior estimate is missing. Sessions without truth give NaN rows (their claims are not judged).
-    ``ground_truth_topic`` is tried on every session (bags estimated without one)."""
+    map (each prior estimate names its recording and its own prior). A session whose truth cannot be
+    had gives NaN rows (its places' claims are not judged), with a warning: its recording or its
+    estimate missing, or an estimate that is no longer the map this run started in (estimated again
+    since). ``ground_truth_topic`` is tried on every session (bags estimated without one)."""
     prior = info.metadata.prior_map
     if prior is None:
         return np.zeros((0, 3))
-    prior_path = Path(prior.path)
-    if not prior_path.exists():
-        warn(f"map {prior.path} (named in {path}) not found; reporting without ground truth")
-        return None
-    prior_info = read_estimate(prior_path)
-    with closing(iter_keyframes(prior_path)) as keyframes:
-        stamps = [keyframe.stamp_ns for keyframe in keyframes]
+    unscored = np.full((prior.keyframes, 3), np.nan)
+    found = _find_map(info, path, warn)
+    if found is None:
+        return unscored
+    prior_path, prior_info = found
+    try:
+        with closing(iter_keyframes(prior_path)) as keyframes:
+            stamps = [keyframe.stamp_ns for keyframe in keyframes]
+    except InputError as err:
+        warn(f"{err}; {_MAP_LOST}")
+        return unscored
+    if prior_info.graph.first_keyframe + len(stamps) != prior.keyframes:
+        warn(
+            f"{prior_path}: {len(stamps)} keyframes where its map says"
+            f" {prior.keyframes - prior_info.graph.first_keyframe}; {_MAP_LOST}"
+        )
+        return unscored
     earlier = _map_truth(prior_info, prior_path, truth_by_index, warn, ground_truth_topic)
-    if earlier is None:
-        return None
     own, _ = _session_truth(
-        prior_info, stamps, truth_by_index, None, warn, ground_truth_topic, of_the_map=True
+        prior_info, prior_path, stamps, truth_by_index, None, warn, ground_truth_topic, of_the_map=True
     )
     own = np.full((len(stamps), 3), np.nan) if own is None else own
-    truth = np.concatenate([earlier, own])
-    if len(truth) != prior.keyframes:
-        raise EstimateError(
-            f"the map has {len(truth)} keyframes where the estimate expects {prior.keyframes}"
-            " (was it estimated again since?)",
-            path=prior_path,
-        )
-    return truth
+    return np.concatenate([earlier, own])
+
+
+def _find_map(
+    info: EstimateFile, path: Path, warn: Callable[[str], None]
+) -> tuple[Path, EstimateFile] | None:
+    """The prior map the estimate ``info`` (file ``path``) was made in, read; None with a warning
+    when it is missing, unreadable, or another map now (estimated again since: another graph).
+
+    Looked for where the estimate names it, else by its name beside ``path`` (a folder of sessions
+    moved or copied elsewhere). A file whose bytes changed but whose map is the same keyframe for
+    keyframe (estimated again with other topics or timing) is the same map.
+    """
+    prior = info.metadata.prior_map
+    assert prior is not None
+    named = Path(prior.path)
+    candidates = [c for c in dict.fromkeys((named, full_path(path).parent / named.name)) if c.exists()]
+    if not candidates:
+        warn(f"map {prior.path} (named in {path}) not found; {_MAP_LOST}")
+        return None
+    problems = []
+    for candidate in candidates:
+        try:
+            candidate_info = read_estimate(candidate)
+            same = source_sha256(candidate) == prior.sha256
+            same = same or _same_map(candidate_info, info, prior.keyframes)
+        except InputError as err:  # EstimateError among them: damaged, not an estimate
+            problems.append(str(err))
+            continue
+        if same:
+            return candidate, candidate_info
+        problems.append(f"map {candidate} is not the map {path} was estimated in (estimated again since?)")
+    warn(f"{problems[0]}; {_MAP_LOST}")
+    return None
+
+
+def _same_map(prior: EstimateFile, extended: EstimateFile, keyframes: int) -> bool:
+    """Whether ``prior``'s map is the one ``extended`` started in: its ``keyframes`` keyframes, each
+    at the place ``extended`` has it at (a run in a map never moves the map's keyframes)."""
+    return prior.graph.keyframes == keyframes and np.array_equal(
+        map_assignment(prior.graph.states, keyframes), map_assignment(extended.graph.states, keyframes)
+    )
 
 
 def map_assignment(states: Iterable[Any], keyframes: int) -> np.ndarray:
@@ -449,12 +499,22 @@ def map_assignment(states: Iterable[Any], keyframes: int) -> np.ndarray:
     return assignment
 
 
-def _find_recording(given: Path | None, info: EstimateFile, warn: Callable[[str], None]) -> Path | None:
-    """The recording to take ground truth from, or None (with one warning line) if it is missing."""
+def _find_recording(
+    given: Path | None,
+    info: EstimateFile,
+    estimate: Path,
+    warn: Callable[[str], None],
+    without: str = "reporting without ground truth",
+) -> Path | None:
+    """The recording to take ground truth from, or None (with one warning line) if it is missing.
+
+    The recording the estimate names is looked for where it was, else by its name beside the
+    estimate file (a folder of recordings and estimates moved or copied elsewhere) if its size is
+    the one recorded."""
     if given is not None:
         if not given.exists():
             raise InputError("no such recording", path=given)
-        size = sum(file.stat().st_size for file in source_files(given))
+        size = _size_bytes(given)
         if size != info.metadata.recording.size_bytes:  # another file: a bag with the truth, or a mistake
             warn(
                 f"{given} is not the recording the estimate was made from ({size} bytes, that one"
@@ -464,12 +524,26 @@ def _find_recording(given: Path | None, info: EstimateFile, warn: Callable[[str]
     named, size_bytes = info.metadata.recording.path, info.metadata.recording.size_bytes
     path = Path(named)
     if not path.exists():
-        warn(f"recording {named} (named in the estimate) not found; reporting without ground truth")
+        beside = full_path(estimate).parent / path.name
+        if beside != path and beside.exists() and _size_bytes(beside, None) == size_bytes:
+            return beside
+        warn(f"recording {named} (named in {estimate}) not found; {without}")
         return None
-    size = sum(file.stat().st_size for file in source_files(path))
+    size = _size_bytes(path)
     if size != size_bytes:
         warn(f"recording {named} has changed since the estimate ({size} bytes, was {size_bytes})")
     return path
+
+
+def _size_bytes(path: Path, default: int | None = -1) -> int | None:
+    """Bytes of a recording (a bag folder's files summed); ``default`` where it cannot be read (-1:
+    raise)."""
+    try:
+        return sum(file.stat().st_size for file in source_files(path))
+    except (InputError, OSError):
+        if default == -1:
+            raise
+        return default
 
 
 def _ground_truth(
@@ -479,10 +553,10 @@ def _ground_truth(
     warn: Callable[[str], None],
     *,
     strict: bool = False,
-    of_the_map: bool = False,
+    without: str = "reporting without ground truth",
 ) -> np.ndarray | None:
-    """The truth at ``stamps``; None with a warning when there is none (``strict``: an error)."""
-    without = "the map's keyframes from it are not scored" if of_the_map else "reporting without ground truth"
+    """The truth at ``stamps``; None with a warning ending in ``without`` when there is none
+    (``strict``: an error)."""
     try:
         with closing(open_input(path, topics, on_warning=warn).ground_truth()) as truth:  # type: ignore[arg-type]
             poses = truth_at_stamps(stamps, truth)

@@ -120,6 +120,82 @@ def test_a_chain_of_sessions_reports_with_every_sessions_truth(sessions, tmp_pat
     assert summary["loop_closure"]["precision"] == 1.0
 
 
+def _chain(folder: Path) -> dict[str, Path]:
+    """Three sessions of the square in ``folder``, each in the map of the one before, as estimated
+    there: recordings and estimates side by side."""
+    folder.mkdir()
+    files: dict[str, Path] = {}
+    previous = None
+    for name, start, seed in (("first", None, 7), ("second", 5, 11), ("third", 9, 23)):
+        files[name] = folder / f"{name}.mcap"
+        write_square_recording(files[name], None if start is None else second_session_route(start), seed)
+        files[f"{name}.est"] = folder / f"{name}.est.mcap"
+        args = ["estimate", str(files[name]), "-o", str(files[f"{name}.est"]), "-q", "--no-timing"]
+        assert main(args + ([] if previous is None else ["--map", str(previous)])) == 0
+        previous = files[f"{name}.est"]
+    return files
+
+
+def _report_and_warnings(estimate: Path, capsys: pytest.CaptureFixture[str]) -> tuple[dict, list[str]]:
+    capsys.readouterr()
+    assert main(["report", str(estimate), "--json", "-"]) == 0
+    captured = capsys.readouterr()
+    warnings = [line for line in captured.err.splitlines() if line.startswith("aslam:")]
+    return json.loads(captured.out), warnings
+
+
+def test_a_chain_moved_to_another_folder_is_scored_as_before(tmp_path, capsys):
+    """The estimates name their maps and recordings by absolute path; a folder of sessions copied
+    elsewhere (another machine) is found beside the estimate, and scored as where it was made."""
+    files = _chain(tmp_path / "made")
+    before, warnings = _report_and_warnings(files["third.est"], capsys)
+    assert warnings == [] and before["loop_closure"]["precision"] == 1.0
+    (tmp_path / "made").rename(tmp_path / "moved")
+    after, warnings = _report_and_warnings(tmp_path / "moved" / "third.est.mcap", capsys)
+    assert warnings == []
+    assert after == before
+
+
+@pytest.mark.parametrize("change", ["missing", "damaged", "another map", "the same map again"])
+def test_a_map_no_longer_there_leaves_its_keyframes_unscored_and_says_so(tmp_path, capsys, change):
+    """The second session's estimate, the third's map, deleted, cut short, or estimated again into
+    another map: the third session's claims of the map's places are not judged (against a truth
+    that is not theirs), one warning names the map, and the run's own truth still scores the rest.
+    Estimated again into the same map (another file: timing metadata), it is the same map."""
+    files = _chain(tmp_path / "chain")
+    the_map = files["second.est"]
+    if change == "missing":
+        the_map.unlink()
+    elif change == "damaged":
+        the_map.write_bytes(the_map.read_bytes()[:2000])
+    elif change == "another map":  # the second recording in a map of its own
+        assert main(["estimate", str(files["second"]), "-o", str(the_map), "-q", "--force"]) == 0
+    else:
+        args = ["estimate", str(files["second"]), "--map", str(files["first.est"]), "-o", str(the_map)]
+        assert main([*args, "-q", "--force"]) == 0  # with timing: other bytes, the same map
+    summary, warnings = _report_and_warnings(files["third.est"], capsys)
+    closure = summary["loop_closure"]
+    assert summary["ground_truth"] is True
+    if change == "the same map again":
+        assert warnings == [] and closure["unjudged_claims"] == 0 and closure["precision"] == 1.0
+        return
+    assert len(warnings) == 1 and str(the_map) in warnings[0], warnings
+    assert "the keyframes of that map are not scored" in warnings[0]
+    assert closure["claims"] > 0 and closure["unjudged_claims"] == closure["claims"]
+    assert closure["correct"] == 0 and closure["precision"] is None
+
+
+def test_a_map_sessions_recording_missing_names_the_estimate_that_names_it(tmp_path, capsys):
+    files = _chain(tmp_path / "chain")
+    files["second"].unlink()
+    summary, warnings = _report_and_warnings(files["third.est"], capsys)
+    assert len(warnings) == 1 and str(files["second"]) in warnings[0]
+    assert f"named in {files['second.est']}" in warnings[0]
+    assert "reporting without ground truth" not in warnings[0]
+    assert "the map's keyframes from it are not scored" in warnings[0]
+    assert summary["ground_truth"] is True
+
+
 @pytest.mark.parametrize(
     ("make_map", "words"),
     [
