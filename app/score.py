@@ -33,7 +33,8 @@ from aslam.data_formats.estimate import EstimateFile, iter_keyframes, read_estim
 from aslam.data_formats.files import full_path, source_files, source_sha256
 from aslam.data_formats.graph_json import build_graph_json
 from aslam.data_formats.pose_sync import TRUTH_MAX_GAP_NS
-from aslam.data_formats.sources import TopicChoice, open_input
+from aslam.data_formats.recording import world_identity
+from aslam.data_formats.sources import RecordingInput, TopicChoice, open_input
 
 # --- ground truth ----------------------------------------------------------------------------------
 
@@ -303,9 +304,12 @@ def score(
     true_poses, recording_path = _session_truth(
         info, estimate, stamps, truth_by_index, recording, warn, ground_truth_topic
     )
+    worlds = None
     if true_poses is not None and first:
-        earlier = _map_truth(info, estimate, truth_by_index, warn, ground_truth_topic)
+        earlier, sessions = _map_truth(info, estimate, truth_by_index, warn, ground_truth_topic)
         true_poses = np.concatenate([earlier, true_poses])
+        if not truth_by_index:
+            worlds = _worlds([*sessions, _Session(len(stamps), recording_path)], warn)
     stage("scoring the claims")
     with closing(iter_keyframes(estimate)) as keyframes:
         evaluation = evaluate(
@@ -315,6 +319,7 @@ def score(
             heading_deg=heading_deg,
             first_keyframe=first,
             count=len(stamps),
+            worlds=worlds,
         )
     if not evaluation.has_ground_truth:
         true_poses = None
@@ -340,7 +345,12 @@ def score(
     if true_poses is not None:
         assignment = map_assignment(info.graph.states, first + len(stamps))
         committed = score_assignment(
-            assignment, true_poses, radius_m=radius_m, heading_deg=heading_deg, first_keyframe=first
+            assignment,
+            true_poses,
+            radius_m=radius_m,
+            heading_deg=heading_deg,
+            first_keyframe=first,
+            worlds=worlds,
         )
     summary = build_summary(
         evaluation,
@@ -414,16 +424,17 @@ def _map_truth(
     truth_by_index: bool,
     warn: Callable[[str], None],
     ground_truth_topic: str | None = None,
-) -> np.ndarray:
+) -> tuple[np.ndarray, list[_Session]]:
     """(first_keyframe, 3) truth of the prior map's keyframes, session by session back to the first
-    map (each prior estimate names its recording and its own prior). A session whose truth cannot be
-    had gives NaN rows (its places' claims are not judged), with a warning: its recording or its
-    estimate missing, or an estimate that is no longer the map this run started in (estimated again
-    since). ``ground_truth_topic`` is tried on every session (bags estimated without one)."""
+    map (each prior estimate names its recording and its own prior), and the sessions. A session
+    whose truth cannot be had gives NaN rows (its places' claims are not judged), with a warning:
+    its recording or its estimate missing, or an estimate that is no longer the map this run started
+    in (estimated again since). ``ground_truth_topic`` is tried on every session (bags estimated
+    without one)."""
     prior = info.metadata.prior_map
     if prior is None:
-        return np.zeros((0, 3))
-    unscored = np.full((prior.keyframes, 3), np.nan)
+        return np.zeros((0, 3)), []
+    unscored = np.full((prior.keyframes, 3), np.nan), [_Session(prior.keyframes, None)]
     found = _find_map(info, path, warn)
     if found is None:
         return unscored
@@ -440,12 +451,50 @@ def _map_truth(
             f" {prior.keyframes - prior_info.graph.first_keyframe}; {_MAP_LOST}"
         )
         return unscored
-    earlier = _map_truth(prior_info, prior_path, truth_by_index, warn, ground_truth_topic)
-    own, _ = _session_truth(
+    earlier, sessions = _map_truth(prior_info, prior_path, truth_by_index, warn, ground_truth_topic)
+    own, recording = _session_truth(
         prior_info, prior_path, stamps, truth_by_index, None, warn, ground_truth_topic, of_the_map=True
     )
-    own = np.full((len(stamps), 3), np.nan) if own is None else own
-    return np.concatenate([earlier, own])
+    if own is None:
+        own, recording = np.full((len(stamps), 3), np.nan), None
+    return np.concatenate([earlier, own]), [*sessions, _Session(len(stamps), recording)]
+
+
+@dataclass(frozen=True)
+class _Session:
+    """One session of a map: its keyframes, and the recording its truth came from (None: no truth)."""
+
+    keyframes: int
+    recording: Path | None
+
+
+def _worlds(sessions: list[_Session], warn: Callable[[str], None]) -> np.ndarray | None:
+    """(keyframes,) the world of each keyframe of the map (-1: unknown), where its sessions were
+    rendered in worlds that share no place (``data_formats.recording.world_identity``), with a
+    warning naming them; None where they are all one world, as far as the recordings say."""
+    keys = [None if session.recording is None else _world_of(session.recording) for session in sessions]
+    known = list(dict.fromkeys(key for key in keys if key is not None))
+    if len(known) < 2:
+        return None
+    groups = [
+        ", ".join(dict.fromkeys(s.recording.name for s, k in zip(sessions, keys, strict=True) if k == key))  # type: ignore[union-attr]
+        for key in known
+    ]
+    warn(
+        f"the map's sessions were rendered in {len(known)} worlds that share no place"
+        f" ({'; '.join(groups)}): no keyframe revisits another world's places, and a claim of one is wrong"
+    )
+    ids = [-1 if key is None else known.index(key) for key in keys]
+    return np.repeat(np.array(ids, dtype=np.int64), [session.keyframes for session in sessions])
+
+
+def _world_of(recording: Path) -> str | None:
+    """The world a recording's truth is in, as the recorder says it (None: not said, a bag)."""
+    try:
+        source = open_input(recording)
+    except InputError:
+        return None
+    return world_identity(source.recording.metadata()) if isinstance(source, RecordingInput) else None
 
 
 def _find_map(

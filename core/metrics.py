@@ -9,6 +9,9 @@
   ground truth) is not judged: precision counts only the claims the truth can score.
 * A relocalisation episode is a run of consecutive ground-truth revisits; its delay is the number
   of keyframes from its start until the best hypothesis first names a correct state.
+* Sessions of a map in different worlds (``worlds``: rendered worlds that share no place, whose
+  true poses are in frames of their own) are never near each other: no keyframe revisits another
+  world's place, and a claim of one is wrong.
 * As place-recognition work reports it, each claim has a confidence (the belief of the best
   hypothesis that makes it): sweeping a threshold over it gives a precision–recall curve, its
   area (average precision) and the recall reached with no wrong claim at all.
@@ -191,6 +194,15 @@ class AssignmentScore:
         return None if revisits == 0 else float(self.correct.sum() / revisits)
 
 
+def worlds_apart(worlds: np.ndarray | None, a: np.ndarray | int, b: np.ndarray | int) -> np.ndarray:
+    """bool: keyframes ``a`` and ``b`` are known to be in different worlds (``worlds`` (n,) int per
+    keyframe, -1 where unknown; None: one world)."""
+    if worlds is None:
+        return np.zeros(np.broadcast(np.asarray(a), np.asarray(b)).shape, dtype=bool)
+    wa, wb = worlds[a], worlds[b]
+    return (wa != wb) & (wa >= 0) & (wb >= 0)
+
+
 def scored_revisits(true_revisit: np.ndarray, claims: np.ndarray, judged_claims: np.ndarray) -> np.ndarray:
     """bool (n,): the true revisits recall counts: all but those whose claim cannot be judged (a
     revisit named as a place of a map session without truth is no miss)."""
@@ -204,13 +216,15 @@ def score_assignment(
     radius_m: float = REVISIT_RADIUS_M,
     heading_deg: float = REVISIT_HEADING_DEG,
     first_keyframe: int = 0,
+    worlds: np.ndarray | None = None,
 ) -> AssignmentScore:
     """Score a map: keyframe t claims a revisit when its state is an earlier keyframe's place.
 
     ``state_of_keyframe`` (n,) holds state ids (first-visit keyframes; -1 where unassigned). A
     claim is correct when the true pose at t is within ``radius_m`` and ``heading_deg`` of the
     true pose at the state's first visit. Only keyframes from ``first_keyframe`` on are scored
-    (a run in a prior map: the map's own keyframes were scored with it).
+    (a run in a prior map: the map's own keyframes were scored with it). ``worlds``: see
+    :func:`evaluate`.
     """
     states = np.asarray(state_of_keyframe, dtype=np.int64)
     n = len(states)
@@ -219,13 +233,17 @@ def score_assignment(
     correct = np.zeros(n, dtype=bool)
     judged = np.zeros(n, dtype=bool)
     heading_rad = math.radians(heading_deg)
+    poses = np.asarray(true_poses, float)
     claimed = index[claims]
-    deltas = np.asarray(true_poses, float)[claimed] - np.asarray(true_poses, float)[states[claimed]]
-    for t, delta in zip(claimed.tolist(), deltas.tolist(), strict=True):
-        if all(math.isfinite(v) for v in delta):
+    apart = worlds_apart(worlds, claimed, states[claimed]) & np.isfinite(poses[claimed]).all(axis=1)
+    deltas = poses[claimed] - poses[states[claimed]]
+    for t, other_world, delta in zip(claimed.tolist(), apart.tolist(), deltas.tolist(), strict=True):
+        if other_world:
+            judged[t] = True  # another world's place: wrong
+        elif all(math.isfinite(v) for v in delta):
             judged[t] = True
             correct[t] = same_place(*delta, radius_m, heading_rad)
-    true_revisit = ground_truth_revisits(true_poses, radius_m, heading_deg)
+    true_revisit = ground_truth_revisits(true_poses, radius_m, heading_deg, worlds)
     run = slice(first_keyframe, None)
     return AssignmentScore(claims[run], correct[run], true_revisit[run], judged[run])
 
@@ -246,8 +264,11 @@ def pose_error(true_now: np.ndarray, true_then: np.ndarray) -> np.ndarray:
     return delta
 
 
-def ground_truth_revisits(true_poses: np.ndarray, radius_m: float, heading_deg: float) -> np.ndarray:
-    """bool (n,): keyframe t has an earlier keyframe within ``radius_m`` and ``heading_deg``.
+def ground_truth_revisits(
+    true_poses: np.ndarray, radius_m: float, heading_deg: float, worlds: np.ndarray | None = None
+) -> np.ndarray:
+    """bool (n,): keyframe t has an earlier keyframe within ``radius_m`` and ``heading_deg`` (and not
+    in another world: ``worlds``, see :func:`evaluate`).
 
     A spatial hash keeps this O(n · local density) rather than O(n²).
     """
@@ -258,6 +279,7 @@ def ground_truth_revisits(true_poses: np.ndarray, radius_m: float, heading_deg: 
     # Cells a hair larger than the radius: points whose rounded distance equals the radius
     # always share or neighbour a cell.
     cell = radius_m * (1.0 + 1e-9)
+    world = None if worlds is None else np.asarray(worlds).tolist()
     for t in range(n):
         x, y, yaw = true_poses[t]
         if not np.isfinite(true_poses[t]).all():
@@ -267,7 +289,9 @@ def ground_truth_revisits(true_poses: np.ndarray, radius_m: float, heading_deg: 
             for j in (cy - 1, cy, cy + 1):
                 for earlier in cells.get((i, j), ()):
                     ex, ey, eyaw = true_poses[earlier]
-                    if same_place(x - ex, y - ey, yaw - eyaw, radius_m, heading_rad):
+                    if same_place(x - ex, y - ey, yaw - eyaw, radius_m, heading_rad) and (
+                        world is None or world[earlier] in (world[t], -1) or world[t] == -1
+                    ):
                         revisit[t] = True
                         break
                 if revisit[t]:
@@ -286,6 +310,7 @@ def evaluate(
     heading_deg: float = REVISIT_HEADING_DEG,
     first_keyframe: int = 0,
     count: int | None = None,
+    worlds: np.ndarray | None = None,
 ) -> Evaluation:
     """Score a run: ``steps`` are (keyframe, hypotheses best first); ``true_poses`` (first + n, 3) or None.
 
@@ -293,6 +318,9 @@ def evaluate(
     prior map starts at keyframe ``first_keyframe``: the rows before are the prior map's keyframes,
     which its claims may name and which count as earlier visits. ``steps`` is read once, in order:
     a stream (``count`` then says how many), so a long run's hypotheses need not all be held.
+    ``worlds`` (first + n,) int: the world each keyframe's truth is in, for a map whose sessions were
+    in worlds that share no place (-1: unknown; None: all one world). A keyframe never revisits a
+    place of another world, and a claim of one is wrong (no pose error: the frames differ).
     """
     n = len(steps) if count is None else count  # type: ignore[arg-type]
     first = first_keyframe
@@ -310,7 +338,7 @@ def evaluate(
     )
     if has_truth:
         assert true_poses is not None
-        true_revisit = ground_truth_revisits(true_poses, radius_m, heading_deg)[first:]
+        true_revisit = ground_truth_revisits(true_poses, radius_m, heading_deg, worlds)[first:]
     heading_rad = math.radians(heading_deg)
     seen = 0
     for t, (_, hypotheses) in enumerate(steps):
@@ -327,14 +355,20 @@ def evaluate(
         revisits = [h for h in hypotheses if not h.is_new_state and 0 <= h.state < first + n]
         if not revisits or not np.isfinite(true_poses[first + t]).all():
             continue
-        errors = pose_error(true_poses[first + t], true_poses[[h.state for h in revisits]])
+        named = [h.state for h in revisits]
+        errors = pose_error(true_poses[first + t], true_poses[named])
+        apart = None if worlds is None else worlds_apart(worlds, first + t, np.array(named))
+        if apart is not None:
+            errors[apart] = np.nan  # poses in two worlds' frames: no error to measure
         weights = np.array([h.belief for h in revisits])
         finite = np.isfinite(errors).all(axis=1)
         if finite.any() and weights[finite].sum() > 0:
             weighted_error[t] = (np.abs(errors[finite]) * weights[finite, None]).sum(0) / weights[
                 finite
             ].sum()
-        if claims[t] and finite[0] and hypotheses[0] is revisits[0]:
+        if claims[t] and apart is not None and apart[0] and hypotheses[0] is revisits[0]:
+            judged[t] = True  # another world's place: wrong
+        elif claims[t] and finite[0] and hypotheses[0] is revisits[0]:
             judged[t] = True
             best_error[t] = errors[0]
             delta = true_poses[first + t] - true_poses[revisits[0].state]

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import json
 import math
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
@@ -251,6 +252,32 @@ def checked_pose(
     if problem is not None:
         raise error(f"{what} pose on '{topic}' at stamp {stamp_ns} ns {problem}", path=path)
     return pose
+
+
+#: Fields of a generated world's description that are its textures, not its rooms (``--aliasing``).
+_TEXTURE_FIELDS = ("aliasing", "aliased_panels", "doors", "shared_textures")
+
+
+def world_identity(metadata: Mapping[str, str]) -> str | None:
+    """Which world a recording's ground truth is in, from its ``aslam.recording`` metadata: sessions
+    of different worlds share no place, and their true poses no frame. The recorder's ``world``: a
+    generated world's rooms with its ``seed`` (its textures left out: the same rooms with other
+    wallpaper, ``--aliasing``, are the same places), a scene file's description. None where the
+    recording does not say (an imported image folder, a bag): one world is assumed.
+    """
+    world = metadata.get("world")
+    if world is None:
+        return None
+    try:
+        description = json.loads(world)
+    except ValueError:
+        return world
+    if not isinstance(description, dict):
+        return world
+    if description.get("kind") == "generated":
+        description = {key: v for key, v in description.items() if key not in _TEXTURE_FIELDS}
+        description["seed"] = metadata.get("seed")
+    return json.dumps(description, sort_keys=True, separators=(",", ":"))
 
 
 class Recording:

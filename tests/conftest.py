@@ -240,14 +240,24 @@ def square_view(pose: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return np.clip(image + noise, 0, 255).astype(np.uint8)
 
 
-def write_square_recording(path: Path, route: list[np.ndarray] | None = None, seed: int = 7) -> None:
+def write_square_recording(
+    path: Path,
+    route: list[np.ndarray] | None = None,
+    seed: int = 7,
+    *,
+    metadata: dict[str, str] | None = None,
+    view_offset: tuple[float, float] = (0.0, 0.0),
+) -> None:
     """A small recording of the square route (or ``route``: true poses) with views that depend on
-    the place (64×48 PNG); ``seed`` draws the image and odometry noise of this run."""
+    the place (64×48 PNG); ``seed`` draws the image and odometry noise of this run. ``view_offset``:
+    the views of the places that far away (another world laid out alike, its truth in its own
+    frame); ``metadata``: the recording's (default: the test world's)."""
     rng = np.random.default_rng(seed)
     camera = CameraIntrinsics(64, 48, 60.0)
     odometry = np.zeros(3)
     previous = None
-    with RecordingWriter(path, camera=camera, metadata={"world": "test", "route": "square"}) as writer:
+    metadata = {"world": "test", "route": "square"} if metadata is None else metadata
+    with RecordingWriter(path, camera=camera, metadata=metadata) as writer:
         for i, truth in enumerate(square_route() if route is None else route):
             if previous is not None:
                 step = se2.between(previous, truth)
@@ -255,7 +265,7 @@ def write_square_recording(path: Path, route: list[np.ndarray] | None = None, se
                 odometry = se2.compose(odometry, noisy)
             previous = truth
             stamp_ns = 1_000_000_000 * (i + 1)
-            image = encode_image(square_view(truth, rng))
+            image = encode_image(square_view(truth + np.array([*view_offset, 0.0]), rng))
             writer.write(stamp_ns, image, odometry, truth)
 
 

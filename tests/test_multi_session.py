@@ -357,6 +357,80 @@ def test_damaged_place_views_are_one_error_naming_the_map(
     assert not out.exists()
 
 
+def _rendered(seed: int, aliasing: float = 0.0) -> dict[str, str]:
+    """A recording's metadata as the recorder writes it for a generated world (``aslam record``)."""
+    world = {
+        "kind": "generated", "cell_m": 0.25, "corridor_width_m": 2.0, "height_m": 2.5,
+        "free_area_m2": 77.5, "wall_panels": 47, "doors": round(5 * (1 - aliasing)), "alcoves": 7,
+        "lights": 8, "aliasing": aliasing, "shared_textures": 3, "aliased_panels": round(47 * aliasing),
+    }  # fmt: skip
+    return {"world": json.dumps(world, separators=(",", ":")), "seed": str(seed), "route": "square"}
+
+
+@pytest.mark.parametrize("looks", ["unlike the map", "like the map"])
+def test_a_session_rendered_in_another_world_is_scored_in_its_own(tmp_path, capsys, looks):
+    """Rendered worlds of other seeds share no place, but every world's truth starts at the route's
+    start: the same square driven in another world is at the map's true poses. None of its
+    keyframes revisits the map (it was every one of them, and recall the share it did not claim),
+    and a claim of the map's places, however alike they look, is wrong (it was right)."""
+    the_map, session = tmp_path / "map.mcap", tmp_path / "session.mcap"
+    write_square_recording(the_map, square_route()[: FIRST_LAP + 1], metadata=_rendered(seed=1))
+    offset = (100.0, 100.0) if looks == "unlike the map" else (0.0, 0.0)
+    write_square_recording(
+        session, second_session_route(5), seed=11, metadata=_rendered(seed=2), view_offset=offset
+    )
+    map_estimate, out = tmp_path / "map.est.mcap", tmp_path / "session.est.mcap"
+    assert main(["estimate", str(the_map), "-o", str(map_estimate), "-q"]) == 0
+    assert main(["estimate", str(session), "--map", str(map_estimate), "-o", str(out), "-q"]) == 0
+    summary, warnings = _report_and_warnings(out, capsys)
+    assert len(warnings) == 1 and "2 worlds that share no place (map.mcap; session.mcap)" in warnings[0]
+    closure = summary["loop_closure"]
+    assert closure["ground_truth_revisits"] <= 1  # the lap's last keyframe, at its own start
+    if looks == "unlike the map":
+        assert closure["claims"] <= 1 and closure["precision"] in (None, 1.0)
+    else:  # the estimator takes the look-alike world for the map
+        assert closure["claims"] >= 10 and closure["unjudged_claims"] == 0
+        assert closure["precision"] < 0.2 and summary["committed"]["precision"] < 0.2
+        assert all(v is None for v in summary["error"]["best"]["x_m"].values())  # two frames: no error
+    # Rendered in the same world (another aliasing: the same rooms), the same files score as one world.
+    same = tmp_path / "same.mcap"
+    write_square_recording(same, second_session_route(5), seed=11, metadata=_rendered(1, 0.5))
+    assert main(["estimate", str(same), "--map", str(map_estimate), "-o", str(out), "-q", "--force"]) == 0
+    summary, warnings = _report_and_warnings(out, capsys)
+    assert warnings == [] and summary["loop_closure"]["ground_truth_revisits"] == summary["keyframes"]
+
+
+def test_worlds_apart_in_the_metrics():
+    """Keyframes 0–1 of world 0, 2–3 of world 1 at the same true poses, 4 of an unknown world."""
+    from aslam.core.metrics import evaluate, ground_truth_revisits, score_assignment
+    from aslam.core.tree import Hypothesis
+
+    poses = np.array([[0.0, 0, 0], [1, 0, 0], [0, 0, 0], [1, 0, 0], [1, 0, 0]])
+    worlds = np.array([0, 0, 1, 1, -1])
+    assert ground_truth_revisits(poses, 0.5, 45).tolist() == [False, False, True, True, True]
+    assert ground_truth_revisits(poses, 0.5, 45, worlds).tolist() == [False, False, False, False, True]
+    steps = [(2, (Hypothesis(1, None, 0, 0.9, False),)), (3, (Hypothesis(2, 1, 3, 1.0, True),))]
+    steps += [(4, (Hypothesis(3, 2, 1, 1.0, False),))]  # a claim of world 0 from an unknown world: right
+    result = evaluate(iter(steps), poses, first_keyframe=2, count=3, worlds=worlds)
+    assert result.claims.tolist() == [True, False, True]
+    assert result.judged_claims.tolist() == [True, False, True]
+    assert result.correct.tolist() == [False, False, True] and result.precision == 0.5
+    assert np.isnan(result.best_error[0]).all() and result.true_revisit.tolist() == [False, False, True]
+    committed = score_assignment(np.array([0, 1, 0, 3, 1]), poses, first_keyframe=2, worlds=worlds)
+    assert committed.correct.tolist() == [False, False, True] and committed.precision == 0.5
+
+
+def test_world_identity_of_a_recording():
+    from aslam.data_formats.recording import world_identity
+
+    assert world_identity({}) is None  # an imported folder, a bag: one world assumed
+    assert world_identity(_rendered(1)) == world_identity(_rendered(1, aliasing=1.0))  # the same rooms
+    assert world_identity(_rendered(1)) != world_identity(_rendered(2))
+    scene = {"world": '{"kind":"scene-file","file":"a.glb","triangles":12}', "seed": "1"}
+    assert world_identity(scene) == world_identity({**scene, "seed": "2"})  # the seed is the noise's
+    assert world_identity({"world": "test"}) == "test"
+
+
 def test_new_ground_shaped_like_the_map_gets_no_claim_into_it(sessions, tmp_path, capsys):
     """The same square driven elsewhere (other views, the same odometry): nothing is the map."""
     elsewhere = [pose + np.array([100.0, 100.0, 0.0]) for pose in second_session_route(5)]
