@@ -233,6 +233,11 @@ def load_prior_map(path: Path, config: EstimatorConfig) -> tuple[PriorMap, MapId
     if not path.exists():
         raise InputError("no such map (an estimate file from `aslam estimate`)", path=path)
     info = read_estimate(path)
+    if not info.graph.states:  # no views are stored for no places: not a map made before views were
+        raise EstimateError(
+            "the map is empty (its run had no keyframes): nothing to start in; estimate without --map",
+            path=path,
+        )
     views = read_place_views(path)
     try:
         made_with = estimator_config(info.metadata.config)

@@ -49,6 +49,7 @@ def estimate(**options: Any) -> None:
 
     fixed = {name: options.pop(name) for name in _FIXED}
     terminal = Terminal(quiet=fixed["quiet"], verbose=fixed["verbose"])
+    the_map = _one_map(fixed["map"])
     topics = TopicChoice(
         image=fixed["image_topic"], odometry=fixed["odometry_topic"], ground_truth=fixed["ground_truth_topic"]
     )
@@ -66,7 +67,7 @@ def estimate(**options: Any) -> None:
             force=fixed["force"],
             timing=not fixed["no_timing"],
             workers=fixed["workers"],
-            prior=fixed["map"],
+            prior=the_map,
             on_progress=on_progress,
             on_warning=terminal.warning,
         )
@@ -79,6 +80,22 @@ def estimate(**options: Any) -> None:
         f"SLAM step {summary.slam_s:.3f} s, metric view (GTSAM + Foxglove scene) {summary.embed_s:.3f} s, "
         f"of {summary.wall_s:.3f} s wall"
     )
+
+
+def _one_map(maps: list[Path] | None) -> Path | None:
+    """The one ``--map``; given twice (click keeps the last in silence) it is exit 2, unless both
+    name the same file: a run starts in one map, and maps are merged by chaining sessions."""
+    if not maps:
+        return None
+    from aslam.core.errors import InputError
+    from aslam.data_formats.files import real_path
+
+    if len({real_path(path) for path in maps}) > 1:
+        raise InputError(
+            f"--map given {len(maps)} times ({', '.join(map(str, maps))}): a run starts in one map;"
+            " to join sessions, chain them (estimate B --map A.est.mcap, then C --map B.est.mcap)"
+        )
+    return maps[0]
 
 
 def _progress_bar(terminal: Terminal) -> tuple[AbstractContextManager[Any], Callable[..., None] | None]:
@@ -146,12 +163,12 @@ _FIXED: dict[str, tuple[Any, Any]] = {
     ),
     "map": (
         Annotated[
-            Path | None,
+            list[Path] | None,  # a list only to refuse a second map, which would silently win
             typer.Option(
                 "--map",
                 help="Start in the map of an earlier estimate file (multi-session): the robot's place in it"
                 " is found by appearance, then it is tracked and the map extended. Use the same"
-                " observation settings as that run.",
+                " observation settings as that run. One map: chain sessions to grow it.",
                 dir_okay=False,
             ),
         ],

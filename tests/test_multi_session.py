@@ -202,6 +202,7 @@ def test_a_map_sessions_recording_missing_names_the_estimate_that_names_it(tmp_p
         ("recording", "not an aslam estimate file"),
         ("missing", "no such map"),
         ("histogram", "give this run the map's options"),
+        ("empty", "the map is empty (its run had no keyframes)"),  # was: views 'not stored'
     ],
 )
 def test_a_map_that_cannot_be_used_is_one_line_and_exit_2(sessions, tmp_path, capsys, make_map, words):
@@ -209,6 +210,17 @@ def test_a_map_that_cannot_be_used_is_one_line_and_exit_2(sessions, tmp_path, ca
         the_map = sessions["first"]
     elif make_map == "missing":
         the_map = tmp_path / "nowhere.est.mcap"
+    elif make_map == "empty":  # the estimate of a run without a keyframe, as `estimate` writes it
+        from aslam.data_formats import estimate as estimate_format
+
+        the_map = tmp_path / "empty.est.mcap"
+        estimator = Estimator()
+        metadata = estimate_format.EstimateMetadata(
+            "test", {}, estimate_format.RecordingIdentity("/nowhere.mcap", 0, "0" * 64), {}
+        )
+        views = estimate_format.PlaceViews("thumbnail", np.zeros(0, np.int64), estimator.place_views(()))
+        with estimate_format.EstimateWriter(the_map, tool_version="test") as writer:
+            writer.finish(estimator.result(), metadata, None, None, views)
     else:
         the_map = tmp_path / "histogram.est.mcap"
         args = [
@@ -228,6 +240,20 @@ def test_a_map_that_cannot_be_used_is_one_line_and_exit_2(sessions, tmp_path, ca
     assert code == 2
     assert str(the_map) in line and words in line
     assert not out.exists()
+
+
+def test_two_maps_are_one_line_and_exit_2_not_the_last_in_silence(sessions, tmp_path, capsys):
+    """A run starts in one map; a second --map was taken and the first dropped without a word."""
+    out = tmp_path / "out.est.mcap"
+    first, second = str(sessions["first.est"]), str(sessions["second.est"])
+    capsys.readouterr()
+    code = main(["estimate", str(sessions["second"]), "--map", first, "--map", second, "-o", str(out)])
+    line = one_error_line(capsys.readouterr().err)
+    assert code == 2 and "--map given 2 times" in line and "chain" in line and not out.exists()
+    same = str(sessions["first.est"].parent / "." / sessions["first.est"].name)  # one file, twice
+    args = ["estimate", str(sessions["second"]), "--map", first, "--map", same, "-o", str(out)]
+    assert main([*args, "-q", "--no-timing"]) == 0
+    assert out.read_bytes() == sessions["second.est"].read_bytes()
 
 
 # --- the core --------------------------------------------------------------------------------------
