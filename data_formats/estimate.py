@@ -271,6 +271,13 @@ class EstimateMetadata:
 
     @classmethod
     def from_record(cls, record: Mapping[str, str], path: Path) -> EstimateMetadata:
+        version = record.get("format_version", FORMAT_VERSION)  # files before it had one: format 1
+        if version != FORMAT_VERSION:
+            raise EstimateError(
+                f"estimate file format {version!r}, written by aslam {record.get('tool_version', '?')};"
+                f" this aslam reads format {FORMAT_VERSION!r}",
+                path=path,
+            )
         try:
             metadata = cls(
                 tool_version=record["tool_version"],

@@ -256,6 +256,26 @@ def test_two_maps_are_one_line_and_exit_2_not_the_last_in_silence(sessions, tmp_
     assert out.read_bytes() == sessions["second.est"].read_bytes()
 
 
+@pytest.mark.parametrize("command", ["estimate --map", "report"])
+def test_an_estimate_of_another_format_is_one_line_naming_its_aslam(
+    sessions, tmp_path, monkeypatch, capsys, command
+):
+    """An estimate file of another format version (a later aslam's) was read as if it were this one's."""
+    from aslam.data_formats import estimate as estimate_format
+
+    monkeypatch.setattr(estimate_format, "FORMAT_VERSION", "2")
+    later = tmp_path / "later.est.mcap"
+    assert main(["estimate", str(sessions["first"]), "-o", str(later), "-q"]) == 0
+    monkeypatch.undo()
+    out = tmp_path / "out.est.mcap"
+    args = ["estimate", str(sessions["second"]), "--map", str(later), "-o", str(out)]
+    capsys.readouterr()
+    assert main(args if command != "report" else ["report", str(later)]) == 2
+    line = one_error_line(capsys.readouterr().err)
+    assert str(later) in line and "estimate file format '2', written by aslam" in line
+    assert "this aslam reads format '1'" in line
+
+
 # --- the core --------------------------------------------------------------------------------------
 
 
