@@ -130,6 +130,12 @@ def estimate(
     check_output_path(output, force=force, error=EstimateError, inputs=inputs)
     warn = on_warning or (lambda _line: None)
     start_map, map_identity = (None, None) if prior is None else load_prior_map(full_path(prior), config)
+    if prior is not None and config.candidate_search == "path":
+        warn(
+            "--candidate-search path (--paper-faithful) follows this run's own path only: in a map it"
+            " can place the first keyframe but not follow the map's places after it; give"
+            " --candidate-search graph to track the map"
+        )
     source = open_input(recording, topics, on_warning=warn)
     total = source.image_count()
     estimator = Estimator(config, start_map, odometry_known=source.odometry_known)

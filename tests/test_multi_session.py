@@ -256,6 +256,20 @@ def test_two_maps_are_one_line_and_exit_2_not_the_last_in_silence(sessions, tmp_
     assert out.read_bytes() == sessions["second.est"].read_bytes()
 
 
+def test_the_paths_candidate_search_in_a_map_warns_that_it_cannot_follow_it(sessions, tmp_path, capsys):
+    """The paper's path search walks only this run's path back: past the first keyframe no place
+    of the map is ever predicted, so a session in the map claims almost nothing, in silence."""
+    out = tmp_path / "path.est.mcap"
+    args = ["estimate", str(sessions["second"]), "--map", str(sessions["first.est"]), "-o", str(out)]
+    capsys.readouterr()
+    assert main([*args, "--candidate-search", "path"]) == 0
+    warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("aslam: warning:")]
+    assert len(warnings) == 1 and "--candidate-search graph" in warnings[0]
+    along_the_path = report_json(out, capsys=capsys)["loop_closure"]["claims"]
+    through_the_map = report_json(sessions["second.est"], capsys=capsys)["loop_closure"]["claims"]
+    assert along_the_path <= 3 < 0.8 * len(second_session_route(5)) <= through_the_map
+
+
 @pytest.mark.parametrize("command", ["estimate --map", "report"])
 def test_an_estimate_of_another_format_is_one_line_naming_its_aslam(
     sessions, tmp_path, monkeypatch, capsys, command
