@@ -53,7 +53,8 @@ def write_plots(folder: Path, report: Report, on_warning: Callable[[str], None] 
     paths = [folder / name for name in PLOT_NAMES[:4]]
     _save(_hypotheses_figure(report.evaluation, title), paths[0])
     _save(_errors_figure(report.evaluation, title), paths[1])
-    _save(_map_figure(report.estimate.graph, report.actions, report.true_poses, title), paths[2])
+    map_truth = None if report.true_poses is None else report.map_truth
+    _save(_map_figure(report.estimate.graph, report.actions, report.true_poses, title, map_truth), paths[2])
     _save(_pr_figure(report.evaluation, report.summary["committed"], title), paths[3])
     if report.embedding is not None:
         paths.append(folder / PLOT_NAMES[4])
@@ -255,7 +256,15 @@ def _errors_figure(evaluation: Evaluation, title: str) -> Any:
     return fig
 
 
-def _map_figure(graph: EstimateGraph, actions: np.ndarray, true_poses: np.ndarray | None, title: str) -> Any:
+def _map_figure(
+    graph: EstimateGraph,
+    actions: np.ndarray,
+    true_poses: np.ndarray | None,
+    title: str,
+    map_truth: np.ndarray | None = None,
+) -> Any:
+    """``true_poses``: this run's keyframes' truth; ``map_truth``: every keyframe's of the map (a run
+    in a prior map: the map's sessions', then this run's), where the places are drawn."""
     import matplotlib.pyplot as plt
     from matplotlib.collections import LineCollection
 
@@ -267,11 +276,17 @@ def _map_figure(graph: EstimateGraph, actions: np.ndarray, true_poses: np.ndarra
         start = true_poses[np.flatnonzero(np.isfinite(true_poses).all(axis=1))[0]]
     # Odometry, drawn from the first true pose: the keyframe actions composed.
     odometry = dead_reckoning(actions, start)
-    where = true_poses if has_truth else odometry
-    assert where is not None
+    first = graph.first_keyframe
     position = {}
-    for state in graph.states:
-        pose = where[state.id] if state.id < len(where) else None
+    for state in graph.states:  # state ids are keyframes of the whole map, prior sessions first
+        if has_truth:
+            truth = true_poses if map_truth is None else map_truth
+            assert truth is not None
+            keyframe = state.id if map_truth is not None else state.id - first
+            pose = truth[keyframe] if 0 <= keyframe < len(truth) else None
+        else:  # where this run first was at the place by odometry (a prior place it never visited: not drawn)
+            visits = [k - first for k in state.keyframes if first <= k < first + len(odometry)]
+            pose = odometry[min(visits)] if visits else None
         if pose is not None and np.isfinite(pose[:2]).all():
             position[state.id] = pose[:2]
     if has_truth:

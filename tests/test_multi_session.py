@@ -93,6 +93,26 @@ def test_the_graph_json_names_the_first_keyframe_and_the_truth_of_every_place(se
     assert all(state["first_visit_truth"] is not None for state in graph["states"])
 
 
+def test_the_map_plot_draws_every_place_of_the_map_where_it_is(sessions, tmp_path, monkeypatch):
+    """map.png of a run in a prior map: every place at its first visit's true position (state ids
+    are keyframes of the whole map). It drew the places whose ids were below this run's keyframe
+    count, each at this run's truth of that index (another place), and none of the others."""
+    from aslam.app import plots
+    from aslam.app.score import score
+
+    drawn = {}
+    monkeypatch.setattr(plots, "_save", lambda figure, path: drawn.setdefault(path.name, figure))
+    report = score(sessions["second.est"])
+    plots.write_plots(tmp_path, report)
+    states = report.estimate.graph.states
+    assert report.map_truth is not None and len(states) > len(report.stamps_ns) - 2
+    for line in drawn["map.png"].axes[0].lines:  # each place, in id order, at its own first visit
+        again = {"place": False, "place visited again": True}.get(str(line.get_label()))
+        if again is not None:
+            expected = [report.map_truth[s.id][:2] for s in states if (len(s.keyframes) > 1) == again]
+            np.testing.assert_allclose(np.column_stack(line.get_data()), np.reshape(expected, (-1, 2)))
+
+
 def test_without_a_map_the_same_recording_is_a_new_map(sessions, tmp_path, capsys):
     """The control: without --map only the lap's own closing keyframe can be a revisit."""
     alone = tmp_path / "alone.est.mcap"
