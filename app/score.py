@@ -476,13 +476,14 @@ def _worlds(sessions: list[_Session], warn: Callable[[str], None]) -> np.ndarray
     known = list(dict.fromkeys(key for key in keys if key is not None))
     if len(known) < 2:
         return None
-    groups = [
-        ", ".join(dict.fromkeys(s.recording.name for s, k in zip(sessions, keys, strict=True) if k == key))  # type: ignore[union-attr]
-        for key in known
-    ]
+    names: dict[str, dict[str, None]] = {key: {} for key in known}
+    for session, key in zip(sessions, keys, strict=True):
+        if key is not None and session.recording is not None:
+            names[key][session.recording.name] = None
+    groups = "; ".join(", ".join(world) for world in names.values())
     warn(
-        f"the map's sessions were rendered in {len(known)} worlds that share no place"
-        f" ({'; '.join(groups)}): no keyframe revisits another world's places, and a claim of one is wrong"
+        f"the map's sessions were rendered in {len(known)} worlds that share no place ({groups}):"
+        " no keyframe revisits another world's places, and a claim of one is wrong"
     )
     ids = [-1 if key is None else known.index(key) for key in keys]
     return np.repeat(np.array(ids, dtype=np.int64), [session.keyframes for session in sessions])
@@ -574,7 +575,11 @@ def _find_recording(
     path = Path(named)
     if not path.exists():
         beside = full_path(estimate).parent / path.name
-        if beside != path and beside.exists() and _size_bytes(beside, None) == size_bytes:
+        try:
+            moved = beside != path and beside.exists() and _size_bytes(beside) == size_bytes
+        except (InputError, OSError):  # a folder of no bag, a file we may not read
+            moved = False
+        if moved:
             return beside
         warn(f"recording {named} (named in {estimate}) not found; {without}")
         return None
@@ -584,15 +589,9 @@ def _find_recording(
     return path
 
 
-def _size_bytes(path: Path, default: int | None = -1) -> int | None:
-    """Bytes of a recording (a bag folder's files summed); ``default`` where it cannot be read (-1:
-    raise)."""
-    try:
-        return sum(file.stat().st_size for file in source_files(path))
-    except (InputError, OSError):
-        if default == -1:
-            raise
-        return default
+def _size_bytes(path: Path) -> int:
+    """Bytes of a recording (a bag folder's files summed)."""
+    return sum(file.stat().st_size for file in source_files(path))
 
 
 def _ground_truth(
