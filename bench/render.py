@@ -275,9 +275,13 @@ def render(results_path: Path, doc: Path, img: Path) -> None:
     long_run = results["runs"][results["families"]["long"][0]]
     drift_plot(long_run, img / DRIFT_PLOT)
     doc.parent.mkdir(parents=True, exist_ok=True)
+    doc.write_text(render_text(results, os.path.relpath(img, doc.parent), robust_tables(results_path)))
+
+
+def robust_tables(results_path: Path) -> dict[str, str]:
+    """The robust-revisit matrix's tables beside the results JSON, by the template's name for each."""
     paths = {name: results_path.with_name(file) for name, file in ROBUST_TABLES.items()}
-    robust_tables = {name: path.read_text() for name, path in paths.items() if path.exists()}
-    doc.write_text(render_text(results, os.path.relpath(img, doc.parent), robust_tables))
+    return {name: path.read_text() for name, path in paths.items() if path.exists()}
 
 
 def main() -> None:

@@ -262,3 +262,12 @@ def test_matrix_tables_appear_where_given(results: dict[str, Any]) -> None:
     assert "seeds 13–14" in latest and "seeds 13–14" not in page(*before_fresh)
     assert "The knob mixes and the events on other renders" in latest
     assert "The knob mixes and the events on other renders" not in page(*before_fresh, "robust_fresh")
+
+
+def test_committed_page_is_its_committed_results_rendered() -> None:
+    """docs/benchmarks.md is what `make bench-doc` makes of the committed results and tables, so a
+    template edit is rendered before it is committed (the page is never edited by hand)."""
+    results = json.loads(render.RESULTS.read_text())
+    text = render.render_text(results, "img", render.robust_tables(render.RESULTS))
+    page = render.ROOT / "docs" / "benchmarks.md"
+    assert text == page.read_text(), "docs/benchmarks.md is stale: run `make bench-doc`"
