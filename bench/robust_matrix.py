@@ -15,7 +15,7 @@ through the application layer (``aslam.app``), not the CLI.
     python bench/robust_matrix.py --seeds 6 7 8 --workers 2 \
         --routes paper figure8 grid bench/routes/ell.json bench/routes/corridor.json \
         --markdown bench/results/robust_matrix_held_out.md    # held out
-    python bench/robust_matrix.py --families mix-fps5-lighting50 mix-fps10-noise5 … --seeds 6 7 \
+    python bench/robust_matrix.py --families mix-fps5-lighting50 mix-fps10-noise5 … --seeds 6 7 8 \
         --markdown bench/results/robust_matrix_mixes.md     # knobs mixed (MIXES), held out
     python bench/robust_matrix.py --families kidnap@lighting50 reset@fps5 …   # events on other renders
     python bench/robust_matrix.py --table-from bench/results/robust_matrix.json --markdown M.md
