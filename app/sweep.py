@@ -91,6 +91,8 @@ WORKERS_WAIT_S = 30.0
 WORKERS_CHECK_S = 5.0
 #: How long a scheduler has to say who it is.
 SCHEDULER_ANSWER_S = 10.0
+#: How long a scheduler file may take to appear: a batch job starts the scheduler and the sweep together.
+SCHEDULER_FILE_WAIT_S = 30.0
 
 
 def _digest(value: Any) -> str:
@@ -567,6 +569,32 @@ class SweepRun:
             raise TasksFailed(
                 f"{self.failed} of {len(self.tasks)} tasks failed; their rows say why", path=self.csv
             )
+
+
+def scheduler_address(scheduler_file: Path) -> str:
+    """The address in the file ``dask scheduler --scheduler-file`` writes (as dask-mpi and HPC job
+    scripts use), read with Dask's own reader: a file still being written, or not yet there, is
+    waited for up to ``SCHEDULER_FILE_WAIT_S``, as ``Client(scheduler_file=...)`` does."""
+    from distributed.utils import json_load_robust
+
+    try:
+        info = json_load_robust(str(scheduler_file), timeout=SCHEDULER_FILE_WAIT_S)
+    except TimeoutError:
+        waited = f"{SCHEDULER_FILE_WAIT_S:g} s"
+        problem = (
+            f"not a Dask scheduler file (no JSON in it after {waited})"
+            if Path(scheduler_file).exists()
+            else f"no such Dask scheduler file (waited {waited} for the scheduler to write it)"
+        )
+        raise InputError(problem, path=scheduler_file) from None
+    except OSError as err:  # a folder, no permission
+        raise InputError(
+            f"cannot read the Dask scheduler file: {error_text(err)}", path=scheduler_file
+        ) from err
+    address = info.get("address") if isinstance(info, dict) else None
+    if not isinstance(address, str) or not address:
+        raise InputError("not a Dask scheduler file (no 'address')", path=scheduler_file)
+    return address
 
 
 def open_client(*, workers: int | None, scheduler: str | None) -> Any:

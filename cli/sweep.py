@@ -39,6 +39,14 @@ def sweep(
         str | None,
         typer.Option(help="Use the Dask cluster at this address (tcp://HOST:PORT) instead of a local one."),
     ] = None,
+    scheduler_file: Annotated[
+        Path | None,
+        typer.Option(
+            help="Use the Dask cluster whose scheduler wrote this file (`dask scheduler --scheduler-file`,"
+            " dask-mpi, a batch job's script); waited for up to 30 s.",
+            show_default=False,
+        ),
+    ] = None,
     pareto: Annotated[
         str | None,
         typer.Option(
@@ -69,7 +77,7 @@ def sweep(
 
     Exit codes: 0 every task succeeded, 3 some tasks failed (their rows say why), 2 bad input.
     """
-    from aslam.app.sweep import resolve_objectives, run_sweep
+    from aslam.app.sweep import resolve_objectives, run_sweep, scheduler_address
     from aslam.app.sweep_file import read_sweep_file
     from aslam.core.errors import InputError
     from aslam.data_formats.files import check_output_path
@@ -79,8 +87,12 @@ def sweep(
         raise InputError("--json writes the plan of --dry-run; give both")
     if json_out is not None and json_out != "-":  # before the recordings are hashed
         check_output_path(Path(json_out), force=True, inputs=[sweep_file])
+    if scheduler_file is not None and scheduler is not None:
+        raise InputError("--scheduler and --scheduler-file both name the cluster; give one")
     objectives = resolve_objectives(pareto) if pareto is not None else []
     spec = read_sweep_file(sweep_file)
+    if scheduler_file is not None:
+        scheduler = scheduler_address(scheduler_file)
     if dry_run:
         _dry_run(spec, output, workers, scheduler, force, json_out, terminal)
         return

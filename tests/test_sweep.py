@@ -249,7 +249,8 @@ def test_a_dry_run_lists_what_would_run_without_a_cluster_or_a_write(local_run, 
 
 
 def test_a_cluster_started_separately_gives_the_same_rows(local_run, recordings, tmp_path):
-    """`dask scheduler` and `dask worker` as real processes; the sweep joins with --scheduler."""
+    """`dask scheduler` and `dask worker` as real processes; the sweep joins with --scheduler-file,
+    as a batch job's script does (the address itself, --scheduler, in the tests below)."""
     dask = Path(sys.executable).with_name("dask")
     scheduler_file = tmp_path / "scheduler.json"
     processes = [
@@ -280,9 +281,8 @@ def test_a_cluster_started_separately_gives_the_same_rows(local_run, recordings,
             )
         )
         results = tmp_path / "results"
-        code = main(
-            ["sweep", str(_write_sweep(recordings)), "-o", str(results), "--scheduler", address, "-q"]
-        )
+        sweep = str(_write_sweep(recordings))
+        code = main(["sweep", sweep, "-o", str(results), "--scheduler-file", str(scheduler_file), "-q"])
         with Client(address, timeout=30) as client:  # the workers of *this* scheduler, none other
             cluster_workers = set(client.scheduler_info()["workers"])
     finally:
@@ -295,6 +295,29 @@ def test_a_cluster_started_separately_gives_the_same_rows(local_run, recordings,
     ran_on = {row["worker"] for row in rows if row["status"] == "ok"}
     assert ran_on and ran_on <= cluster_workers
     assert _figures(rows) == _figures(_rows(local_run[1]))
+
+
+def test_a_bad_scheduler_file_is_one_line_before_any_work(recordings, tmp_path, capsys, monkeypatch):
+    from aslam.app import sweep as sweep_module
+
+    monkeypatch.setattr(sweep_module, "SCHEDULER_FILE_WAIT_S", 0.3)
+    sweep = str(_write_sweep(recordings))
+    results = tmp_path / "results"
+    not_json, no_address = tmp_path / "notes.json", tmp_path / "other.json"
+    not_json.write_text("not json\n")
+    no_address.write_text('{"type": "Scheduler"}\n')
+    cases = [
+        (["--scheduler-file", str(tmp_path / "missing.json")], "no such Dask scheduler file (waited 0.3 s"),
+        (["--scheduler-file", str(not_json)], "not a Dask scheduler file (no JSON in it after 0.3 s)"),
+        (["--scheduler-file", str(no_address)], "not a Dask scheduler file (no 'address')"),
+        (["--scheduler-file", str(tmp_path)], "cannot read the Dask scheduler file"),
+        (["--scheduler-file", str(no_address), "--scheduler", "tcp://h:1"], "both name the cluster"),
+    ]
+    for options, needle in cases:
+        assert main(["sweep", sweep, "-o", str(results), *options, "-q"]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("aslam: error: ") and err.count("\n") == 1 and needle in err, err
+    assert not results.exists()
 
 
 def test_a_rerun_skips_the_done_tasks_and_force_recomputes(local_run, recordings):
