@@ -117,7 +117,9 @@ def stamp_text_ns(text: str, unit: StampUnit | str | None = None) -> int:
     if not value.is_finite() or value < 0:
         raise ValueError(f"stamp '{text}' is not a finite, non-negative time")
     if unit is not None:
-        stamp_ns = int(value * NS_PER_UNIT[StampUnit(unit)])
+        # Past the last nanosecond is past it in any unit: not multiplied, as 1e999999 (a file name)
+        # would overflow the product, decimal.Overflow, an internal error.
+        stamp_ns = int(min(value, ros_msgs.LAST_STAMP_NS + 1) * NS_PER_UNIT[StampUnit(unit)])
     elif value >= NANOSECOND_STAMP_MIN and value == value.to_integral_value():
         stamp_ns = int(value)
     else:

@@ -277,6 +277,14 @@ def test_the_stamp_unit_reads_file_names_too(tmp_path):
     assert [s.stamp_ns for s in folder.samples()] == [v * 1000 for v in stamps_us]
 
 
+@pytest.mark.parametrize("unit", ["s", "ms", "us"])
+def test_a_name_past_any_time_in_a_unit_is_one_line(tmp_path, unit):
+    """1e999999.png with --stamp-unit: past 2038 in the unit, not an overflow of Decimal (exit 70)."""
+    write_images(tmp_path / "huge", 2, name=lambda i: f"{i + 1}e999999.png")
+    with pytest.raises(InputError, match=rf"1e999999\.png: file name: stamp '1e999999' {unit} is after 2038"):
+        open_image_folder(tmp_path / "huge", stamp_unit=unit)
+
+
 @pytest.mark.parametrize(
     ("text", "fmt", "needle"),
     [
