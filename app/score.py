@@ -533,10 +533,21 @@ def _find_map(
 
 def _same_map(prior: EstimateFile, extended: EstimateFile, keyframes: int) -> bool:
     """Whether ``prior``'s map is the one ``extended`` started in: its ``keyframes`` keyframes, each
-    at the place ``extended`` has it at (a run in a map never moves the map's keyframes)."""
-    return prior.graph.keyframes == keyframes and np.array_equal(
+    at the place ``extended`` has it at (a run in a map never moves the map's keyframes), and its
+    links there as measured (a run adds to a link's count and fuses its action, else leaves it as
+    the map had it): another run of the route mapped alike has its own odometry in every link."""
+    if prior.graph.keyframes != keyframes or not np.array_equal(
         map_assignment(prior.graph.states, keyframes), map_assignment(extended.graph.states, keyframes)
-    )
+    ):
+        return False
+    links = {(link.from_state, link.to_state): link for link in extended.graph.links}
+    for link in prior.graph.links:
+        found = links.get((link.from_state, link.to_state))
+        if found is None or found.count < link.count:
+            return False
+        if found.count == link.count and not np.allclose(found.action, link.action, rtol=1e-9, atol=1e-12):
+            return False
+    return True
 
 
 def map_assignment(states: Iterable[Any], keyframes: int) -> np.ndarray:

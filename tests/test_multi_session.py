@@ -480,6 +480,35 @@ def test_a_session_rendered_in_another_world_is_scored_in_its_own(tmp_path, caps
     assert warnings == [] and summary["loop_closure"]["ground_truth_revisits"] == summary["keyframes"]
 
 
+@pytest.mark.parametrize("again", ["its own recording", "another run of its route"])
+def test_a_map_estimated_again_from_another_run_is_another_map(tmp_path, capsys, again):
+    """A map replaced by the estimate of another run of its route (the same keyframes at the same
+    places, other odometry) is not the map a session in it started in, where the session left the
+    map's links as they were: its keyframes are not scored against that run's truth (they were, in
+    silence); estimated again from its own recording (no timing: other bytes) it is the same map."""
+    the_map, session = tmp_path / "map.mcap", tmp_path / "session.mcap"
+    write_square_recording(the_map, square_route()[: FIRST_LAP + 1], metadata=_rendered(seed=1))
+    write_square_recording(
+        session, second_session_route(5), seed=11, metadata=_rendered(seed=2), view_offset=(100.0, 100.0)
+    )
+    map_estimate, out = tmp_path / "map.est.mcap", tmp_path / "session.est.mcap"
+    assert main(["estimate", str(the_map), "-o", str(map_estimate), "-q"]) == 0
+    assert main(["estimate", str(session), "--map", str(map_estimate), "-o", str(out), "-q"]) == 0
+    source = the_map
+    if again == "another run of its route":
+        source = tmp_path / "other.mcap"
+        write_square_recording(source, square_route()[: FIRST_LAP + 1], seed=8, metadata=_rendered(seed=1))
+    args = ["estimate", str(source), "-o", str(map_estimate), "-q", "--force", "--no-timing"]
+    assert main(args) == 0
+    _, warnings = _report_and_warnings(out, capsys)
+    replaced = [line for line in warnings if "is not the map" in line]
+    if again == "its own recording":
+        assert replaced == []
+    else:
+        assert len(replaced) == 1 and str(map_estimate) in replaced[0]
+        assert "the keyframes of that map are not scored" in replaced[0]
+
+
 def test_worlds_apart_in_the_metrics():
     """Keyframes 0–1 of world 0, 2–3 of world 1 at the same true poses, 4 of an unknown world."""
     from aslam.core.metrics import evaluate, ground_truth_revisits, score_assignment
