@@ -234,7 +234,7 @@ def load_prior_map(path: Path, config: EstimatorConfig) -> tuple[PriorMap, MapId
     from aslam.app.metric_view import estimator_config
     from aslam.core.estimator import prior_map
     from aslam.core.observation import descriptor_key
-    from aslam.data_formats.estimate import MapIdentity, read_estimate, read_place_views
+    from aslam.data_formats.estimate import MapIdentity, map_digest, read_estimate, read_place_views
 
     if not path.exists():
         raise InputError("no such map (an estimate file from `aslam estimate`)", path=path)
@@ -261,7 +261,8 @@ def load_prior_map(path: Path, config: EstimatorConfig) -> tuple[PriorMap, MapId
         raise EstimateError(f"not a usable map: {err}", path=path) from err
     if not np.array_equal(start.states, views.states):
         raise EstimateError("the stored views are not those of the map's places", path=path)
-    return start, MapIdentity(str(path), source_sha256(path), info.graph.keyframes)
+    identity = MapIdentity(str(path), source_sha256(path), info.graph.keyframes, map_digest(info.graph))
+    return start, identity
 
 
 def _size_bytes(files: list[Path]) -> int:

@@ -29,7 +29,7 @@ from aslam.core.errors import InputError
 from aslam.core.mapgraph import GrowableArray
 from aslam.core.metrics import AssignmentScore, Evaluation, evaluate, score_assignment
 from aslam.data_formats.errors import EstimateError, RecordingError
-from aslam.data_formats.estimate import EstimateFile, iter_keyframes, read_estimate
+from aslam.data_formats.estimate import EstimateFile, iter_keyframes, map_digest, read_estimate
 from aslam.data_formats.files import full_path, source_files, source_sha256
 from aslam.data_formats.graph_json import build_graph_json
 from aslam.data_formats.pose_sync import TRUTH_MAX_GAP_NS
@@ -520,7 +520,10 @@ def _find_map(
         try:
             candidate_info = read_estimate(candidate)
             same = source_sha256(candidate) == prior.sha256
-            same = same or _same_map(candidate_info, info, prior.keyframes)
+            if not same and prior.graph_sha256 is not None:
+                same = map_digest(candidate_info.graph) == prior.graph_sha256
+            elif not same:  # an estimate written before the map's digest was stored
+                same = _same_map(candidate_info, info, prior.keyframes)
         except InputError as err:  # EstimateError among them: damaged, not an estimate
             problems.append(str(err))
             continue

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import base64
 import binascii
+import hashlib
 import json
 from collections.abc import Iterator, Mapping
 from contextlib import closing
@@ -242,6 +243,10 @@ class MapIdentity:
     sha256: str
     keyframes: int
     """Keyframes in that map: this run's keyframes are numbered from here."""
+    graph_sha256: str | None = None
+    """:func:`map_digest` of that map: the same after it is estimated again with other timing or
+    topics (other bytes), another for another run's map of the same layout. None in files written
+    before it was stored (2026-12-05)."""
 
 
 @dataclass(frozen=True)
@@ -267,6 +272,8 @@ class EstimateMetadata:
             record["map_path"] = self.prior_map.path
             record["map_sha256"] = self.prior_map.sha256
             record["map_keyframes"] = str(self.prior_map.keyframes)
+            if self.prior_map.graph_sha256 is not None:
+                record["map_graph_sha256"] = self.prior_map.graph_sha256
         return record
 
     @classmethod
@@ -290,7 +297,12 @@ class EstimateMetadata:
                 topics=json.loads(record["topics"], parse_constant=_no_constant),
                 prior_map=None
                 if "map_path" not in record
-                else MapIdentity(record["map_path"], record["map_sha256"], int(record["map_keyframes"])),
+                else MapIdentity(
+                    record["map_path"],
+                    record["map_sha256"],
+                    int(record["map_keyframes"]),
+                    record.get("map_graph_sha256"),
+                ),
             )
         except (KeyError, ValueError, TypeError, RecursionError) as err:
             raise EstimateError(f"unreadable '{ESTIMATE_METADATA}' metadata ({err!r})", path=path) from err
@@ -644,6 +656,27 @@ def _graph_reference_problem(graph: EstimateGraph) -> str | None:
         if link.from_state not in ids or link.to_state not in ids:
             return f"link {link.from_state} → {link.to_state} names a state that does not exist"
     return None
+
+
+def map_digest(graph: EstimateGraph) -> str:
+    """SHA-256 of a map as a run in it depends on it: its keyframes, each place's keyframes, each
+    link's measurement and count. Timing and topics, which change an estimate file's bytes but not
+    its map, are left out; another run's odometry changes every link."""
+    document = [
+        graph.keyframes,
+        [[state.id, list(state.keyframes)] for state in graph.states],
+        [
+            [
+                link.from_state,
+                link.to_state,
+                list(link.action),
+                [list(row) for row in link.covariance],
+                link.count,
+            ]
+            for link in graph.links
+        ],
+    ]
+    return hashlib.sha256(json.dumps(document, separators=(",", ":")).encode()).hexdigest()
 
 
 def read_estimate(path: Path) -> EstimateFile:

@@ -75,7 +75,7 @@ def runs(draw):
         draw(st.dictionaries(text, st.one_of(st.none(), st.booleans(), small, number, text), max_size=4)),
         estimate_format.RecordingIdentity(draw(text), draw(small), draw(text)),
         draw(st.dictionaries(st.sampled_from(estimate_format.TOPIC_KEYS), st.one_of(st.none(), text))),
-        draw(st.one_of(st.none(), st.builds(estimate_format.MapIdentity, text, text, small))),
+        draw(st.none() | st.builds(estimate_format.MapIdentity, text, text, small, st.none() | text)),
     )
     timing = draw(
         st.one_of(

@@ -509,6 +509,29 @@ def test_a_map_estimated_again_from_another_run_is_another_map(tmp_path, capsys,
         assert "the keyframes of that map are not scored" in replaced[0]
 
 
+def test_a_map_replaced_by_another_run_is_known_even_where_the_session_drove_every_link(tmp_path, capsys):
+    """A session that drives the whole map again leaves no link as the map had it, so a map file
+    replaced by another run's estimate of the same layout looked like the map (the same keyframes
+    at the same places); the estimate now names the map by a digest of its places and links."""
+    the_map, session = tmp_path / "map.mcap", tmp_path / "session.mcap"
+    write_square_recording(the_map, square_route()[: FIRST_LAP + 1], metadata=_rendered(seed=1))
+    write_square_recording(session, second_session_route(5), seed=11, metadata=_rendered(seed=1))
+    map_estimate, out = tmp_path / "map.est.mcap", tmp_path / "session.est.mcap"
+    assert main(["estimate", str(the_map), "-o", str(map_estimate), "-q"]) == 0
+    assert main(["estimate", str(session), "--map", str(map_estimate), "-o", str(out), "-q"]) == 0
+    summary, warnings = _report_and_warnings(out, capsys)
+    assert warnings == [] and summary["loop_closure"]["correct"] >= FIRST_LAP - 2  # the whole map driven
+    for source, replaced in ((the_map, False), (tmp_path / "other.mcap", True)):
+        if replaced:  # another run of the same route: the same layout, its own odometry
+            lap = square_route()[: FIRST_LAP + 1]
+            write_square_recording(source, lap, seed=8, metadata=_rendered(seed=1))
+        args = ["estimate", str(source), "-o", str(map_estimate), "-q", "--force", "--no-timing"]
+        assert main(args) == 0
+        _, warnings = _report_and_warnings(out, capsys)
+        flagged = [line for line in warnings if "is not the map" in line]
+        assert len(flagged) == replaced, warnings
+
+
 def test_worlds_apart_in_the_metrics():
     """Keyframes 0–1 of world 0, 2–3 of world 1 at the same true poses, 4 of an unknown world."""
     from aslam.core.metrics import evaluate, ground_truth_revisits, score_assignment
