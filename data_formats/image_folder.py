@@ -368,6 +368,7 @@ def open_image_folder(
     # A stamped file with another count is interpolated: the images need stamps on its clock.
     interpolated = next((s for s in (odo, truth) if s is not None and s.stamped and s.rows != n), None)
     image_stamps: tuple[int, ...] | None = None
+    named: list[int] | None = None
     in_unit = "" if unit is None else f" ({unit})"
     if stamp_file is not None:
         how = f"pose file {stamp_file.path.name}{in_unit}"
@@ -399,4 +400,9 @@ def open_image_folder(
         how = f"default {DEFAULT_RATE_HZ:g} Hz"
     if image_stamps is not None and any(b <= a for a, b in pairwise(image_stamps)):
         raise ImageFolderError(f"--rate {rate_hz:g} Hz is too fast to give {n} distinct nanosecond stamps")
+    if unit is not None and not (any(s is not None and s.stamped for s in (odo, truth)) or named):
+        warnings.append(
+            f"{folder}: --stamp-unit {unit} is not used: no pose file has stamps (KITTI's have none) and"
+            f" the images are stamped by {how}"
+        )
     return ImageFolder(folder, tuple(images), how, odo, truth, tuple(warnings), image_stamps, stamp_file)

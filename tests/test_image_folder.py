@@ -419,6 +419,27 @@ def test_one_pose_per_image_in_each_format(tmp_path, fmt):
         np.testing.assert_array_equal(sample.odometry_pose, [i, 0, 0])
 
 
+def test_a_stamp_unit_no_stamp_is_read_in_says_so(tmp_path):
+    """KITTI poses (no stamps) and names that are no times: --stamp-unit changes nothing, and the
+    user hears it rather than believing the frames were timed in that unit."""
+    write_images(tmp_path / "imgs", 3)
+    truth = tmp_path / "00.txt"
+    truth.write_text("\n".join(kitti_line(route(i)) for i in range(3)) + "\n")
+    warnings: list[str] = []
+    folder = open_image_folder(tmp_path / "imgs", ground_truth=truth, stamp_unit="ms")
+    assert len(list(folder.samples(on_warning=warnings.append))) == 3
+    assert warnings == [
+        f"{tmp_path / 'imgs'}: --stamp-unit ms is not used: no pose file has stamps (KITTI's have none)"
+        " and the images are stamped by default 1 Hz"
+    ]
+    stamped = tmp_path / "gt.txt"  # a pose file in that unit: used, no word
+    stamped.write_text("\n".join(tum_line(100 * i, route(i)) for i in range(3)) + "\n")
+    folder = open_image_folder(tmp_path / "imgs", ground_truth=stamped, stamp_unit="ms")
+    warnings.clear()
+    assert [s.stamp_ns for s in folder.samples(on_warning=warnings.append)] == [0, 100_000_000, 200_000_000]
+    assert warnings == []
+
+
 def test_a_faster_pose_file_is_interpolated_to_the_images(tmp_path):
     """Ground truth at 10 Hz, images at 2 Hz from its first stamp: linear motion interpolates exactly."""
     write_images(tmp_path / "imgs", 4)
