@@ -44,6 +44,7 @@ ROBUST_TABLES = {
     "robust_seeds_27_28": "robust_matrix_seeds_27_28.md",
     "robust_seeds_29_30": "robust_matrix_seeds_29_30.md",
     "robust_seeds_31_32": "robust_matrix_seeds_31_32.md",
+    "robust_seeds_33_34": "robust_matrix_seeds_33_34.md",
     "robust_recorder_settings": "robust_matrix_recorder_settings.md",
 }
 """The robust-revisit matrix's tables (``bench/robust_matrix.py --markdown``), beside the results,
