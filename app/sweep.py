@@ -518,6 +518,7 @@ def dry_run(
 
 
 def _check_options(workers: int | None, scheduler: str | None) -> None:
+    """The one check of the cluster options (a run, a dry run, ``open_client`` for bench and notebooks)."""
     if scheduler is not None and workers is not None:
         raise InputError("--workers sizes a local cluster; the cluster at --scheduler has its own workers")
     if workers is not None and workers < 1:
@@ -610,11 +611,8 @@ def open_client(*, workers: int | None, scheduler: str | None) -> Any:
     import dask
     from distributed import Client, LocalCluster
 
+    _check_options(workers, scheduler)
     if scheduler is not None:
-        if workers is not None:
-            raise InputError(
-                "--workers sizes a local cluster; the cluster at --scheduler has its own workers"
-            )
         _probe_scheduler(scheduler)
         try:
             return Client(scheduler, timeout="10s")
@@ -629,8 +627,6 @@ def open_client(*, workers: int | None, scheduler: str | None) -> Any:
     from dask.system import CPU_COUNT  # the cores this process may use: affinity and cgroup quotas
 
     count = workers if workers is not None else CPU_COUNT
-    if count < 1:
-        raise InputError(f"--workers must be at least 1, got {count}")
     with dask.config.set(LOCAL_CLUSTER_SETTINGS):
         cluster = LocalCluster(
             n_workers=count,
