@@ -34,7 +34,11 @@ def import_folder(
         PoseFormat | None, typer.Option("--format", help="Pose-file format. \\[default: detected]")
     ] = None,
     rate_hz: Annotated[
-        float | None, typer.Option("--rate", help="Images per second, for stamps when no pose file has them.")
+        float | None,
+        typer.Option(
+            "--rate",
+            help="Images per second, for stamps when no pose file has them (before KITTI's times.txt).",
+        ),
     ] = None,
     stamp_unit: Annotated[
         StampUnit | None,

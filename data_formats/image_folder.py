@@ -13,7 +13,9 @@ decoded only on request, so memory does not grow with the folder.
    file to be interpolated);
 3. file names that are all times (TUM RGB-D's seconds ``1305031102.175304.png``, EuRoC's
    nanoseconds), not frame numbers (``FRAME_NUMBER_MAX``);
-4. otherwise 1 Hz, and the folder says so (``stamps`` = ``"default 1 Hz"``); with a stamped pose
+4. KITTI's stamp file beside the folder (``data_formats.kitti_stamps``), where it has one stamp per
+   image;
+5. otherwise 1 Hz, and the folder says so (``stamps`` = ``"default 1 Hz"``); with a stamped pose
    file of another length that is an error: the images have no stamps on its clock.
 
 **Poses**: a pose file with one row per image (always so for KITTI) pairs row ``i`` with image
@@ -40,6 +42,7 @@ import numpy as np
 from aslam.core.errors import InputError
 from aslam.data_formats.format_names import StampUnit
 from aslam.data_formats.images import ImageFormat, LazyImage, sniffed_format
+from aslam.data_formats.kitti_stamps import KittiStampsUnusable, kitti_stamp_file, read_kitti_stamps
 from aslam.data_formats.pose_files import (
     SPACING_SAMPLE,
     PoseFileError,
@@ -243,13 +246,37 @@ def _named_stamps(
     return stamps
 
 
+def _kitti_stamps(folder: Path, n: int, warnings: list[str]) -> tuple[tuple[int, ...], str] | None:
+    """The images' stamps from KITTI's ``times.txt`` or ``timestamps.txt`` beside the folder, and
+    where they came from; None where there is none, or (with a warning) it cannot stamp them."""
+    try:
+        path = kitti_stamp_file(folder)
+        if path is None:
+            return None
+        return read_kitti_stamps(path, folder, n), f"KITTI {path.parent.name}/{path.name}"
+    except KittiStampsUnusable as err:
+        warnings.append(str(err))
+        return None
+
+
+def _kitti_stamps_unread(folder: Path, why: str, warnings: list[str]) -> None:
+    """A KITTI stamp file beside the folder that another source of stamps overrides, said once."""
+    try:
+        path = kitti_stamp_file(folder)
+    except KittiStampsUnusable:
+        return
+    if path is not None:
+        warnings.append(f"{path}: not used: {why}")
+
+
 @dataclass(frozen=True)
 class ImageFolder:
     """An image folder ready to stream; build it with :func:`open_image_folder`."""
 
     folder: Path
     images: tuple[Path, ...]
-    stamps: str  # where the stamps came from: "pose file <name>", "rate 10 Hz", "file names", "default 1 Hz"
+    stamps: str  # where the stamps came from: "pose file <name>", "rate 10 Hz", "file names",
+    # "KITTI 00/times.txt", "default 1 Hz"
     odometry: PoseSource | None
     ground_truth: PoseSource | None
     warnings: tuple[str, ...]  # about the files, found when opening; given again by samples()
@@ -373,6 +400,7 @@ def open_image_folder(
     if stamp_file is not None:
         how = f"pose file {stamp_file.path.name}{in_unit}"
     elif rate_hz is not None:
+        _kitti_stamps_unread(folder, f"--rate {rate_hz:g} Hz gives the stamps", warnings)
         start = START_STAMP_NS if interpolated is None else interpolated.first_stamp_ns
         assert start is not None
         if start + (n - 1) * 1e9 / rate_hz > LAST_STAMP_NS:
@@ -386,6 +414,8 @@ def open_image_folder(
         )
     elif (named := _named_stamps(folder, images, unit, warnings)) is not None:
         image_stamps, how = tuple(named), f"file names{in_unit}"
+    elif (kitti := _kitti_stamps(folder, n, warnings)) is not None:
+        image_stamps, how = kitti
     elif interpolated is not None:
         names = " (their names are frame numbers)" if _frame_numbers(images) else ""
         unit_hint = ", or --stamp-unit if the names are times" if names and unit is None else ""

@@ -543,6 +543,98 @@ def test_an_import_that_pairs_no_image_is_refused(tmp_path, capsys):
     assert not out.exists() and list(tmp_path.glob(".rec.mcap*")) == []
 
 
+def test_kitti_odometry_times_stamp_the_frames(tmp_path, capsys, monkeypatch):
+    """``sequences/00/times.txt`` beside ``image_0/``: the frames took 1 Hz (or a guessed --rate)."""
+    from aslam.cli.app import main
+
+    images = tmp_path / "sequences" / "00" / "image_0"
+    write_images(images, 4, name=lambda i: f"{i:06d}.png")
+    (images.parent / "times.txt").write_text("0.000000e+00\n1.036000e-01\n2.072000e-01\n3.108000e-01\n")
+    truth = tmp_path / "poses" / "00.txt"
+    truth.parent.mkdir()
+    truth.write_text("\n".join(kitti_line(route(i)) for i in range(4)) + "\n")
+    out = tmp_path / "rec.mcap"
+    assert main(["import", str(images), "-o", str(out), "--ground-truth", str(truth), "-q"]) == 0
+    assert capsys.readouterr().err == ""
+    samples = list(Recording(out).samples())
+    assert [s.stamp_ns for s in samples] == [0, 103_600_000, 207_200_000, 310_800_000]
+    np.testing.assert_allclose(samples[3].ground_truth_pose, route(3), atol=1e-9)
+    assert Recording(out).metadata()["stamps"] == "KITTI 00/times.txt"
+    monkeypatch.chdir(images)  # the folder typed as "." is in 00/ all the same
+    assert open_image_folder(Path(".")).stamps == "KITTI 00/times.txt"
+
+
+def test_kitti_raw_timestamps_stamp_the_frames_to_the_nanosecond(tmp_path):
+    """``image_02/timestamps.txt`` beside ``image_02/data/``: dates and times, read as UTC."""
+    images = tmp_path / "2011_09_26_drive_0001_sync" / "image_02" / "data"
+    write_images(images, 3, name=lambda i: f"{i:010d}.png")
+    (images.parent / "timestamps.txt").write_text(
+        "2011-09-26 13:02:25.964389445\n2011-09-26 13:02:26.067389445\n2011-09-26 13:02:26.170\n"
+    )
+    folder = open_image_folder(images)
+    assert folder.stamps == "KITTI image_02/timestamps.txt"
+    start_ns = 1317042145_964389445  # date -u -d '2011-09-26 13:02:25.964389445' +%s%N
+    assert [s.stamp_ns for s in folder.samples()] == [start_ns, start_ns + 103_000_000, 1317042146_170000000]
+
+
+@pytest.mark.parametrize(
+    ("name", "text", "problem"),
+    [
+        ("times.txt", "0\n0.1\n", "not used: 2 stamps for 3 images in {images}"),
+        ("times.txt", "0\n0.1\n0.2\n0.3\n", "not used: 4 stamps for 3 images in {images}"),
+        ("times.txt", "0\n0.1\nnan\n", "not used: line 3: stamp 'nan' is not a finite, non-negative time"),
+        ("times.txt", "0\n0.2\n0.1\n", "not used: line 3: not after the line before"),
+        ("timestamps.txt", "2011-09-26 13:02:25\n2011-09-31 13:02:26\nx\n", "not used: line 2: '2011-09-31"),
+        ("timestamps.txt", "1\n2\n3\n", "not used: line 1: '1' is not a date and time"),
+    ],
+)
+def test_a_kitti_stamp_file_that_cannot_stamp_the_images_says_so_and_is_not_used(
+    tmp_path, name, text, problem
+):
+    images = tmp_path / "image_0"
+    write_images(images, 3, name=lambda i: f"{i:06d}.png")
+    (tmp_path / name).write_text(text)
+    warnings: list[str] = []
+    folder = open_image_folder(images)
+    assert folder.stamps == "default 1 Hz" and len(list(folder.samples(on_warning=warnings.append))) == 3
+    assert len(warnings) == 1 and warnings[0].startswith(
+        f"{tmp_path / name}: {problem.format(images=images)}"
+    )
+
+
+def test_kitti_stamps_give_way_to_the_user_and_to_pose_files_and_two_are_ambiguous(tmp_path):
+    images = tmp_path / "image_0"
+    write_images(images, 3, name=lambda i: f"{i:06d}.png")
+    (tmp_path / "times.txt").write_text("0\n0.1\n0.2\n")
+    folder = open_image_folder(images, rate_hz=5.0)
+    assert folder.stamps == "rate 5 Hz"
+    assert folder.warnings == (f"{tmp_path / 'times.txt'}: not used: --rate 5 Hz gives the stamps",)
+    truth = tmp_path / "gt.txt"  # one stamped row per image: its stamps, as before
+    truth.write_text("\n".join(tum_line(7 + i, route(i)) for i in range(3)) + "\n")
+    folder = open_image_folder(images, ground_truth=truth)
+    assert folder.stamps == "pose file gt.txt" and folder.warnings == ()
+    (tmp_path / "timestamps.txt").write_text(
+        "2011-09-26 13:02:25\n2011-09-26 13:02:26\n2011-09-26 13:02:27\n"
+    )
+    folder = open_image_folder(images)
+    assert folder.stamps == "default 1 Hz"
+    both = f"{tmp_path / 'times.txt'} and {tmp_path / 'timestamps.txt'}"
+    assert folder.warnings == (f"{both} are not used: which one stamps {images}?",)
+
+
+def test_kitti_stamps_pair_the_frames_with_a_stamped_pose_file_of_another_count(tmp_path):
+    """A TUM ground truth on the sequence's clock (times.txt's, made by evo from poses/00.txt, say)
+    at twice the frame rate: interpolated to the frames, as with any stamps."""
+    images = tmp_path / "image_0"
+    write_images(images, 3, name=lambda i: f"{i:06d}.png")
+    (tmp_path / "times.txt").write_text("0\n0.1\n0.2\n")
+    truth = tmp_path / "gt.txt"
+    truth.write_text("\n".join(tum_line(0.05 * k, (0.05 * k, 0, 0)) for k in range(5)) + "\n")
+    samples = list(open_image_folder(images, ground_truth=truth).samples())
+    assert [s.stamp_ns for s in samples] == [0, 100_000_000, 200_000_000]
+    np.testing.assert_allclose([s.ground_truth_pose[0] for s in samples], [0, 0.1, 0.2], atol=1e-9)
+
+
 @pytest.mark.parametrize(("rows", "line"), [(4, 4), (6, 6)])
 def test_kitti_count_mismatch_names_file_and_line(tmp_path, rows, line):
     write_images(tmp_path / "imgs", 5)
