@@ -6,7 +6,6 @@ The work is :func:`aslam.app.score.score`; this module parses, prints and writes
 from __future__ import annotations
 
 import contextlib
-import json
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Annotated, Any
@@ -199,6 +198,7 @@ def _check_output(path: Path, *, force: bool, others: list[Path]) -> None:
 def _write_json(target: str, document: dict[str, Any], *, indent: int) -> list[Path]:
     """Write ``document`` to ``target`` ('-': stdout); the paths written."""
     from aslam.data_formats.files import write_text_output
+    from aslam.data_formats.json_text import json_text
 
-    written = write_text_output(target, json.dumps(document, indent=indent) + "\n")
+    written = write_text_output(target, json_text(document, indent=indent))
     return [] if written is None else [written]

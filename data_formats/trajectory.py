@@ -8,7 +8,8 @@ Both are written by evo's own ``evo.tools.file_interface`` writers, so the files
 by construction, under a temporary name renamed when complete. Poses are SE(2) ``(x_m, y_m,
 yaw_rad)``; in TUM in the z = 0 plane (REP 103: x forward, y left, z up). They are read back by
 the one reader of pose files, ``data_formats.pose_files`` (what ``aslam import`` reads). TUM keeps
-seconds as float64, so stamps come back to within a microsecond, not to the nanosecond.
+seconds as float64, so stamps come back to within a microsecond, not to the nanosecond. No zero
+is written negative (``-0.000e+00``).
 """
 
 from __future__ import annotations
@@ -115,7 +116,12 @@ def write_trajectory(
             raise TrajectoryError(
                 f"TUM needs one stamp per pose: {len(poses)} poses, {got} stamps", path=path
             )
-        trajectory = evo_trajectory(poses, stamps_ns)
+        built = evo_trajectory(poses, stamps_ns)
+        trajectory = type(built)(  # + 0.0: no -0.0 in the file (see kitti_camera_path)
+            positions_xyz=built.positions_xyz + 0.0,
+            orientations_quat_wxyz=built.orientations_quat_wxyz + 0.0,
+            timestamps=built.timestamps,
+        )
         files.write_atomically(
             path, lambda tmp: file_interface.write_tum_trajectory_file(tmp, trajectory), error=TrajectoryError
         )
@@ -139,4 +145,6 @@ def kitti_camera_path(poses: np.ndarray) -> Any:
     matrices[:, 1, 1] = 1.0
     matrices[:, 2, 0], matrices[:, 2, 2], matrices[:, 2, 3] = s, c, poses[:, 0]
     matrices[:, 3, 3] = 1.0
-    return PosePath3D(poses_se3=list(matrices))
+    # x + 0.0 is x, and 0.0 for -0.0: a y of 0 or a heading of 0 wrote "-0.000e+00" (−t_x, −sin),
+    # a sign no pose has, which makes files of runs that agree differ.
+    return PosePath3D(poses_se3=list(matrices + 0.0))

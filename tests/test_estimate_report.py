@@ -439,6 +439,37 @@ def test_report_graph_to_stdout(estimate_file: Path, capsys):
     assert json.loads(captured.out)["version"] == 1 and "aslam report" in captured.err
 
 
+def test_report_writes_no_negative_zero(tmp_path: Path, capsys):
+    """The square route mirrored (y and heading negated): its truth has y = −0.0 and headings of
+    −0.0, which the graph JSON wrote as ``"y_m": -0.0`` and the trajectory files as ``-0.000e+00``."""
+    import math
+
+    import numpy as np
+    from conftest import write_square_recording
+
+    recording, estimate = tmp_path / "mirrored.mcap", tmp_path / "mirrored.est.mcap"
+    write_square_recording(recording, [pose * np.array([1.0, -1.0, -1.0]) for pose in square_route()])
+    assert main(["estimate", str(recording), "-o", str(estimate), "--no-timing"]) == 0
+    graph, summary = tmp_path / "g.json", tmp_path / "s.json"
+    args = ["report", str(estimate), "--graph", str(graph), "--json", str(summary)]
+    assert main([*args, "--trajectory", str(tmp_path / "t.tum")]) == 0
+    assert main(["report", str(estimate), "--trajectory", str(tmp_path / "t.kitti")]) == 0
+    capsys.readouterr()
+
+    def floats(value):
+        if isinstance(value, dict):
+            return [f for item in value.values() for f in floats(item)]
+        if isinstance(value, list):
+            return [f for item in value for f in floats(item)]
+        return [value] if isinstance(value, float) else []
+
+    for document in (graph, summary):
+        assert not [f for f in floats(json.loads(document.read_text())) if f == 0 and math.copysign(1, f) < 0]
+    for path in tmp_path.glob("t.*"):
+        values = np.loadtxt(path, ndmin=2)
+        assert not np.any((values == 0) & np.signbit(values)), path
+
+
 @pytest.mark.parametrize("command", ["record", "estimate", "report", "info"])
 def test_help_shows_flags_without_a_value_placeholder(command: str, capsys):
     assert main([command, "--help"]) == 0

@@ -101,6 +101,33 @@ def test_any_planar_trajectory_survives_both_formats(poses: np.ndarray):
         same_poses(read_kitti(kitti), poses, atol=1e-6)
 
 
+def negative_zeros(values: np.ndarray) -> int:
+    return int(np.count_nonzero((values == 0) & np.signbit(values)))
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    arrays(
+        np.float64,
+        st.tuples(st.integers(1, 8), st.just(3)),
+        elements=st.one_of(st.sampled_from([0.0, -0.0, -5e-324, 5e-324, -1e-310]), st.floats(-3e3, 3e3)),
+    )
+)
+def test_no_negative_zero_is_written(poses: np.ndarray):
+    """A y or a heading of 0 (or −0.0, or a heading whose half underflows to −0.0) wrote
+    ``-0.000000000000000000e+00`` in KITTI files (−t_x, −sin) and TUM files (the quaternion's z)."""
+    import tempfile
+
+    stamps = np.arange(len(poses), dtype=np.int64) * 1_000_000_000
+    with tempfile.TemporaryDirectory() as folder:
+        tum, kitti = Path(folder) / "a.tum", Path(folder) / "a.kitti"
+        write_trajectory(tum, poses, stamps)
+        write_trajectory(kitti, poses, fmt="kitti")
+        assert negative_zeros(np.loadtxt(tum, ndmin=2)) == 0
+        assert negative_zeros(np.loadtxt(kitti, ndmin=2)) == 0
+        same_poses(read_tum(tum)[1], poses, atol=1e-6)
+
+
 # The last stamp that survives: float64 seconds near 2³¹ s are 238 ns apart, so a stamp in the last
 # few hundred ns a ROS time holds is written as 2147483648.0 s, after 2038, and refused when read.
 LAST_ROUND_TRIP_NS = LAST_STAMP_NS - 1_000
