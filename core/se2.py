@@ -12,7 +12,9 @@ Pose2 = np.ndarray  # shape (3,) or (n, 3): x_m, y_m, yaw_rad
 
 
 def wrap_angle(angle_rad: np.ndarray | float) -> np.ndarray | float:
-    """Map any angle to [-π, π)."""
+    """The same direction in [-π, π): π and -π both give -π. One float gives +π, the one just
+    below -π, whose remainder rounds up to a whole turn: the same direction, left as it is since
+    any other arithmetic here would change estimates (``test_wrap_angle_keeps_the_direction…``)."""
     return (np.asarray(angle_rad) + np.pi) % (2.0 * np.pi) - np.pi
 
 

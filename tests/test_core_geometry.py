@@ -184,6 +184,15 @@ def test_wrap_angle_keeps_the_direction_within_one_turn(angle):
     assert np.array_equal(se2.wrap_angle(np.array([angle, angle])), [wrapped, wrapped])
 
 
+def test_wrap_angle_gives_one_value_for_a_half_turn():
+    """π and -π (and the odd multiples of π up to ±11π) are one direction, -π, as documented; the
+    float just below -π is the one +π (see above), the float just below π is -π."""
+    for k in range(-5, 6):
+        assert float(se2.wrap_angle((2 * k + 1) * math.pi)) == -math.pi
+    assert float(se2.wrap_angle(math.nextafter(-math.pi, -math.inf))) == math.pi
+    assert float(se2.wrap_angle(math.nextafter(math.pi, 0.0))) == -math.pi
+
+
 # Any covariance: L Lᵀ plus a little, correlations between position and heading included.
 full_cov = st.lists(st.floats(-1.0, 1.0), min_size=6, max_size=6).map(
     lambda v: (lambda low: low @ low.T + 1e-3 * np.eye(3))(
