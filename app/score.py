@@ -301,15 +301,26 @@ def score(
     first = info.graph.first_keyframe
     stage("reading the ground truth")
     # every keyframe of the map: the prior map's, then this run's
-    true_poses, recording_path = _session_truth(
+    true_poses, run = _session_truth(
         info, estimate, stamps, truth_by_index, recording, warn, ground_truth_topic
     )
-    worlds = None
+    recording_path = run.recording
+    sessions: list[_Session] = []
     if true_poses is not None and first:
         earlier, sessions = _map_truth(info, estimate, truth_by_index, warn, ground_truth_topic)
         true_poses = np.concatenate([earlier, true_poses])
-        if not truth_by_index:
-            worlds = _worlds([*sessions, _Session(len(stamps), recording_path)], warn)
+    read = {session.ground_truth_topic for session in [*sessions, run]}
+    if (
+        ground_truth_topic is not None
+        and run.ground_truth_topic is not None
+        and ground_truth_topic not in read
+    ):
+        # this run lacks the topic named (its own read instead), and so does every session of its map
+        raise RecordingError(
+            f"no ground-truth topic '{ground_truth_topic}' in it or in any session of its map",
+            path=recording_path,
+        )
+    worlds = None if truth_by_index or not sessions else _worlds([*sessions, run], warn)
     stage("scoring the claims")
     with closing(iter_keyframes(estimate)) as keyframes:
         evaluation = evaluate(
@@ -395,23 +406,44 @@ def _session_truth(
     ground_truth_topic: str | None = None,
     *,
     of_the_map: bool = False,
-) -> tuple[np.ndarray | None, Path | None]:
-    """One session's truth at its keyframe stamps, and the recording it came from: by index, or
-    from ``recording`` (default: the one the estimate ``info`` of file ``estimate`` names), on
-    ``ground_truth_topic`` if given (default: the topic the estimate was made with); (None, …) with
-    a warning if none. A topic named for this run's own recording that it cannot read is an error,
-    not a warning."""
+) -> tuple[np.ndarray | None, _Session]:
+    """One session's truth at its keyframe stamps, and the session (the recording and topic it came
+    from): by index, or from ``recording`` (default: the one the estimate ``info`` of file
+    ``estimate`` names), on ``ground_truth_topic`` where it has that topic, else on the topic the
+    estimate was made with; (None, …) with a warning if none. A session of a map chain may lack the
+    named topic (sessions recorded or imported with other topic names): ``score`` refuses a topic
+    that none has. With a topic named, this run's truth not found is an error, not a warning."""
     if truth_by_index:
-        return index_truth(len(stamps)), None
+        return index_truth(len(stamps)), _Session(len(stamps), None, None)
     without = _MAP_UNSCORED if of_the_map else "reporting without ground truth"
     path = _find_recording(recording, info, estimate, warn, without)
     if path is None:
-        return None, None
+        return None, _Session(len(stamps), None, None)
     topics = TopicChoice.from_record(info.metadata.topics)
-    if ground_truth_topic is not None:
+    alone = not of_the_map and info.metadata.prior_map is None
+    named = ground_truth_topic is not None and (alone or _has_topic(path, ground_truth_topic))
+    if named:
         topics = replace(topics, ground_truth=ground_truth_topic)
     strict = ground_truth_topic is not None and not of_the_map
-    return _ground_truth(path, topics, stamps, warn, strict=strict, without=without), path
+    try:
+        poses = _ground_truth(path, topics, stamps, warn, strict=strict, without=without)
+    except RecordingError as err:
+        if named:
+            raise
+        raise RecordingError(
+            f"no ground-truth topic '{ground_truth_topic}'; on its own topic: {err.problem}", path=path
+        ) from err
+    topic = None if poses is None else topics.recording_topics().ground_truth
+    return poses, _Session(len(stamps), path, topic)
+
+
+def _has_topic(path: Path, topic: str) -> bool:
+    """Whether the recording or bag at ``path`` has ``topic``; False where it cannot be opened (the
+    read of its own topic then says why)."""
+    try:
+        return open_input(path).has_topic(topic)
+    except InputError:
+        return False
 
 
 _MAP_UNSCORED = "the map's keyframes from it are not scored"
@@ -429,12 +461,12 @@ def _map_truth(
     map (each prior estimate names its recording and its own prior), and the sessions. A session
     whose truth cannot be had gives NaN rows (its places' claims are not judged), with a warning:
     its recording or its estimate missing, or an estimate that is no longer the map this run started
-    in (estimated again since). ``ground_truth_topic`` is tried on every session (bags estimated
-    without one)."""
+    in (estimated again since). ``ground_truth_topic`` is read in every session that has it (bags
+    estimated without one), the others on their own topic."""
     prior = info.metadata.prior_map
     if prior is None:
         return np.zeros((0, 3)), []
-    unscored = np.full((prior.keyframes, 3), np.nan), [_Session(prior.keyframes, None)]
+    unscored = np.full((prior.keyframes, 3), np.nan), [_Session(prior.keyframes, None, None)]
     found = _find_map(info, path, warn)
     if found is None:
         return unscored
@@ -452,27 +484,34 @@ def _map_truth(
         )
         return unscored
     earlier, sessions = _map_truth(prior_info, prior_path, truth_by_index, warn, ground_truth_topic)
-    own, recording = _session_truth(
+    own, session = _session_truth(
         prior_info, prior_path, stamps, truth_by_index, None, warn, ground_truth_topic, of_the_map=True
     )
     if own is None:
-        own, recording = np.full((len(stamps), 3), np.nan), None
-    return np.concatenate([earlier, own]), [*sessions, _Session(len(stamps), recording)]
+        own = np.full((len(stamps), 3), np.nan)
+    return np.concatenate([earlier, own]), [*sessions, session]
 
 
 @dataclass(frozen=True)
 class _Session:
-    """One session of a map: its keyframes, and the recording its truth came from (None: no truth)."""
+    """One session of a map: its keyframes, its recording (None: not found), and the topic its truth
+    came from (None: no truth)."""
 
     keyframes: int
     recording: Path | None
+    ground_truth_topic: str | None
 
 
 def _worlds(sessions: list[_Session], warn: Callable[[str], None]) -> np.ndarray | None:
     """(keyframes,) the world of each keyframe of the map (-1: unknown), where its sessions were
     rendered in worlds that share no place (``data_formats.recording.world_identity``), with a
     warning naming them; None where they are all one world, as far as the recordings say."""
-    keys = [None if session.recording is None else _world_of(session.recording) for session in sessions]
+    keys = [
+        None
+        if session.recording is None or session.ground_truth_topic is None
+        else _world_of(session.recording)
+        for session in sessions
+    ]
     known = list(dict.fromkeys(key for key in keys if key is not None))
     if len(known) < 2:
         return None

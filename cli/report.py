@@ -84,7 +84,7 @@ def report(
         str | None,
         typer.Option(
             help="Read the ground truth from this pose topic of a bag (default: the topic the estimate"
-            " was made with)."
+            " was made with); a --map session without it keeps its own."
         ),
     ] = None,
     force: ForceOption = False,

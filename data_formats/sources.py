@@ -96,6 +96,11 @@ class RecordingInput:
     def ground_truth(self) -> Iterator[tuple[int, np.ndarray]]:
         return self.recording.ground_truth(self.topics)
 
+    def has_topic(self, topic: str) -> bool:
+        """Whether the file has ``topic`` (True where its summary is lost: known only by reading)."""
+        file = self.recording.file
+        return topic in file.channels or not file.complete_channels
+
     @property
     def odometry_known(self) -> bool:
         """False for an image folder imported without odometry (equal steps assumed, ``aslam import``)."""
@@ -136,6 +141,10 @@ class BagInput:
                 path=self.path,
             )
         return iter_bag_ground_truth(self.path, self.choice.ground_truth)
+
+    def has_topic(self, topic: str) -> bool:
+        """Whether the bag has ``topic`` (its index says; no message read)."""
+        return any(info.topic == topic for info in summarize_bag(self.path).topics)
 
     odometry_known = True
     """A bag's odometry is measured (an ``Odometry`` topic or ``/tf``)."""

@@ -181,6 +181,18 @@ class ForeignRecording:
             topic, self.schema(ros_msgs.ODOMETRY), message, log_time=log_time or stamp_ns
         )
 
+    def pose(self, topic: str, stamp_ns: int, pose: np.ndarray) -> None:
+        """A ``PoseStamped`` (a bag's ground truth: motion capture, GPS)."""
+        x, y, yaw = (float(v) for v in pose)
+        message = {
+            "header": ros_msgs.header_msg(stamp_ns, "map"),
+            "pose": {
+                "position": {"x": x, "y": y, "z": 0.0},
+                "orientation": {"x": 0.0, "y": 0.0, "z": math.sin(yaw / 2), "w": math.cos(yaw / 2)},
+            },
+        }
+        self.writer.write_message(topic, self.schema(ros_msgs.POSE_STAMPED), message, log_time=stamp_ns)
+
     def close(self) -> None:
         self.writer.finish()
         self._file.close()
@@ -267,6 +279,25 @@ def write_square_recording(
             stamp_ns = 1_000_000_000 * (i + 1)
             image = encode_image(square_view(truth + np.array([*view_offset, 0.0]), rng))
             writer.write(stamp_ns, image, odometry, truth)
+
+
+def write_square_bag(path: Path, route: list[np.ndarray], seed: int, *, ground_truth_topic: str) -> None:
+    """The square route as a ROS bag (one rosbag2 MCAP file), as ``write_square_recording`` draws
+    it, its truth on ``ground_truth_topic`` (a ``PoseStamped``), its camera on a topic of its own."""
+    rng = np.random.default_rng(seed)
+    odometry = np.zeros(3)
+    previous = None
+    with ForeignRecording(path) as bag:
+        for i, truth in enumerate(route):
+            if previous is not None:
+                step = se2.between(previous, truth)
+                odometry = se2.compose(odometry, step * (1 + rng.normal(0, 0.01, 3)))
+            previous = truth
+            stamp_ns = 1_000_000_000 * (i + 1)
+            png = encode_image(square_view(truth, rng)).data
+            bag.compressed_image("/front_camera/compressed", stamp_ns, png, "png")
+            bag.odometry("/odom", stamp_ns, *odometry)
+            bag.pose(ground_truth_topic, stamp_ns, truth)
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import one_error_line, square_route, write_square_recording
+from conftest import one_error_line, square_route, write_square_bag, write_square_recording
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -174,6 +174,82 @@ def test_a_chain_moved_to_another_folder_is_scored_as_before(tmp_path, capsys):
     after, warnings = _report_and_warnings(tmp_path / "moved" / "third.est.mcap", capsys)
     assert warnings == []
     assert after == before
+
+
+@pytest.fixture(scope="module")
+def mixed(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """Sessions of the square with their truth on other topics: our recordings (the recorder's
+    ``/ground_truth/pose``) and bags (``/ground_truth``) estimated without naming it, each in the
+    other's map."""
+    folder = tmp_path_factory.mktemp("mixed")
+    files = {"recording": folder / "first.mcap", "bag": folder / "first_bag.mcap"}
+    write_square_recording(files["recording"])
+    write_square_bag(files["bag"], square_route(), 7, ground_truth_topic="/ground_truth")
+    files["second recording"] = folder / "second.mcap"
+    files["second bag"] = folder / "second_bag.mcap"
+    write_square_recording(files["second recording"], second_session_route(5), seed=11)
+    write_square_bag(files["second bag"], second_session_route(5), 11, ground_truth_topic="/ground_truth")
+    for name in ("recording", "bag"):
+        files[f"{name}.est"] = folder / f"{name}.est.mcap"
+        assert main(["estimate", str(files[name]), "-o", str(files[f"{name}.est"]), "-q"]) == 0
+    for run, the_map in (("bag", "recording"), ("recording", "bag")):
+        files[f"{run} in {the_map}"] = out = folder / f"{run}_in_{the_map}.est.mcap"
+        args = [
+            "estimate",
+            str(files[f"second {run}"]),
+            "--map",
+            str(files[f"{the_map}.est"]),
+            "-o",
+            str(out),
+        ]
+        assert main([*args, "-q"]) == 0
+    return files
+
+
+@pytest.mark.parametrize("chain", ["bag in recording", "recording in bag"])
+def test_sessions_with_their_truth_on_other_topics_are_all_scored(mixed, chain, capsys):
+    """A bag's truth topic named at report time is read where a session has it, every other session
+    on the topic it was estimated with. It was read in every session: a recording's map session was
+    unscored (17 claims unjudged, a warning), and a recording run in a bag's map an error, exit 2."""
+    capsys.readouterr()
+    args = ["report", str(mixed[chain]), "--json", "-", "--ground-truth-topic", "/ground_truth"]
+    assert main(args) == 0
+    captured = capsys.readouterr()
+    assert "warning" not in captured.err
+    closure = json.loads(captured.out)["loop_closure"]
+    assert closure["claims"] >= 0.8 * len(second_session_route(5))
+    assert closure["unjudged_claims"] == 0 and closure["precision"] == 1.0
+
+
+@pytest.mark.parametrize(
+    ("chain", "words"),
+    [
+        ("bag in recording", "no ground-truth topic '/typo'; on its own topic: no ground-truth topic named"),
+        ("recording in bag", "no ground-truth topic '/typo' in it or in any session of its map"),
+    ],
+)
+def test_a_truth_topic_no_session_has_is_an_error(mixed, chain, words, tmp_path, capsys):
+    """One line naming this run's recording, exit 2: a typo, not a report without truth."""
+    estimate = mixed[chain]
+    run = "second bag" if chain == "bag in recording" else "second recording"
+    if chain == "recording in bag":  # its map estimated with its truth topic: no warning about it
+        the_map = tmp_path / "bag.est.mcap"
+        args = [
+            "estimate",
+            str(mixed["bag"]),
+            "-o",
+            str(the_map),
+            "-q",
+            "--ground-truth-topic",
+            "/ground_truth",
+        ]
+        assert main(args) == 0
+        estimate = tmp_path / "run.est.mcap"
+        assert main(["estimate", str(mixed[run]), "--map", str(the_map), "-o", str(estimate), "-q"]) == 0
+    capsys.readouterr()
+    assert main(["report", str(estimate), "--ground-truth-topic", "/typo", "-q"]) == 2
+    line = one_error_line(capsys.readouterr().err)
+    assert f"{mixed[run]}: {words}" in line
 
 
 @pytest.mark.parametrize("change", ["missing", "damaged", "another map", "the same map again"])
