@@ -52,7 +52,7 @@ def write_plots(folder: Path, report: Report, on_warning: Callable[[str], None] 
     make_output_folder(folder)
     paths = [folder / name for name in PLOT_NAMES[:4]]
     _save(_hypotheses_figure(report.evaluation, title), paths[0])
-    _save(_errors_figure(report.evaluation, title), paths[1])
+    _save(_errors_figure(report.evaluation, title, measured=not report.truth_by_index), paths[1])
     map_truth = None if report.true_poses is None else report.map_truth
     _save(_map_figure(report.estimate.graph, report.actions, report.true_poses, title, map_truth), paths[2])
     _save(_pr_figure(report.evaluation, report.summary["committed"], title), paths[3])
@@ -228,7 +228,13 @@ def _hypotheses_figure(evaluation: Evaluation, title: str) -> Any:
     return fig
 
 
-def _errors_figure(evaluation: Evaluation, title: str) -> Any:
+ERROR_AXIS_MIN = 0.05
+"""The least top of an error axis (m or °): errors of a right claim are rounding (1e-16 m), which an
+axis scaled to them would draw as large as errors of a metre."""
+
+
+def _errors_figure(evaluation: Evaluation, title: str, *, measured: bool) -> Any:
+    """``measured``: False for a truth by index, whose "errors" are frame numbers, not poses."""
     import matplotlib.pyplot as plt
     from matplotlib.ticker import MaxNLocator
 
@@ -237,21 +243,28 @@ def _errors_figure(evaluation: Evaluation, title: str) -> Any:
     names = [("x error (m)", 0), ("y error (m)", 1), ("heading error (°)", 2)]
     for ax, (label, column) in zip(axes, names, strict=True):
         _revisit_spans(ax, evaluation)
-        best = np.abs(evaluation.best_error[:, column])
-        weighted = evaluation.weighted_error[:, column]
-        ax.plot(keyframes, best, "o", color="tab:red", markersize=3.5, label="best hypothesis")
-        ax.plot(keyframes, weighted, "-", color="tab:blue", linewidth=1.0, alpha=0.8, label="belief-weighted")
+        if measured:
+            best = np.abs(evaluation.best_error[:, column])
+            weighted = evaluation.weighted_error[:, column]
+            ax.plot(keyframes, best, "o", color="tab:red", markersize=3.5, label="best hypothesis")
+            ax.plot(
+                keyframes, weighted, "-", color="tab:blue", linewidth=1.0, alpha=0.8, label="belief-weighted"
+            )
         ax.set_ylabel(label)
         ax.grid(True, alpha=0.3)
-        ax.set_ylim(bottom=0)
+        ax.set_ylim(0, max(ax.get_ylim()[1], ERROR_AXIS_MIN))
+    why = None
     if not evaluation.has_ground_truth:
-        axes[0].text(
-            0.5, 0.5, "no ground truth", transform=axes[0].transAxes, ha="center", va="center", color="0.4"
-        )
+        why = "no ground truth"
+    elif not measured:
+        why = "not measured (a truth by index has frame numbers, not poses)"
+    if why is not None:
+        axes[0].text(0.5, 0.5, why, transform=axes[0].transAxes, ha="center", va="center", color="0.4")
     axes[-1].xaxis.set_major_locator(MaxNLocator(integer=True))
     axes[-1].set_xlabel("keyframe")
     axes[-1].set_xlim(-0.5, max(evaluation.keyframes - 0.5, 0.5))
-    axes[0].legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=3, fontsize="small", frameon=False)
+    if axes[0].get_legend_handles_labels()[0]:  # by index with no revisit: nothing drawn to name
+        axes[0].legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=3, fontsize="small", frameon=False)
     fig.suptitle(f"Revisit errors (absolute; new-state hypotheses excluded) — {title}")
     return fig
 

@@ -252,6 +252,11 @@ class Report:
     map_truth: np.ndarray | None = None
     """(first_keyframe + n, 3) truth of every keyframe of the map, prior sessions first."""
 
+    @property
+    def truth_by_index(self) -> bool:
+        """Scored by keyframe index (``truth_by_index``): frame numbers, not poses, so no errors."""
+        return self.evaluation.has_ground_truth and self.recording_path is None
+
     def graph_json(self) -> dict[str, Any]:
         return build_graph_json(
             self.estimate.graph,

@@ -492,6 +492,38 @@ def test_hypothesis_plot_has_whole_number_axes(estimate_file: Path):
     assert len(ticks) and all(float(t).is_integer() for t in ticks)
 
 
+def _drawn_figures(report, folder: Path, monkeypatch) -> dict:
+    from aslam.app import plots
+
+    drawn: dict = {}
+    monkeypatch.setattr(plots, "_save", lambda figure, path: drawn.setdefault(path.name, figure))
+    plots.write_plots(folder, report)
+    return drawn
+
+
+def test_error_plot_axes_do_not_magnify_rounding(estimate_file: Path, tmp_path: Path, monkeypatch):
+    """The square's right claims have errors of 1e-16 m: each axis went to 9e-16 (drawn as large as
+    a metre's error, "1e-16" in a corner); it is at least 0 to 0.05 (m, °), and starts at 0."""
+    from aslam.app.score import score
+
+    report = score(estimate_file)
+    assert report.summary["error"]["best"]["x_m"]["max"] < 1e-9
+    errors = _drawn_figures(report, tmp_path, monkeypatch)["errors.png"]
+    assert [ax.get_ylim()[0] for ax in errors.axes] == [0, 0, 0]
+    assert all(ax.get_ylim()[1] >= 0.05 for ax in errors.axes)
+
+
+def test_error_plot_of_a_truth_by_index_draws_no_errors(estimate_file: Path, tmp_path: Path, monkeypatch):
+    """By index the "errors" are frame numbers (the summary's are null, the table says not measured);
+    errors.png drew them in metres and degrees (15 "m" on the Nordland fixture)."""
+    from aslam.app.score import score
+
+    report = score(estimate_file, truth_by_index=True)
+    errors = _drawn_figures(report, tmp_path, monkeypatch)["errors.png"]
+    assert all(len(line.get_xdata()) == 0 for ax in errors.axes for line in ax.lines)
+    assert any("not measured" in text.get_text() for text in errors.axes[0].texts)
+
+
 def test_report_trajectory_files_score_the_same_with_evo_ape(estimate_file: Path, tmp_path: Path, capsys):
     import subprocess
     import sys
