@@ -1,6 +1,7 @@
 """The sweep file: which recordings, times which estimator parameters, scored how, collecting what.
 
-A TOML file (``docs/sweep.md``, example in ``docs/examples/sweep.toml``) read into frozen
+A TOML file (``docs/sweep.md``, example in ``sweep_example.toml`` beside this module: package data,
+so that ``aslam sweep --example`` has it in a wheel) read into frozen
 dataclasses. Every problem in it (unknown keys, wrong types, globs that match nothing, parameter
 values the estimator refuses, unknown summary keys) is found in one pass and reported at once,
 as one :class:`ConfigError` line naming the file. Paths in the file are relative to its folder.
@@ -106,6 +107,11 @@ class Sweep:
 
 def _as_list(value: Any) -> list[Any]:
     return list(value) if isinstance(value, list) else [value]
+
+
+def example_sweep_file() -> str:
+    """An example with every table, commented (``aslam sweep --example``)."""
+    return Path(__file__).with_name("sweep_example.toml").read_text(encoding="utf-8")
 
 
 def read_sweep_file(path: Path) -> Sweep:

@@ -18,10 +18,23 @@ from aslam.cli.output import QuietOption, Terminal, VerboseOption, table_console
 from aslam.cli.sweep_display import LiveDisplay, PlainDisplay, figure_text, parameters_text, plan_text
 
 
+def _print_example(value: bool) -> None:
+    if value:
+        from aslam.app.sweep_file import example_sweep_file
+
+        typer.echo(example_sweep_file(), nl=False)
+        raise typer.Exit()
+
+
 @app.command()
 def sweep(
     sweep_file: Annotated[
-        Path, typer.Argument(metavar="SWEEP.toml", help="Sweep file (docs/sweep.md).", dir_okay=False)
+        Path,
+        typer.Argument(
+            metavar="SWEEP.toml",
+            help="Sweep file (docs/sweep.md; `aslam sweep --example > sweep.toml` writes one to start from).",
+            dir_okay=False,
+        ),
     ],
     output: Annotated[
         Path,
@@ -70,6 +83,15 @@ def sweep(
         str | None,
         typer.Option("--json", help="With --dry-run: write the plan as one JSON object here; '-': stdout."),
     ] = None,
+    example: Annotated[
+        bool,
+        typer.Option(
+            "--example",
+            callback=_print_example,
+            is_eager=True,
+            help="Print an example sweep file (every table, commented) and exit.",
+        ),
+    ] = False,
     quiet: QuietOption = False,
     verbose: VerboseOption = False,
 ) -> None:

@@ -59,21 +59,26 @@ def test_every_package_folder_is_listed_and_mapped():
         assert folder in PACKAGE_DIRS.values(), f"{folder} holds modules but is no package in pyproject.toml"
 
 
-def test_packages_hold_only_modules():
-    """No package data is declared (``include-package-data = false``: with the repository root a
-    package folder, it would be every file of the sdist), so a JSON schema, template or font read
-    beside the modules would be absent from the wheel: declare it in
-    ``[tool.setuptools.package-data]`` and let this test know."""
+def test_packages_hold_modules_and_the_package_data_declared():
+    """Package data is named file by file (``include-package-data = false``: with the repository
+    root a package folder, it would be every file of the sdist), so a JSON schema, template or font
+    read beside the modules and not in ``[tool.setuptools.package-data]`` would be absent from the
+    wheel; a name declared there that matches no file would ship nothing."""
     assert SETUPTOOLS.get("include-package-data") is False
-    assert "package-data" not in SETUPTOOLS
-    data = [
+    declared = {
+        (PACKAGE_DIRS[name] / file).relative_to(ROOT)
+        for name, files in SETUPTOOLS.get("package-data", {}).items()
+        for file in files
+    }
+    data = {
         path.relative_to(ROOT)
         for name in PACKAGE_DIRS
         if name != "aslam"  # the root's README, Makefile ... are the sdist's, not the package's
         for path in _package_files(name)
         if path.suffix != ".py"
-    ]
-    assert data == []
+    }
+    assert data == declared
+    assert declared == {Path("app/sweep_example.toml")}  # `aslam sweep --example`
 
 
 def _imported_top_level_names() -> set[str]:
