@@ -25,7 +25,12 @@ $(BIN)/python:
 
 # pyrender pins PyOpenGL 3.1.0, whose OSMesa binding is too old for pyrender's own OSMesa code;
 # 3.1.10 serves EGL and OSMesa alike, so it replaces the pin (pip would refuse it as a dependency).
-PYOPENGL := PyOpenGL==3.1.10
+# pip puts 3.1.0 back whenever it installs aslam's dependencies again: in the rules below, and in a
+# `pip install -e .` by hand after them, which no sentinel file sees (`make test` then ran on 3.1.0);
+# so every target that runs aslam checks it too (one Python start when it is right).
+PYOPENGL := 3.1.10
+PIN_PYOPENGL := $(BIN)/python -c "import importlib.metadata as m; raise SystemExit(m.version('PyOpenGL') != '$(PYOPENGL)')" 2>/dev/null \
+	|| { echo "PyOpenGL $(PYOPENGL) over pyrender's pin"; $(BIN)/python -m pip install -q --no-deps 'PyOpenGL==$(PYOPENGL)'; }
 
 # An editable install leaves our modules uncompiled; with PYTHONDONTWRITEBYTECODE set (as in many
 # CI images) every run would compile them again (0.1 s of each command's start-up).
@@ -33,29 +38,31 @@ BYTECODE := $(BIN)/python -m compileall -q app cli core data_formats recorder
 
 $(VENV)/.installed: pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install -q -e .
-	$(BIN)/python -m pip install -q --no-deps '$(PYOPENGL)'
+	@$(PIN_PYOPENGL)
 	$(BYTECODE)
 	touch $@
 
 $(VENV)/.dev-installed: pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install -q -e '.[dev]'
-	$(BIN)/python -m pip install -q --no-deps '$(PYOPENGL)'
+	@$(PIN_PYOPENGL)
 	$(BYTECODE)
 	touch $@ $(VENV)/.installed
 
 $(VENV)/.bench-installed: pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install -q -e '.[bench]'
-	$(BIN)/python -m pip install -q --no-deps '$(PYOPENGL)'
+	@$(PIN_PYOPENGL)
 	$(BYTECODE)
 	touch $@ $(VENV)/.installed
 
 demo: sysdeps $(VENV)/.installed
+	@$(PIN_PYOPENGL)
 	@mkdir -p $(DEMO)
 	$(BIN)/aslam record --route paper -o $(DEMO)/paper.mcap --force --contact-sheet $(DEMO)/contact-sheet.png
 	$(BIN)/aslam estimate $(DEMO)/paper.mcap -o $(DEMO)/estimate.mcap --force
 	$(BIN)/aslam report $(DEMO)/estimate.mcap --force --graph $(DEMO)/graph.json --plots $(DEMO)/plots --json $(DEMO)/summary.json
 
 test: sysdeps $(VENV)/.dev-installed
+	@$(PIN_PYOPENGL)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/pytest -q
@@ -66,6 +73,7 @@ lint: $(VENV)/.dev-installed
 
 # Measures (~7 min, both cores), writes bench/results/benchmarks.json, then renders the document.
 bench: sysdeps $(VENV)/.bench-installed
+	@$(PIN_PYOPENGL)
 	$(BIN)/python bench/run_all.py
 
 # Only docs/benchmarks.md and its plot again from bench/results/benchmarks.json (seconds): for wording.
@@ -76,6 +84,7 @@ bench-doc: $(VENV)/.bench-installed
 # through the CLI, every case checked against the error contract. Niced: the machine may be shared.
 FUZZ_CASES ?= 10000
 fuzz: $(VENV)/.dev-installed
+	@$(PIN_PYOPENGL)
 	nice -n 10 $(BIN)/python tests/fuzz.py $(FUZZ_CASES) --json fuzz-summary.json
 
 clean:

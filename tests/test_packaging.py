@@ -129,6 +129,27 @@ def test_every_declared_dependency_is_imported():
     assert direct - imported == set()
 
 
+def test_every_make_target_that_runs_aslam_checks_the_pyopengl_pin(tmp_path):
+    """pip puts pyrender's PyOpenGL 3.1.0 back whenever it installs aslam's dependencies again; after
+    a `pip install -e .` by hand the venv's sentinel files are still newer than pyproject.toml, so
+    `make test` (demo, bench, fuzz) ran on 3.1.0, whose OSMesa binding is too old. Each target now
+    checks the version first (``make -n`` lists the commands it would run)."""
+    venv = tmp_path / "venv"
+    (venv / "bin").mkdir(parents=True)
+    (venv / "bin" / "python").touch()
+    for sentinel in (".installed", ".dev-installed", ".bench-installed"):
+        (venv / sentinel).touch()
+    for target in ("demo", "test", "bench", "fuzz"):
+        plan = subprocess.run(
+            ["make", "-n", "-C", str(ROOT), f"VENV={venv}", target],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
+        assert "pip install -q --no-deps 'PyOpenGL==3.1.10'" in plan, target
+        assert "m.version('PyOpenGL') != '3.1.10'" in plan, target
+
+
 def test_python_dash_m_aslam_is_the_console_script(capsys):
     """``python -m aslam`` (__main__.py at the root, installed as aslam/__main__.py) for an
     interpreter whose scripts folder is not on PATH."""
