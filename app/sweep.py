@@ -29,6 +29,7 @@ import os
 import shutil
 import socket
 import time
+from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -111,13 +112,34 @@ class Source:
     """The recording file (for a render: where the render task writes it, under RESULTS_DIR)."""
     identity: str
     """SHA-256 of the file, or of the render configuration (which decides the file's bytes)."""
+    name: str
+    """What the terminal's tables call the file: its name, or where another recording of the sweep
+    has that name, the shortest tail of its path no other has (``a/run.mcap``, ``b/run.mcap``)."""
     render: RecordConfig | None = None
 
     @property
     def label(self) -> str:
         if self.render is None:
-            return self.path.name
-        return f"render {Path(self.render.route).stem} seed {self.render.seed} ({self.path.name})"
+            return self.name
+        return f"render {Path(self.render.route).stem} seed {self.render.seed} ({self.name})"
+
+
+def distinct_names(paths: Iterable[Path]) -> dict[Path, str]:
+    """Each path's shortest tail that no other path ends with: its file name, unless another has
+    that name (then ``a/run.mcap`` and ``b/run.mcap``; a whole path at most)."""
+    names: dict[Path, str] = {}
+    pending = set(paths)
+    length = 1
+    while pending:
+        # A path whose tail of this length is unique cannot share a longer tail with another one.
+        tails = Counter(path.parts[-length:] for path in pending)
+        for path in list(pending):
+            tail = path.parts[-length:]
+            if tails[tail] == 1 or length >= len(path.parts):
+                names[path] = str(Path(*tail))
+                pending.discard(path)
+        length += 1
+    return names
 
 
 @dataclass(frozen=True)
@@ -206,14 +228,12 @@ def plan_tasks(sweep: Sweep, results_dir: Path, *, hashes: HashCache | None = No
     """
     results_dir = full_path(results_dir)
     hashes = hashes if hashes is not None else HashCache(None)
-    sources = []
-    for path in sweep.recordings:
-        if full_path(path).is_relative_to(results_dir):
-            continue
-        sources.append(Source(path, hashes.sha256(path)))
+    recordings = [path for path in sweep.recordings if not full_path(path).is_relative_to(results_dir)]
+    names = distinct_names(recordings)
+    sources = [Source(path, hashes.sha256(path), names[path]) for path in recordings]
     for config in sweep.renders:
         path, identity = render_path(results_dir, config)
-        sources.append(Source(path, identity, config))
+        sources.append(Source(path, identity, path.name, config))
     tasks: list[Task] = []
     first: dict[str, int] = {}  # key -> the task that computes it
     planned: set[tuple[Path, str]] = set()

@@ -26,6 +26,7 @@ from aslam.app.sweep import (
     VARYING_COLUMNS,
     Objective,
     TaskResult,
+    distinct_names,
     open_client,
     pareto_front,
     plan_tasks,
@@ -527,6 +528,27 @@ def test_a_recording_copied_under_another_name_keeps_its_rows_computed_once(reco
     assert [t.same_as for t in tasks] == [None, None, 0, 1]
     assert main(["sweep", str(sweep), "-o", str(results), "-q"]) == 0  # all done: no cluster needed
     assert _rows(results) == rows
+
+
+def test_recordings_of_one_name_are_told_apart_by_their_folders_on_the_terminal(tmp_path, capsys):
+    """``x/run.mcap`` and ``y/deep/run.mcap`` are two lines the user can tell apart in the tables
+    on the terminal (the plan, the live table, --pareto), each by the shortest tail of its path no
+    other recording has; a name no other has stays a name; the files keep the whole path."""
+    paths = ["x/run.mcap", "y/deep/run.mcap", "z/deep/run.mcap", "a.mcap"]
+    for path in paths:
+        (tmp_path / path).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / path).write_bytes(path.encode())
+    sweep = tmp_path / "s.toml"
+    sweep.write_text(f"[recordings]\npaths = {json.dumps(paths)}\n[grid]\nbeta = 3.0\n")
+    assert main(["sweep", str(sweep), "-o", str(tmp_path / "out"), "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    recordings = [line.split("│")[2].strip() for line in out.splitlines() if line.startswith("│")]
+    assert recordings == ["x/run.mcap", "y/deep/run.mcap", "z/deep/run.mcap", "a.mcap"]
+    assert main(["sweep", str(sweep), "-o", str(tmp_path / "out"), "--dry-run", "--json", "-"]) == 0
+    rows = json.loads(capsys.readouterr().out)["rows"]
+    assert [row["recording"] for row in rows] == [str(tmp_path / path) for path in paths]
+    inner, outer = Path("/x/run.mcap"), Path("/data/x/run.mcap")  # every tail of one is the other's
+    assert distinct_names([inner, outer]) == {inner: "/x/run.mcap", outer: "data/x/run.mcap"}
 
 
 def test_recording_paths_with_brackets_are_names_and_globs_only_in_the_pattern(tmp_path):
