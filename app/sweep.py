@@ -90,6 +90,8 @@ class ClusterLost(AslamError):
 WORKERS_WAIT_S = 30.0
 #: How often, while no task finishes, the sweep asks the scheduler whether it still has workers.
 WORKERS_CHECK_S = 5.0
+#: How often, with a task timeout, the workers are asked how long their tasks have been computing.
+TIMEOUT_CHECK_S = 1.0
 #: How long a scheduler has to say who it is.
 SCHEDULER_ANSWER_S = 10.0
 #: How long a scheduler file may take to appear: a batch job starts the scheduler and the sweep together.
@@ -524,25 +526,28 @@ def dry_run(
     workers: int | None = None,
     scheduler: str | None = None,
     force: bool = False,
+    task_timeout: float | None = None,
     on_warning: Callable[[str], None] | None = None,
 ) -> SweepPlan:
     """What :func:`run_sweep` with these arguments would do: its options checked, its tasks planned
     and those done in ``results_dir`` found, without a cluster or a single write (not even the
     hash cache: a recording not hashed before is read). :meth:`SweepPlan.check_writable` says
     whether the run could save its results."""
-    _check_options(workers, scheduler)
+    _check_options(workers, scheduler, task_timeout)
     results_dir = full_path(results_dir)
     check_output_folder(results_dir, what="results folder")
     hashes = HashCache(results_dir / HASHES_FILE, use=not force)
     return plan_sweep(sweep, results_dir, force=force, hashes=hashes, on_warning=on_warning)
 
 
-def _check_options(workers: int | None, scheduler: str | None) -> None:
+def _check_options(workers: int | None, scheduler: str | None, task_timeout: float | None = None) -> None:
     """The one check of the cluster options (a run, a dry run, ``open_client`` for bench and notebooks)."""
     if scheduler is not None and workers is not None:
         raise InputError("--workers sizes a local cluster; the cluster at --scheduler has its own workers")
     if workers is not None and workers < 1:
         raise InputError(f"--workers must be at least 1, got {workers}")
+    if task_timeout is not None and not 0 < task_timeout < float("inf"):
+        raise InputError(f"--task-timeout must be a number of seconds above 0, got {task_timeout:g}")
 
 
 def _write_problem(results_dir: Path) -> str | None:
@@ -717,6 +722,7 @@ def run_sweep(
     workers: int | None = None,
     scheduler: str | None = None,
     force: bool = False,
+    task_timeout: float | None = None,
     extra_figures: Sequence[str] = (),
     client: Any | None = None,
     on_plan: Callable[[SweepPlan], None] | None = None,
@@ -735,8 +741,10 @@ def run_sweep(
     ``extra_figures``. A failed task does not stop the others; :meth:`SweepRun.check` says whether
     any failed.
     ``client``: a Dask client to use (and leave open) instead of starting one (a bench, a notebook).
+    ``task_timeout``: seconds a task may compute; one still computing then is a failed row, and
+    its worker is restarted to stop it (:func:`_stop_overdue`).
     """
-    _check_options(workers, scheduler)
+    _check_options(workers, scheduler, task_timeout)
     results_dir = full_path(results_dir)
     check_output_folder(results_dir, what="results folder")
     created = not results_dir.exists()
@@ -752,6 +760,7 @@ def run_sweep(
             workers,
             scheduler,
             force,
+            task_timeout,
             extra_figures,
             client,
             on_plan,
@@ -773,6 +782,7 @@ def _run_in(
     workers: int | None,
     scheduler: str | None,
     force: bool,
+    task_timeout: float | None,
     extra_figures: Sequence[str],
     client: Any | None,
     on_plan: Callable[[SweepPlan], None] | None,
@@ -811,6 +821,7 @@ def _run_in(
                     client,
                     plan.to_run,
                     force=force,
+                    task_timeout=task_timeout,
                     done_before=plan.reused,
                     total=plan.reused + len(plan.to_run),
                 )
@@ -839,13 +850,20 @@ def _run_in(
 
 
 def _compute(
-    client: Any, tasks: Sequence[Task], *, force: bool, done_before: int = 0, total: int | None = None
+    client: Any,
+    tasks: Sequence[Task],
+    *,
+    force: bool,
+    task_timeout: float | None = None,
+    done_before: int = 0,
+    total: int | None = None,
 ) -> Iterable[tuple[Task, TaskResult]]:
     """Submit the render tasks, then the estimate tasks depending on them; yield as they finish.
 
     While none finishes, the scheduler is asked every ``WORKERS_CHECK_S`` whether it still has
     workers: with none for ``WORKERS_WAIT_S``, or the scheduler gone, the sweep stops (``ClusterLost``)
-    instead of waiting for ever; tasks that never ran get no row.
+    instead of waiting for ever; tasks that never ran get no row. With ``task_timeout``, every
+    ``TIMEOUT_CHECK_S`` the estimate tasks computing longer are stopped, each a failed row.
     """
     from concurrent.futures import CancelledError
 
@@ -896,12 +914,14 @@ def _compute(
                 raise lost("its scheduler went away") from None
 
     pending = set(futures)
+    poll = WORKERS_CHECK_S if task_timeout is None else min(WORKERS_CHECK_S, TIMEOUT_CHECK_S)
+    checked = time.monotonic()
     while pending:
         try:
-            done, pending = wait(pending, timeout=WORKERS_CHECK_S, return_when="FIRST_COMPLETED")
+            done, pending = wait(pending, timeout=poll, return_when="FIRST_COMPLETED")
         except TimeoutError:
             still_served()
-            continue
+            done = set()
         except CancelledError:  # every future, when the client loses its scheduler
             raise lost("its scheduler went away") from None
         for future in sorted(done, key=lambda f: futures[f].index):
@@ -919,6 +939,66 @@ def _compute(
             future.release()
             finished += 1
             yield task, result
+        if task_timeout is not None and time.monotonic() - checked >= TIMEOUT_CHECK_S:
+            checked = time.monotonic()
+            running = {future.key: future for future in pending}
+            try:
+                stopped = _stop_overdue(client, running, task_timeout)
+            except Exception as err:  # the scheduler itself is gone
+                raise lost(f"its scheduler does not answer: {error_text(err)}") from err
+            for key, (worker, error) in stopped.items():
+                pending.discard(running[key])
+                task = futures[running[key]]
+                finished += 1
+                yield task, TaskResult(task.index, task.key, None, error, (), None, None, worker)
+
+
+def executing_seconds(dask_worker: Any) -> dict[str, float]:
+    """How long each task this worker is computing has been at it, by key (run on a worker by
+    ``client.run``, which hands it its worker)."""
+    from distributed.metrics import time as dask_time
+
+    now = dask_time()
+    return {
+        str(state.key): now - state.start_time
+        for state in dask_worker.state.executing
+        if state.start_time is not None
+    }
+
+
+def _stop_overdue(client: Any, running: Mapping[str, Any], limit: float) -> dict[str, tuple[str, str]]:
+    """Stop the futures of ``running`` (by key) that have computed for more than ``limit`` seconds;
+    for each, its worker and the row's error.
+
+    Python code running in a worker's thread cannot be interrupted: the future is cancelled (so
+    the scheduler gives it to no other worker) and its worker restarted by its nanny, a new
+    process. A worker without a nanny cannot be restarted and computes on; its row says so.
+    """
+    overdue: dict[str, str] = {}  # key -> worker
+    for worker, seconds in client.run(executing_seconds, on_error="return").items():
+        if isinstance(seconds, dict):  # else the worker left while asked
+            overdue.update(
+                {key: worker for key, time_s in seconds.items() if key in running and time_s > limit}
+            )
+    if not overdue:
+        return {}
+    client.cancel([running[key] for key in overdue])
+    workers = sorted(set(overdue.values()))
+    try:
+        restarted = client.restart_workers(workers, raise_for_error=False)
+    except ValueError as err:  # a worker without a nanny
+        restarted = dict.fromkeys(workers, error_text(err))
+    head = f"timed out: still computing after {limit:g} s (--task-timeout)"
+    stopped = {}
+    for key, worker in overdue.items():
+        status = restarted[worker]
+        how = (
+            "stopped by restarting its worker"
+            if status == "OK"
+            else f"its worker could not be restarted ({status}) and computes on until the task ends"
+        )
+        stopped[key] = (worker, f"{head}; {how}")
+    return stopped
 
 
 @contextlib.contextmanager

@@ -71,6 +71,15 @@ def sweep(
     force: Annotated[
         bool, typer.Option("--force", help="Recompute every task, even those already done.")
     ] = False,
+    task_timeout: Annotated[
+        float | None,
+        typer.Option(
+            metavar="SECONDS",
+            help="A task still computing after this long is stopped (its worker restarted) and is a"
+            " failed row. \\[default: none]",
+            show_default=False,
+        ),
+    ] = None,
     dry_run: Annotated[
         bool,
         typer.Option(
@@ -116,7 +125,7 @@ def sweep(
     if scheduler_file is not None:
         scheduler = scheduler_address(scheduler_file)
     if dry_run:
-        _dry_run(spec, output, workers, scheduler, force, json_out, terminal)
+        _dry_run(spec, output, workers, scheduler, force, task_timeout, json_out, terminal)
         return
     display = (
         LiveDisplay(terminal, spec.figures)
@@ -130,6 +139,7 @@ def sweep(
             workers=workers,
             scheduler=scheduler,
             force=force,
+            task_timeout=task_timeout,
             extra_figures=[o.key for o in objectives],
             on_plan=display.plan,
             on_result=display.result,
@@ -152,6 +162,7 @@ def _dry_run(
     workers: int | None,
     scheduler: str | None,
     force: bool,
+    task_timeout: float | None,
     json_out: str | None,
     terminal: Terminal,
 ) -> None:
@@ -165,7 +176,13 @@ def _dry_run(
     from aslam.data_formats.files import write_text_output
 
     plan = dry_run(
-        spec, output, workers=workers, scheduler=scheduler, force=force, on_warning=terminal.warning
+        spec,
+        output,
+        workers=workers,
+        scheduler=scheduler,
+        force=force,
+        task_timeout=task_timeout,
+        on_warning=terminal.warning,
     )
     if json_out is not None:
         written = write_text_output(json_out, json.dumps(plan.as_dict(), indent=2) + "\n")

@@ -15,6 +15,7 @@ import sys
 import time
 from pathlib import Path
 
+import psutil
 import pyarrow.csv
 import pyarrow.parquet
 import pytest
@@ -296,6 +297,58 @@ def test_a_cluster_started_separately_gives_the_same_rows(local_run, recordings,
     ran_on = {row["worker"] for row in rows if row["status"] == "ok"}
     assert ran_on and ran_on <= cluster_workers
     assert _figures(rows) == _figures(_rows(local_run[1]))
+
+
+#: A parameter set a grid may well explore that computes for a minute on the 2-lap 64×48 recording
+#: (3,000 hypotheses over 16,384-long histograms; measured 66 s) instead of a tenth of a second.
+SLOW_GRID = """
+[[grid]]
+observation_model = "histogram"
+cells_x = 32
+cells_y = 32
+max_hypotheses = 10000
+prune_ratio = 1e-12
+place_radius_m = 10.0
+gate_sigma = 100.0
+"""
+
+
+def test_a_task_over_the_timeout_is_stopped_and_its_worker_replaced(recordings, tmp_path, capsys):
+    """--task-timeout: the slow task's row fails saying so, its worker process is gone (restarted by
+    its nanny, not left computing), and the next task runs on the new worker; exit 3."""
+    sweep = tmp_path / "s.toml"
+    sweep.write_text(
+        f'figures = ["keyframes"]\n[recordings]\npaths = ["{recordings / "good.mcap"}"]\n'
+        + SLOW_GRID
+        + "[[grid]]\nbeta = 3.0\n"
+    )
+    results = tmp_path / "results"
+    assert main(["sweep", str(sweep), "-o", str(results), "--task-timeout", "0", "--dry-run"]) == 2
+    assert "--task-timeout must be a number of seconds above 0, got 0" in capsys.readouterr().err
+    client = open_client(workers=1, scheduler=None)  # one worker: the next task needs it freed
+    try:
+        (before,) = client.run(os.getpid).values()
+        started = time.monotonic()
+        cluster = ["--scheduler", client.scheduler.address, "--task-timeout", "3", "-q"]
+        code = main(["sweep", str(sweep), "-o", str(results), *cluster])
+        elapsed = time.monotonic() - started
+        (after,) = client.run(os.getpid).values()
+        slow_worker_state = psutil.Process(before).status() if psutil.pid_exists(before) else "gone"
+    finally:
+        client.close()
+        client.cluster.close()
+    assert code == 3
+    slow, fast = _rows(results)
+    assert slow["status"] == "error" and slow["keyframes"] is None
+    assert slow["error"] == (
+        "timed out: still computing after 3 s (--task-timeout); stopped by restarting its worker"
+    )
+    assert fast["status"] == "ok" and fast["keyframes"] > 20
+    assert fast["worker"] != slow["worker"] and after != before
+    assert slow_worker_state in ("gone", psutil.STATUS_ZOMBIE)
+    assert elapsed < 60  # the slow task alone computes for a minute
+    assert main(["sweep", str(sweep), "-o", str(results), "--dry-run"]) == 0  # a failed task: tried again
+    assert capsys.readouterr().out.splitlines()[0] == "2 tasks, 1 already done, 1 to run"
 
 
 def test_a_bad_scheduler_file_is_one_line_before_any_work(recordings, tmp_path, capsys, monkeypatch):
