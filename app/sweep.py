@@ -1039,6 +1039,7 @@ def columns(sweep: Sweep, extra_figures: Iterable[str] = ()) -> list[str]:
         "status",
         "recording",
         "render",
+        "same_as",
         *params,
         *figures,
         *TIMING_COLUMNS,
@@ -1063,6 +1064,7 @@ def rows(
             "status": "ok" if result.ok else "error",
             "recording": str(task.source.path),
             "render": "" if task.source.render is None else _render_text(task.source.render),
+            "same_as": task.same_as,
         }
         row.update({f"param.{name}": getattr(task.config, name) for name in sweep.parameter_names()})
         row.update({key: summary.get(key) for key in figures})
@@ -1117,7 +1119,7 @@ def _arrow_type(name: str, values: list[Any]) -> Any:
 
     from aslam.app.score import BOOLEAN_KEYS, COUNT_KEYS
 
-    if name in COUNT_KEYS:
+    if name in COUNT_KEYS or name == "same_as":  # a task index, null in a sweep without copies
         return pa.int64()
     if name in BOOLEAN_KEYS:
         return pa.bool_()

@@ -575,8 +575,10 @@ def test_a_recording_copied_under_another_name_keeps_its_rows_computed_once(reco
     ]
     assert [r["key"] for r in rows[2:]] == [r["key"] for r in rows[:2]]
     assert all(r["status"] == "ok" for r in rows)
-    assert _figures(rows[2:]) == [{**row, "task": row["task"] + 2} for row in _figures(rows[:2])]
+    copied = [{**row, "task": row["task"] + 2, "same_as": row["task"]} for row in _figures(rows[:2])]
+    assert _figures(rows[2:]) == copied
     assert len(list((results / "estimates").glob("*.mcap"))) == 2  # computed once each
+    assert [r["same_as"] for r in rows] == [None, None, 0, 1]  # the table says whose result it is
     tasks = plan_tasks(read_sweep_file(sweep), results)
     assert [t.same_as for t in tasks] == [None, None, 0, 1]
     assert main(["sweep", str(sweep), "-o", str(results), "-q"]) == 0  # all done: no cluster needed
@@ -977,6 +979,7 @@ def test_the_tables_keep_the_summarys_types_even_when_every_task_failed(local_ru
     assert str(extra.schema.field("keyframes").type) == "int64"
     assert str(extra.schema.field("loop_closure.claims").type) == "int64"
     assert str(extra.schema.field("ground_truth").type) == "bool"
+    assert str(extra.schema.field("same_as").type) == "int64"  # null: no copies in this sweep
     good = pyarrow.parquet.read_table(results / "results.parquet")
     table = arrow_table(sweep, tasks, failed)
     assert pyarrow.concat_tables([good, table]).num_rows == 2 * len(tasks)
