@@ -254,28 +254,26 @@ _NODE_CLASS = None
 
 
 def _add(scene, pyrender, *, pose=None, **what):
-    """Add a node whose hash is its creation number, not its memory address.
+    """Add a node whose hash is its number in ``scene`` (the nodes added before it), not its address.
 
     pyrender keeps nodes in sets and sums the lights in set order; with address-based hashes that
-    order (and so the last bit of some pixels) changes from run to run.  Sequential hashes make the
-    order, and the images, the same on every run.
+    order (and so the last bit of some pixels) changes from run to run.  Numbers make the order,
+    and the images, the same on every run; numbered per scene, not per process, so a second
+    render in the same process (a sweep worker's) is the same as the first.
     """
     global _NODE_CLASS
     if _NODE_CLASS is None:
 
         class SequencedNode(pyrender.Node):
-            _next = 0
-
-            def __init__(self, **kwargs):
+            def __init__(self, sequence: int, **kwargs):
                 super().__init__(**kwargs)
-                self._sequence = SequencedNode._next
-                SequencedNode._next += 1
+                self._sequence = sequence
 
             def __hash__(self) -> int:
                 return self._sequence
 
         _NODE_CLASS = SequencedNode
-    node = _NODE_CLASS(matrix=np.eye(4) if pose is None else pose, **what)
+    node = _NODE_CLASS(len(scene.nodes), matrix=np.eye(4) if pose is None else pose, **what)
     scene.add_node(node)
     return node
 
