@@ -233,8 +233,6 @@ def test_the_framebuffer_has_one_sample_per_pixel():
         from OpenGL import GL
 
         inner = renderer._renderer._renderer
-        if getattr(inner, "_main_cb_ms", None) is None:  # no framebuffer objects (OSMesa): nothing to ask
-            pytest.skip("no multisampled framebuffer on this platform")
         GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, inner._main_cb_ms)
         samples = GL.glGetRenderbufferParameteriv(GL.GL_RENDERBUFFER, GL.GL_RENDERBUFFER_SAMPLES)
     assert int(samples) == 0
@@ -398,17 +396,18 @@ def test_existing_output_is_refused_without_force(tmp_path, capsys):
 
 
 @pytest.mark.skipif(ctypes.util.find_library("OSMesa") is None, reason="libosmesa6 is not installed")
-def test_osmesa_fallback_renders_the_same_scene(tmp_path):
-    """The OSMesa platform (the fallback when EGL cannot start) renders a real recording, and the
-    same views as EGL: both are Mesa's rasteriser, a grey level apart at most here.
+def test_osmesa_fallback_writes_the_same_bytes_as_egl(tmp_path):
+    """The OSMesa platform (the fallback when EGL cannot start) renders real views, and the very
+    same files as EGL: both are Mesa's rasteriser drawing into a framebuffer object. (Drawn into
+    OSMesa's own buffer, as pyrender does, about 2 % of the pixels were a grey level or two off.)
 
     The platform is fixed before pyrender is imported, hence a fresh interpreter for each.
     """
     code = "import sys; from aslam.cli.app import main; sys.exit(main(sys.argv[1:]))"
-    frames = {}
     for platform in ("osmesa", "egl"):
         out = tmp_path / f"{platform}.mcap"
         args = ["record", "--route", "paper", "--laps", "1", "--size", "48x36", "-o", str(out)]
+        args += ["--contact-sheet", str(tmp_path / f"{platform}.png")]
         done = subprocess.run(
             [sys.executable, "-c", code, *args],
             env={**os.environ, "PYOPENGL_PLATFORM": platform},
@@ -417,11 +416,10 @@ def test_osmesa_fallback_renders_the_same_scene(tmp_path):
             timeout=120,
         )
         assert done.returncode == 0, done.stderr
-        frames[platform] = [s.image.decode_gray().astype(np.int16) for s in Recording(out).samples()]
-    assert len(frames["osmesa"]) == len(frames["egl"]) == 35
-    assert all(frame.std() > 5 for frame in frames["osmesa"])  # real views, not blank buffers
-    for osmesa, egl in zip(frames["osmesa"], frames["egl"], strict=True):
-        assert np.abs(osmesa - egl).mean() < 0.5
+    frames = [s.image.decode_gray() for s in Recording(tmp_path / "osmesa.mcap").samples()]
+    assert len(frames) == 35 and all(frame.std() > 5 for frame in frames)  # real views, not blank buffers
+    for name in ("{}.mcap", "{}.png"):
+        assert (tmp_path / name.format("osmesa")).read_bytes() == (tmp_path / name.format("egl")).read_bytes()
 
 
 # --------------------------------------------------------------------------- the hard-case knobs
