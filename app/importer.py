@@ -69,7 +69,7 @@ def import_image_folder(
     file (and line); nothing appears under ``output`` unless the import completes.
     """
     from aslam.data_formats.camera import CameraIntrinsics, fov_option_problem
-    from aslam.data_formats.files import check_output_path, real_path
+    from aslam.data_formats.files import check_output_path, full_path, real_path
     from aslam.data_formats.images import EncodedImage, ImageFormat
     from aslam.data_formats.recording_writer import RecordingWriter
 
@@ -99,11 +99,11 @@ def import_image_folder(
     def describe(pose_source: PoseSource | None) -> str:
         if pose_source is None:
             return "none"
-        return f"{pose_source.path} ({pose_source.format.value}, {pose_source.rows} poses)"
+        return f"{full_path(pose_source.path)} ({pose_source.format.value}, {pose_source.rows} poses)"
 
     metadata = {
         "source": "image-folder",
-        "folder": str(folder),
+        "folder": str(full_path(folder)),
         "images": str(len(source)),
         "stamps": source.stamps,
         "odometry_known": "true" if source.odometry_known else "false",

@@ -723,6 +723,23 @@ def test_import_writes_a_recording_read_back_unchanged(tmp_path):
     assert again.read_bytes() == out.read_bytes()
 
 
+def test_the_same_folder_spelled_another_way_gives_the_same_recording(tmp_path, monkeypatch):
+    """The metadata names the folder and the pose files absolute, ``..`` folded (as an estimate
+    names its recording): imported from another folder through ``../`` the bytes are the same.
+    They were recorded as typed (``data/imgs`` against ``../data/imgs``), so they differed."""
+    write_images(tmp_path / "data" / "imgs", 3)
+    odometry = tmp_path / "data" / "odom.csv"
+    odometry.write_text("\n".join(csv_line(1 + i, route(i)) for i in range(3)) + "\n")
+    monkeypatch.chdir(tmp_path)
+    import_image_folder(Path("data/imgs"), Path("a.mcap"), odometry=Path("data/odom.csv"))
+    monkeypatch.chdir(tmp_path / "data")
+    import_image_folder(Path("../data/./imgs/"), Path("../b.mcap"), odometry=Path("odom.csv"))
+    assert (tmp_path / "a.mcap").read_bytes() == (tmp_path / "b.mcap").read_bytes()
+    metadata = Recording(tmp_path / "a.mcap").metadata()
+    assert metadata["folder"] == str(tmp_path / "data" / "imgs")
+    assert metadata["odometry"] == f"{odometry} (csv, 3 poses)"
+
+
 def test_import_with_odometry_says_it_is_known(tmp_path):
     write_images(tmp_path / "imgs", 3, name=lambda i: f"{i}.jpg")
     odometry = tmp_path / "odom.csv"
