@@ -163,16 +163,23 @@ class Task:
 
 def render_path(results_dir: Path, config: RecordConfig) -> tuple[Path, str]:
     """Where a render of ``config`` goes, and its identity: the SHA-256 of the configuration and of
-    the files it names (a route or world file edited since is another render, not a stale one)."""
+    the files it names (a route or world file edited since is another render, not a stale one).
+
+    A file counts by its name and bytes, not its folder, as in the recording: the sweep's folder
+    copied elsewhere (another checkout, a CI cache) finds its renders and keeps its task keys.
+    """
     from aslam.recorder.routes import PRESETS
 
+    recorded = asdict(config)
     files = {}
     if config.route not in PRESETS and Path(config.route).is_file():
         files["route"] = source_sha256(Path(config.route))
+        recorded["route"] = Path(config.route).name
     if config.world is not None and Path(config.world).is_file():
         files["world"] = source_sha256(Path(config.world))
+        recorded["world"] = Path(config.world).name
     named = {"files": files} if files else {}  # a preset's render keeps the identity it always had
-    identity = _digest({"render": asdict(config), **named, "version": tool_version()})
+    identity = _digest({"render": recorded, **named, "version": tool_version()})
     name = f"{Path(config.route).stem}-seed{config.seed}-{identity[:12]}.mcap"
     return results_dir / RENDERS_FOLDER / name, identity
 

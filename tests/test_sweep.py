@@ -831,6 +831,20 @@ def test_an_edited_route_file_is_another_render(tmp_path):
     assert render_path(tmp_path, RecordConfig(route=str(route)))[1] != first[1]
 
 
+def test_a_route_file_in_another_folder_is_the_same_render(tmp_path):
+    """A recording holds its route file's name and bytes, not its folder: a sweep's folder copied
+    elsewhere (another checkout, a CI cache) names the same render, so its task keys are the same.
+    The identity held the absolute path: a moved sweep rendered and estimated everything again."""
+    text = '{"actions": [{"forward_m": 2}, {"turn_deg": 180}, {"forward_m": 2}, {"turn_deg": 180}]}'
+    routes = [tmp_path / "a" / "loop.json", tmp_path / "b" / "c" / "loop.json", tmp_path / "a" / "lap.json"]
+    for route in routes:
+        route.parent.mkdir(parents=True, exist_ok=True)
+        route.write_text(text)
+    here, there, renamed = (render_path(tmp_path / "out", RecordConfig(route=str(r))) for r in routes)
+    assert here == there
+    assert renamed[1] != here[1]  # the name is in the recording (its route's name)
+
+
 def test_the_plan_counts_only_the_renders_still_to_make(tmp_path):
     """A re-run whose renders are there renders nothing first (it said it would); --force renders
     them all again; a recording file is never a render."""
