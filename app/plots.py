@@ -44,23 +44,31 @@ def _save(fig: Any, path: Path) -> None:
 
 def write_plots(folder: Path, report: Report, on_warning: Callable[[str], None] | None = None) -> list[Path]:
     """Write the figures into ``folder`` (created if missing); returns their paths. ``on_warning``
-    hears of a figure left out (the trajectory of an estimate without keyframes)."""
+    hears of a figure left out (the trajectory of an estimate without keyframes).
+
+    Drawn with matplotlib's default style, not the settings of a matplotlibrc (the user's, or one in
+    the current folder, which matplotlib also reads): the same report gives the same bytes anywhere.
+    """
     import matplotlib
+    import matplotlib.style
 
     matplotlib.use("Agg")
     title = report.estimate_path.name
     make_output_folder(folder)
     paths = [folder / name for name in PLOT_NAMES[:4]]
-    _save(_hypotheses_figure(report.evaluation, title), paths[0])
-    _save(_errors_figure(report.evaluation, title, measured=not report.truth_by_index), paths[1])
-    map_truth = None if report.true_poses is None else report.map_truth
-    _save(_map_figure(report.estimate.graph, report.actions, report.true_poses, title, map_truth), paths[2])
-    _save(_pr_figure(report.evaluation, report.summary["committed"], title), paths[3])
-    if report.embedding is not None:
-        paths.append(folder / PLOT_NAMES[4])
-        _save(_trajectory_figure(report, title), paths[-1])
-    elif on_warning is not None:
-        on_warning(f"{folder / PLOT_NAMES[4]}: not drawn: the estimate has no keyframes")
+    with matplotlib.style.context("default"):
+        _save(_hypotheses_figure(report.evaluation, title), paths[0])
+        _save(_errors_figure(report.evaluation, title, measured=not report.truth_by_index), paths[1])
+        map_truth = None if report.true_poses is None else report.map_truth
+        _save(
+            _map_figure(report.estimate.graph, report.actions, report.true_poses, title, map_truth), paths[2]
+        )
+        _save(_pr_figure(report.evaluation, report.summary["committed"], title), paths[3])
+        if report.embedding is not None:
+            paths.append(folder / PLOT_NAMES[4])
+            _save(_trajectory_figure(report, title), paths[-1])
+        elif on_warning is not None:
+            on_warning(f"{folder / PLOT_NAMES[4]}: not drawn: the estimate has no keyframes")
     return paths
 
 

@@ -289,6 +289,20 @@ def test_report_outputs(estimate_file: Path, tmp_path: Path, capsys):
     assert not [p for p in tmp_path.rglob(".*partial*")]
 
 
+def test_plots_are_the_same_bytes_whatever_the_users_matplotlib_settings(estimate_file: Path, tmp_path: Path):
+    """The figures are drawn with matplotlib's defaults. A matplotlibrc in MPLCONFIGDIR, or in the
+    folder ``report`` runs from (matplotlib reads that one too), changed every figure's bytes."""
+    import matplotlib
+
+    args = ["report", str(estimate_file), "-q", "--plots"]
+    assert main([*args, str(tmp_path / "plain")]) == 0
+    styled = {"font.size": 17, "axes.grid": True, "lines.linewidth": 3, "savefig.facecolor": "0.8"}
+    with matplotlib.rc_context(styled):
+        assert main([*args, str(tmp_path / "styled")]) == 0
+    for plain in sorted((tmp_path / "plain").iterdir()):
+        assert plain.read_bytes() == (tmp_path / "styled" / plain.name).read_bytes(), plain.name
+
+
 def test_report_json_to_stdout_keeps_stdout_pure(estimate_file: Path, capsys):
     assert main(["report", str(estimate_file), "--json", "-"]) == 0
     captured = capsys.readouterr()
