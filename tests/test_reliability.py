@@ -847,6 +847,56 @@ def test_the_same_file_spelled_another_way_gives_the_same_estimate(recording: Pa
     assert a.read_bytes() == b.read_bytes()
 
 
+def test_record_estimate_and_report_write_the_same_bytes_in_another_environment(tmp_path: Path):
+    """The chain run twice, in fresh processes that differ in hash seed, time zone, locale, BLAS
+    and Mesa thread counts, and the folder run from (absolute paths against relative ones, one
+    folder holding a ``matplotlibrc``): every file the same. The outputs go to one folder, moved
+    aside between runs, since the estimate and graph record absolute paths (docs/usage.md,
+    "Same inputs, same bytes"). A ``matplotlibrc`` where ``report`` ran changed every plot."""
+    code = (
+        "import json, sys\nfrom aslam.cli.app import main\nsys.exit(max(map(main, json.loads(sys.argv[1]))))"
+    )
+    out, here, there = tmp_path / "out", tmp_path / "here", tmp_path / "there"
+    here.mkdir()
+    there.mkdir()
+    (there / "matplotlibrc").write_text("font.size: 17\naxes.grid: True\nlines.linewidth: 3\n")
+    runs = [
+        (here, str(out), {"PYTHONHASHSEED": "0", "TZ": "UTC", "LC_ALL": "C", "OMP_NUM_THREADS": "1"}),
+        (there, "../out", {"PYTHONHASHSEED": "1", "TZ": "America/St_Johns", "LC_ALL": "C.UTF-8"}),
+    ]
+    written = []
+    for k, (cwd, folder, env) in enumerate(runs):
+        out.mkdir()
+        rec, est = f"{folder}/rec.mcap", f"{folder}/est.mcap"
+        outputs = [
+            "--json",
+            f"{folder}/s.json",
+            "--graph",
+            f"{folder}/g.json",
+            "--trajectory",
+            f"{folder}/t.tum",
+        ]
+        commands = [
+            ["record", "--route", "paper", "--laps", "1", "--size", "32x24", "-o", rec, "-q"],
+            ["estimate", rec, "-o", est, "--no-timing", "-q"],
+            ["report", est, "--recording", rec, "-q", *outputs, "--plots", f"{folder}/plots"],
+        ]
+        env = {**os.environ, "LP_NUM_THREADS": str(2 * k), "OPENBLAS_NUM_THREADS": str(1 + 3 * k), **env}
+        done = subprocess.run(
+            [sys.executable, "-c", code, json.dumps(commands)],
+            cwd=cwd,
+            env=env,
+            capture_output=True,
+            timeout=300,
+        )
+        assert done.returncode == 0, done.stderr
+        written.append({p.relative_to(out): p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()})
+        out.rename(tmp_path / f"run{k}")
+    assert len(written[0]) == 12  # the recording, estimate, two JSON, three trajectories, five plots
+    assert written[0].keys() == written[1].keys()
+    assert [name for name in written[0] if written[0][name] != written[1][name]] == []
+
+
 def test_a_stdout_that_is_not_utf8_gets_escapes_not_an_internal_error(estimate_file: Path):
     env = {**os.environ, "PYTHONIOENCODING": "ascii"}
     argv = [str(ASLAM), "report", str(estimate_file)]
