@@ -130,7 +130,7 @@ class CommandFiles:
             return
         staged, self.staged = self.staged, []
         for item in staged:
-            item.partial.unlink(missing_ok=True)
+            _discard(item.partial)
         self._remove_temporaries()
         folders, self.folders = self.folders, []
         for folder in folders:
@@ -140,8 +140,14 @@ class CommandFiles:
     def _remove_temporaries(self) -> None:
         temporaries, self.temporaries = self.temporaries, []
         for path in temporaries:
-            with contextlib.suppress(OSError):
-                path.unlink(missing_ok=True)
+            _discard(path)
+
+
+def _discard(path: Path) -> None:
+    """Remove ``path`` if it is there. A clean-up never fails in turn: it would hide the error that
+    called for it (a read-only folder refuses even to unlink a file that was never made)."""
+    with contextlib.suppress(OSError):
+        path.unlink(missing_ok=True)
 
 
 _current: CommandFiles | None = None
@@ -244,7 +250,9 @@ def full_path(path: Path | str) -> Path:
 
 def check_output_folder(path: Path, *, what: str = "folder") -> None:
     """Fail before any work when ``path`` cannot be an output folder: a file, or a folder to be made
-    under a file (the folder itself is made by whoever writes into it)."""
+    under a file or in a folder that cannot be written (the folder itself is made by whoever
+    writes into it). An existing folder may be read-only: whether a file must be written in it is
+    for its writer to say (a finished sweep's results are only read)."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise InputError(f"is a file, not a {what}", path=path)
@@ -252,6 +260,9 @@ def check_output_folder(path: Path, *, what: str = "folder") -> None:
         above = next(folder for folder in path.absolute().parents if folder.exists())
         if not above.is_dir():
             raise InputError(f"cannot make the {what}: {above} is not a folder", path=path)
+        problem = write_problem(above)
+        if problem is not None:
+            raise InputError(f"cannot make the {what} in {above}: {problem}", path=path)
 
 
 def write_problem(folder: Path) -> str | None:
@@ -311,6 +322,9 @@ def check_output_path(
         if real.parent.exists():
             raise error(f"{path.parent} is not a folder", path=path)
         raise error(f"folder {path.parent} does not exist", path=path)
+    problem = write_problem(real.parent)
+    if problem is not None:  # found now, not after the work (a whole render, for a contact sheet)
+        raise error(f"cannot write: {problem}", path=path)
 
 
 def _claim_output(path: Path, real: Path, error: type[InputError]) -> None:
@@ -341,7 +355,7 @@ def remove_stale_partials(folder: Path) -> list[Path]:
     except OSError:
         return []
     for candidate in removed:
-        candidate.unlink(missing_ok=True)
+        _discard(candidate)
     return removed
 
 
@@ -397,7 +411,7 @@ class AtomicFile:
             raise error(f"cannot write: {err.strerror or err}", path=self.path) from err
         except BaseException:  # an interrupt between creating the file and holding it
             if not self.direct:
-                self.partial_path.unlink(missing_ok=True)
+                _discard(self.partial_path)
             raise
         self.closed = False
 
@@ -430,7 +444,7 @@ class AtomicFile:
             pass  # e.g. a full disk refusing the last buffered bytes: the file goes anyway
         finally:
             if not self.direct:
-                self.partial_path.unlink(missing_ok=True)
+                _discard(self.partial_path)
 
 
 def _finish_output(partial: Path, target: Path, shown: Path, error: type[InputError]) -> None:
@@ -474,10 +488,10 @@ def write_atomically(
         write(temporary)
         _finish_output(temporary, target, path, error)
     except OSError as err:
-        temporary.unlink(missing_ok=True)
+        _discard(temporary)
         raise error(f"cannot write: {err.strerror or err}", path=path) from err
     except BaseException:
-        temporary.unlink(missing_ok=True)
+        _discard(temporary)
         raise
 
 

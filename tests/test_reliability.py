@@ -903,3 +903,33 @@ def test_a_stdout_that_is_not_utf8_gets_escapes_not_an_internal_error(estimate_f
     done = subprocess.run(argv, capture_output=True, env=env, timeout=120)
     assert done.returncode == 0, done.stderr
     assert b"aslam report \\u2014" in done.stdout
+
+
+# --- interrupted runs, full disks, shared machines ------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "argv, name",
+    [
+        (["report", "{estimate}", "--json", "{out}"], "s.json"),
+        (["report", "{estimate}", "--trajectory", "{out}"], "t.tum"),
+        (["report", "{estimate}", "--plots", "{out}"], "plots"),
+        (["info", "{recording}", "--json", "{out}"], "i.json"),
+        (["record", "--size", "32x24", "--laps", "1", "-o", "{other}", "--contact-sheet", "{out}"], "s.png"),
+    ],
+)
+def test_an_unwritable_output_folder_is_refused_before_any_work_naming_the_output(
+    recording: Path, estimate_file: Path, read_only_folder, tmp_path: Path, capsys, argv, name
+):
+    """Before, the clean-up's own unlink failed in a read-only folder and its error, naming the
+    hidden ``.NAME.partial-PID``, replaced the real one, after all the work (a whole render for a
+    contact sheet); now the folder is checked with the other output checks."""
+    folder, problem = read_only_folder
+    out = folder / name
+    fields = {"estimate": estimate_file, "recording": recording, "out": out, "other": tmp_path / "r.mcap"}
+    assert main([arg.format(**fields) for arg in argv] + ["-q"]) == 2
+    captured = capsys.readouterr()
+    assert captured.err.startswith(f"aslam: error: {out}: ") and captured.err.count("\n") == 1, captured.err
+    assert problem in captured.err and "partial" not in captured.err
+    assert captured.out == ""  # nothing scored or described first
+    assert list(folder.iterdir()) == [] and not (tmp_path / "r.mcap").exists()
