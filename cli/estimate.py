@@ -71,7 +71,7 @@ def estimate(**options: Any) -> None:
             on_progress=on_progress,
             on_warning=terminal.warning,
         )
-    terminal.info(
+    terminal.wrote(
         f"wrote {fixed['output']} ({summary.keyframes} keyframes from {summary.samples} images, "
         f"{summary.states} states, {summary.links} links, {summary.hypotheses} hypotheses; "
         f"{summary.keyframes_per_second:.1f} keyframes/s)"

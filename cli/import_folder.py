@@ -75,7 +75,7 @@ def import_folder(
             on_warning=terminal.warning,
         )
     odometry_note = "odometry" if result.odometry_known else "no odometry (equal steps assumed)"
-    terminal.info(
+    terminal.wrote(
         f"wrote {result.output} ({result.frames} of {result.images} images, "
         f"{result.width_px}x{result.height_px}, {odometry_note}"
         f"{', ground truth' if result.ground_truth else ''}; stamps {result.stamps}; {result.seconds:.1f} s)"

@@ -51,7 +51,7 @@ def info(
     if json_out is not None:
         written = write_text_output(json_out, json.dumps(result.as_dict(), indent=2, sort_keys=False) + "\n")
         if written is not None:
-            terminal.info(f"wrote {written}")
+            terminal.wrote(f"wrote {written}")
         return
     _print_tables(result)
 

@@ -133,6 +133,18 @@ class Terminal:
         if not self.quiet:
             self._line(message)
 
+    def wrote(self, message: str) -> None:
+        """A line naming what the command wrote, shown once its outputs are renamed into place
+        (``aslam.data_formats.files.command_files``): a command that then fails, or is
+        interrupted, never claims a file it leaves no trace of. At once where writes land at once."""
+        from aslam.data_formats.files import current
+
+        files = current()
+        if files is None:
+            self.info(message)
+        else:
+            files.after_commit.append(lambda: self.info(message))
+
     def detail(self, message: str) -> None:
         """A line only --verbose shows."""
         if self.verbose:

@@ -157,7 +157,7 @@ def record(
     with counted_progress(terminal, "rendering") as on_progress:  # no bar in logs, pipes, with --quiet
         result = run_record(config, output, force=force, progress=on_progress)
     rate = result.frames / result.seconds if result.seconds > 0 else float("inf")
-    terminal.info(
+    terminal.wrote(
         f"wrote {result.output} ({result.frames} frames, {result.keyframes} keyframes, "
         f"{result.seconds:.1f} s, {rate:.0f} frames/s)"
         + (f"; contact sheet {result.contact_sheet}" if result.contact_sheet else "")

@@ -158,7 +158,7 @@ def report(
     if json_out is not None:
         written += _write_json(json_out, result.summary, indent=2)
     for path in written:
-        terminal.info(f"wrote {path}")
+        terminal.wrote(f"wrote {path}")
 
     failed = failed_conditions(conditions, result.summary)
     if failed:

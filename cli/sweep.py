@@ -187,7 +187,7 @@ def _dry_run(
     if json_out is not None:
         written = write_text_output(json_out, json.dumps(plan.as_dict(), indent=2) + "\n")
         if written is not None:
-            terminal.info(f"wrote {written}")
+            terminal.wrote(f"wrote {written}")
     else:
         console = table_console()
         console.print(plan_text(plan), soft_wrap=True)

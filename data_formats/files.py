@@ -98,6 +98,8 @@ class CommandFiles:
     interrupt skips, the end of the command removes."""
     folders: list[Path] = field(default_factory=list)
     """Folders the command created for its outputs, deepest first: a failed command removes them."""
+    after_commit: list[Callable[[], None]] = field(default_factory=list)
+    """Run once the outputs are in place (the command's "wrote …" lines); dropped on a rollback."""
     owner_pid: int = field(default_factory=os.getpid)
 
     def warn(self, line: str) -> None:
@@ -105,7 +107,12 @@ class CommandFiles:
             self.on_warning(line)
 
     def commit(self) -> None:
-        """Rename every staged output to its final name, after checking them against every input."""
+        """Move every staged output to its final name, after checking them against every input.
+
+        Without ``--force`` an output is only ever created, never replaced: one that another
+        process wrote while this command ran (two runs given the same ``-o``) is refused, and the
+        outputs this commit had already created are taken back, so the command leaves none.
+        """
         if os.getpid() != self.owner_pid:
             return
         for item in self.staged:
@@ -114,21 +121,35 @@ class CommandFiles:
                 self.rollback()
                 raise item.error(_input_conflict(shown), path=item.shown)
         staged, self.staged = self.staged, []
+        created: list[Path] = []
         for i, item in enumerate(staged):
             try:
-                os.replace(item.partial, item.target)
+                if _move_into_place(item.partial, item.target, replace=bool(self.force)):
+                    created.append(item.target)
             except OSError as err:
+                for target in created:
+                    _discard(target)
                 self.staged = staged[i:]
                 self.rollback()
-                raise item.error(f"cannot write: {err.strerror or err}", path=item.shown) from err
+                problem = (
+                    "was written by another process while this command ran; refusing to overwrite it "
+                    "(use --force)"
+                    if isinstance(err, FileExistsError)
+                    else f"cannot write: {err.strerror or err}"
+                )
+                raise item.error(problem, path=item.shown) from err
         self._remove_temporaries()
         self.folders = []
+        after, self.after_commit = self.after_commit, []
+        for announce in after:
+            announce()
 
     def rollback(self) -> None:
         """Remove every staged output; nothing appears under their final names."""
         if os.getpid() != self.owner_pid:
             return
         staged, self.staged = self.staged, []
+        self.after_commit = []
         for item in staged:
             _discard(item.partial)
         self._remove_temporaries()
@@ -148,6 +169,27 @@ def _discard(path: Path) -> None:
     called for it (a read-only folder refuses even to unlink a file that was never made)."""
     with contextlib.suppress(OSError):
         path.unlink(missing_ok=True)
+
+
+def _move_into_place(partial: Path, target: Path, *, replace: bool) -> bool:
+    """Rename ``partial`` to ``target``; True if that created ``target`` (it was not there).
+
+    Without ``replace`` the move is a hard link, which fails (``FileExistsError``) when ``target``
+    exists, atomically, where a check before a rename would leave a moment for another writer. A
+    file system without hard links (FAT, some network shares) gets the rename.
+    """
+    if not replace:
+        try:
+            os.link(partial, target)
+        except FileExistsError:
+            raise
+        except OSError:
+            pass
+        else:
+            _discard(partial)
+            return True
+    os.replace(partial, target)
+    return False
 
 
 _current: CommandFiles | None = None

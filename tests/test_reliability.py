@@ -933,3 +933,43 @@ def test_an_unwritable_output_folder_is_refused_before_any_work_naming_the_outpu
     assert problem in captured.err and "partial" not in captured.err
     assert captured.out == ""  # nothing scored or described first
     assert list(folder.iterdir()) == [] and not (tmp_path / "r.mcap").exists()
+
+
+def test_an_output_another_process_wrote_meanwhile_is_not_overwritten(tmp_path: Path):
+    """Without --force an output is created, never replaced: a file that appeared under its name
+    while the command ran (another run given the same ``-o``) stays, and the outputs this
+    command had already moved into place are taken back."""
+    from aslam.data_formats.files import command_files, write_atomically
+
+    first, second = tmp_path / "a.json", tmp_path / "b.json"
+    refused = "b.json: was written by another process while this command ran"
+    with pytest.raises(InputError, match=refused), command_files() as files:
+        files.force = False
+        write_atomically(first, lambda temporary: temporary.write_text("mine"))
+        write_atomically(second, lambda temporary: temporary.write_text("mine"))
+        second.write_text("theirs")
+    assert [p.name for p in tmp_path.iterdir()] == ["b.json"] and second.read_text() == "theirs"
+
+
+def test_two_estimates_writing_one_output_at_once_are_one_success_and_one_error(tmp_path: Path):
+    """Both pass the check at the start (nothing there yet). Before, both said "wrote" and exited 0,
+    the second rename silently replacing the first run's estimate; now the second is refused."""
+    recording = tmp_path / "long.mcap"
+    long_recording(recording, frames=1500)
+    output = tmp_path / "e.mcap"
+    argv = [str(ASLAM), "estimate", str(recording), "-o", str(output), "--no-timing"]
+    runs = [subprocess.Popen(argv, stderr=subprocess.PIPE, text=True) for _ in range(2)]
+    deadline = time.monotonic() + 120
+    while len(list(tmp_path.glob(".e.mcap.partial-*"))) < 2 and all(run.poll() is None for run in runs):
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    assert all(run.poll() is None for run in runs), "one estimate ended before the other started writing"
+    errs = [run.communicate(timeout=120)[1] for run in runs]
+    codes = [run.returncode for run in runs]
+    assert sorted(codes) == [0, 2], errs
+    loser = errs[codes.index(2)]
+    assert (
+        loser == f"aslam: error: {output}: was written by another process while this command ran; "
+        "refusing to overwrite it (use --force)\n"
+    )  # no "wrote" line before it either
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["e.mcap", "long.mcap"]
