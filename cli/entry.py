@@ -39,8 +39,41 @@ class _ClosedStdout(io.TextIOBase):
         raise BrokenPipeError(errno.EPIPE, "stdout is closed")
 
 
+class _Stdout(io.FileIO):
+    """Descriptor 1, whose write errors name it: ``aslam info R.mcap > /dev/full`` is ``stdout: No
+    space left on device``, not a bare ``No space left on device``."""
+
+    def write(self, data: bytes) -> int | None:  # type: ignore[override]
+        try:
+            return super().write(data)
+        except OSError as err:
+            raise type(err)(err.errno, err.strerror, "stdout") from None
+
+
+def _results_stdout(stream: io.TextIOWrapper) -> io.TextIOWrapper:
+    """``stream`` (stdout) rebuilt over :class:`_Stdout`, always with a buffer.
+
+    ``PYTHONUNBUFFERED=1`` (set in many CI images and Dockerfiles) leaves stdout without one, and
+    Python's text layer then drops what a short write did not take: on a nearly full disk
+    ``aslam report E.mcap --graph - > F`` kept the first 4 KiB of its JSON and exited 0. A buffer
+    writes the rest or raises; unbuffered output is flushed at every line instead, as prompt.
+    """
+    try:
+        raw = _Stdout(stream.fileno(), "wb", closefd=False)
+    except (AttributeError, OSError, ValueError):
+        return stream
+    return io.TextIOWrapper(
+        io.BufferedWriter(raw),
+        encoding=stream.encoding,
+        errors=stream.errors,
+        line_buffering=stream.line_buffering or stream.write_through,
+    )
+
+
 if sys.stdout is None:
     sys.stdout = _ClosedStdout()
+else:  # still the process's own stdout, as aslam.cli.app tells it by ``sys.__stdout__``
+    sys.stdout = sys.__stdout__ = _results_stdout(sys.stdout)
 if sys.stderr is None:  # nothing can be told: messages go nowhere, the exit code still says it
     sys.stderr = open(os.devnull, "w")  # noqa: SIM115 (the process's own stderr, kept to the end)
 for _stream in (sys.stdout, sys.stderr):

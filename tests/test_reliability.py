@@ -973,3 +973,28 @@ def test_two_estimates_writing_one_output_at_once_are_one_success_and_one_error(
         "refusing to overwrite it (use --force)\n"
     )  # no "wrote" line before it either
     assert sorted(p.name for p in tmp_path.iterdir()) == ["e.mcap", "long.mcap"]
+
+
+def test_a_full_stdout_is_one_line_naming_it(recording: Path):
+    """``> /dev/full``: before, ``aslam: error: No space left on device``, naming nothing."""
+    if not os.path.exists("/dev/full"):
+        pytest.skip("no /dev/full here")
+    with open("/dev/full", "w") as full:
+        done = subprocess.run(
+            [str(ASLAM), "info", str(recording)], stdout=full, stderr=subprocess.PIPE, text=True, timeout=120
+        )
+    assert done.returncode == 2
+    assert done.stderr == "aslam: error: stdout: No space left on device\n"
+
+
+def test_stdout_on_a_full_disk_is_never_cut_in_silence(estimate_file: Path, full_disk: Path, capsys):
+    """With ``PYTHONUNBUFFERED=1`` (CI images) Python's text layer dropped what a short write did
+    not take: the graph JSON cut at the 8 KiB left on the disk, exit 0."""
+    assert main(["report", str(estimate_file), "-q", "--graph", "-"]) == 0
+    assert len(capsys.readouterr().out) > 8 * 1024  # more than the disk takes
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    argv = [str(ASLAM), "report", str(estimate_file), "-q", "--graph", "-"]
+    with open(full_disk / "graph.json", "w") as out:
+        done = subprocess.run(argv, stdout=out, stderr=subprocess.PIPE, text=True, env=env, timeout=120)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr == "aslam: error: stdout: No space left on device\n"
