@@ -153,6 +153,19 @@ class _Signals:
         )
 
 
+def raise_if_interrupted() -> None:
+    """Raise the interrupt a library swallowed, if one did.
+
+    trimesh (pyrender's import) takes its optional dependencies under ``except BaseException``: a
+    Ctrl-C then is kept in a placeholder, and the command ran on to its end (a whole render) before
+    the remembered signal ended it. Long work calls this between items (the progress callbacks,
+    :func:`aslam.cli.output.counted_progress`) to end at the next one.
+    """
+    signals = _Signals.active
+    if signals is not None and signals.received is not None:
+        raise Interrupted(signal.Signals(signals.received).name)
+
+
 def _ended_by(code: int) -> str:
     return {EXIT_TERMINATED: "terminated", EXIT_HUNG_UP: "hung up"}.get(code, "interrupted")
 
@@ -245,8 +258,7 @@ def main(argv: list[str] | None = None, *, startup_signals: list[int] | None = N
             staged = _command_name(argv) in ALL_OR_NOTHING_COMMANDS
             with command_files(on_warning=_warning_line) if staged else contextlib.nullcontext() as files:
                 code = _dispatch(argv, files)
-                if signals.received is not None:  # an interrupt something swallowed
-                    raise Interrupted(signal.Signals(signals.received).name)
+                raise_if_interrupted()  # one that something swallowed and no checkpoint met
         except _Failed as failed:
             code = failed.code
         except KeyboardInterrupt:

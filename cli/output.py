@@ -154,12 +154,16 @@ class Terminal:
 @contextlib.contextmanager
 def counted_progress(
     terminal: Terminal, label: str, *, unit: str = ""
-) -> Iterator[Callable[[int, int | None], None] | None]:
+) -> Iterator[Callable[[int, int | None], None]]:
     """A bar counting the items done of their total (None until known), with the time left, gone
-    when the work ends: yields its update callback ``(done, total)``, or None where no bar is shown
-    (logs, pipes, --quiet), and there rich's progress module is not even imported."""
+    when the work ends: yields its update callback ``(done, total)``. Where no bar is shown (logs,
+    pipes, --quiet) rich's progress module is not even imported, and the callback only does its
+    other duty: ending the work at the next item when a signal arrived that a library swallowed
+    (:func:`aslam.cli.app.raise_if_interrupted`)."""
+    from aslam.cli.app import raise_if_interrupted
+
     if not terminal.shows_progress:
-        yield None
+        yield lambda _done, _total: raise_if_interrupted()
         return
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -167,4 +171,9 @@ def counted_progress(
     columns += [TextColumn(unit)] if unit else []
     with Progress(*columns, TimeRemainingColumn(), console=terminal.console, transient=True) as bar:
         task = bar.add_task(label, total=None)
-        yield lambda done, total: bar.update(task, completed=done, total=total)
+
+        def update(done: int, total: int | None) -> None:
+            raise_if_interrupted()
+            bar.update(task, completed=done, total=total)
+
+        yield update

@@ -998,3 +998,37 @@ def test_stdout_on_a_full_disk_is_never_cut_in_silence(estimate_file: Path, full
         done = subprocess.run(argv, stdout=out, stderr=subprocess.PIPE, text=True, env=env, timeout=120)
     assert done.returncode == 2, done.stderr
     assert done.stderr == "aslam: error: stdout: No space left on device\n"
+
+
+def test_ctrl_c_a_library_swallowed_ends_the_render_at_the_next_frame(tmp_path: Path, monkeypatch, capsys):
+    """trimesh imports its optional dependencies under ``except BaseException``, so Ctrl-C while
+    pyrender loads was swallowed: before, the whole recording was rendered, "wrote" printed, and
+    only then exit 130. The same swallow here, after pyrender's real import; the render ends at
+    its first progress step."""
+    import aslam.recorder.render as render
+
+    loaded = render.import_pyrender
+    renders: list[int] = []
+
+    def import_swallowing_ctrl_c():
+        module = loaded()
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1)  # the handler runs here
+        except KeyboardInterrupt:
+            pass  # as trimesh does
+        return module
+
+    real_render = render.PyrenderRenderer.render
+
+    def counted_render(self, *args, **kwargs):
+        renders.append(1)
+        return real_render(self, *args, **kwargs)
+
+    monkeypatch.setattr(render, "import_pyrender", import_swallowing_ctrl_c)
+    monkeypatch.setattr(render.PyrenderRenderer, "render", counted_render)
+    out = tmp_path / "r.mcap"
+    assert main(["record", "--size", "32x24", "--laps", "2", "-o", str(out)]) == 130
+    assert capsys.readouterr().err == "aslam: error: interrupted\n"  # no "wrote" line
+    assert 0 < len(renders) <= 8  # of 69 frames
+    assert list(tmp_path.iterdir()) == []
