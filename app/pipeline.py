@@ -31,6 +31,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from aslam.core import se2
+from aslam.core.errors import AslamError
 from aslam.core.estimator import Estimator, Keyframer, StepResult
 from aslam.core.observation import ObservationModel
 from aslam.data_formats.images import LazyImage
@@ -309,8 +310,8 @@ class ReaderProcess:
         while True:
             try:
                 kind, payload, samples_read = self._receiver.recv()
-            except EOFError:
-                raise RuntimeError("the recording reader process stopped unexpectedly") from None
+            except EOFError:  # the child died without a word: killed from outside
+                raise AslamError(self._death()) from None
             self._counts.samples = samples_read
             if kind == "items":
                 yield from payload
@@ -318,6 +319,20 @@ class ReaderProcess:
                 raise payload
             else:
                 return
+
+    def _death(self) -> str:
+        """What ended the child: the kernel's out-of-memory killer (SIGKILL, it picks the largest
+        process), or a signal sent to its pid alone (which its inherited handler turns into exit
+        status 128 + N). Not a bug of ours: one line, exit 2."""
+        self._process.join(timeout=10)
+        status = self._process.exitcode
+        number = -status if status is not None and status < 0 else (status or 0) - 128
+        try:
+            how = f"was killed by {signal.Signals(number).name}"
+        except ValueError:
+            how = f"ended unexpectedly (exit status {status})"
+        oom = " (the out-of-memory killer sends SIGKILL)" if number == signal.SIGKILL else ""
+        return f"the recording reader (process {self._process.pid}, a child of this one) {how}{oom}"
 
     def close(self) -> None:
         self._receiver.close()

@@ -1032,3 +1032,26 @@ def test_ctrl_c_a_library_swallowed_ends_the_render_at_the_next_frame(tmp_path: 
     assert capsys.readouterr().err == "aslam: error: interrupted\n"  # no "wrote" line
     assert 0 < len(renders) <= 8  # of 69 frames
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_reader_killed_from_outside_is_one_line_not_an_internal_error(tmp_path: Path):
+    """The estimate's forked reader killed alone (the out-of-memory killer picks the largest
+    process; an operator's ``kill PID``): before, exit 70, ``internal error: RuntimeError``."""
+    recording = tmp_path / "long.mcap"
+    long_recording(recording, frames=1500)
+    process = subprocess.Popen(
+        [str(ASLAM), "estimate", str(recording), "-o", str(tmp_path / "e.mcap")],
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    children = Path(f"/proc/{process.pid}/task/{process.pid}/children")
+    deadline = time.monotonic() + 120
+    while not (list(tmp_path.glob(".e.mcap.partial-*")) and children.read_text().split()):
+        assert process.poll() is None and time.monotonic() < deadline
+        time.sleep(0.01)
+    os.kill(int(children.read_text().split()[0]), signal.SIGKILL)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 2, err
+    assert err.startswith("aslam: error: the recording reader (process ") and err.count("\n") == 1
+    assert "was killed by SIGKILL (the out-of-memory killer sends SIGKILL)" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["long.mcap"]
