@@ -132,8 +132,7 @@ class CommandFiles:
                 self.staged = staged[i:]
                 self.rollback()
                 problem = (
-                    "was written by another process while this command ran; refusing to overwrite it "
-                    "(use --force)"
+                    _WRITTEN_MEANWHILE
                     if isinstance(err, FileExistsError)
                     else f"cannot write: {err.strerror or err}"
                 )
@@ -169,6 +168,11 @@ def _discard(path: Path) -> None:
     called for it (a read-only folder refuses even to unlink a file that was never made)."""
     with contextlib.suppress(OSError):
         path.unlink(missing_ok=True)
+
+
+_WRITTEN_MEANWHILE = (
+    "was written by another process while this command ran; refusing to overwrite it (use --force)"
+)
 
 
 def _move_into_place(partial: Path, target: Path, *, replace: bool) -> bool:
@@ -356,9 +360,7 @@ def check_output_path(
     if mode is not None:
         if not stat.S_ISREG(mode):
             raise error("exists and is not a regular file; refusing to replace it", path=path)
-        if force is None:
-            force = bool(files is not None and files.force)
-        if not force:
+        if not _forced(force):
             raise error("already exists; refusing to overwrite it (use --force)", path=path)
     if not real.parent.is_dir():
         if real.parent.exists():
@@ -367,6 +369,14 @@ def check_output_path(
     problem = write_problem(real.parent)
     if problem is not None:  # found now, not after the work (a whole render, for a contact sheet)
         raise error(f"cannot write: {problem}", path=path)
+
+
+def _forced(force: bool | None) -> bool:
+    """``force``, or where None the running command's ``--force`` (no command: False)."""
+    if force is not None:
+        return force
+    files = current()
+    return bool(files is not None and files.force)
 
 
 def _claim_output(path: Path, real: Path, error: type[InputError]) -> None:
@@ -438,6 +448,7 @@ class AtomicFile:
         self.path = Path(path)
         self._error = error
         check_output_path(self.path, force=force, error=error)
+        self._replace = _forced(force)
         self.direct = is_stream_output(self.path)
         if self.direct:
             self.target = self.path
@@ -468,7 +479,7 @@ class AtomicFile:
                 finish()
             self.file.close()
             if not self.direct:
-                _finish_output(self.partial_path, self.target, self.path, self._error)
+                _finish_output(self.partial_path, self.target, self.path, self._error, replace=self._replace)
         except OSError as err:
             self.abort()
             raise self._error(f"cannot write: {err.strerror or err}", path=self.path) from err
@@ -489,11 +500,17 @@ class AtomicFile:
                 _discard(self.partial_path)
 
 
-def _finish_output(partial: Path, target: Path, shown: Path, error: type[InputError]) -> None:
-    """Rename now, or stage the rename until the running command succeeds."""
+def _finish_output(
+    partial: Path, target: Path, shown: Path, error: type[InputError], *, replace: bool
+) -> None:
+    """Rename now (an existing file replaced only if ``replace``: ``--force``), or stage the rename
+    until the running command succeeds."""
     files = current()
     if files is None:
-        os.replace(partial, target)
+        try:
+            _move_into_place(partial, target, replace=replace)
+        except FileExistsError as err:
+            raise error(_WRITTEN_MEANWHILE, path=shown) from err
         return
     if target in files.inputs:
         raise error(_input_conflict(files.inputs[target]), path=shown)
@@ -528,7 +545,7 @@ def write_atomically(
     temporary = _temporary(target)
     try:
         write(temporary)
-        _finish_output(temporary, target, path, error)
+        _finish_output(temporary, target, path, error, replace=_forced(force))
     except OSError as err:
         _discard(temporary)
         raise error(f"cannot write: {err.strerror or err}", path=path) from err

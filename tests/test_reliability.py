@@ -951,6 +951,34 @@ def test_an_output_another_process_wrote_meanwhile_is_not_overwritten(tmp_path: 
     assert [p.name for p in tmp_path.iterdir()] == ["b.json"] and second.read_text() == "theirs"
 
 
+def test_an_output_another_process_wrote_meanwhile_is_not_overwritten_outside_a_command(tmp_path: Path):
+    """The same for writes that land at once (``import``, a sweep's files): two ``import -o
+    same.mcap`` at once both said "wrote", the later rename silently replacing the other's."""
+    from aslam.data_formats.files import AtomicFile, write_atomically
+
+    path = tmp_path / "same.mcap"
+
+    def write_while_another_does(temporary: Path) -> None:
+        temporary.write_text("mine")
+        path.write_text("theirs")
+
+    with pytest.raises(
+        InputError, match=r"same\.mcap: was written by another process while this command ran"
+    ):
+        write_atomically(path, write_while_another_does, force=False)
+    output = AtomicFile(path.with_name("other.mcap"), force=False)
+    output.file.write(b"mine")
+    path.with_name("other.mcap").write_text("theirs")
+    with pytest.raises(
+        InputError, match=r"other\.mcap: was written by another process while this command ran"
+    ):
+        output.commit()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["other.mcap", "same.mcap"]
+    assert {p.read_text() for p in tmp_path.iterdir()} == {"theirs"}
+    write_atomically(path, lambda temporary: temporary.write_text("forced"), force=True)
+    assert path.read_text() == "forced"
+
+
 def test_two_estimates_writing_one_output_at_once_are_one_success_and_one_error(tmp_path: Path):
     """Both pass the check at the start (nothing there yet). Before, both said "wrote" and exited 0,
     the second rename silently replacing the first run's estimate; now the second is refused."""
