@@ -116,11 +116,17 @@ class Terminal:
         return not self.quiet and _live_display_wanted()
 
     def _line(self, text: str) -> None:
-        if self._console is not None and self._console.is_terminal:
-            self._console.print(text, markup=False, highlight=False, soft_wrap=True)
-        else:
-            sys.stderr.write(text + "\n")
-            sys.stderr.flush()
+        """One line on stderr. A stderr whose reader is gone (``2>&1 | head -1``) loses the line and
+        nothing else: the command runs on, as with stderr closed, and its exit code says how it
+        ended (it was 141 with no output, the run stopped at its first line about itself)."""
+        try:
+            if self._console is not None and self._console.is_terminal:
+                self._console.print(text, markup=False, highlight=False, soft_wrap=True)
+            else:
+                sys.stderr.write(text + "\n")
+                sys.stderr.flush()
+        except (OSError, ValueError):
+            pass
 
     def warning(self, message: str) -> None:
         if not self.quiet:

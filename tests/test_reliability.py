@@ -1083,3 +1083,15 @@ def test_a_reader_killed_from_outside_is_one_line_not_an_internal_error(tmp_path
     assert err.startswith("aslam: error: the recording reader (process ") and err.count("\n") == 1
     assert "was killed by SIGKILL (the out-of-memory killer sends SIGKILL)" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["long.mcap"]
+
+
+def test_a_stderr_whose_reader_is_gone_loses_lines_not_the_run(recording: Path, tmp_path: Path):
+    """``aslam estimate … -v 2>&1 | head -1`` (a CI step keeping its log short): before, the first
+    line after the reader left stopped the run, exit 141 and no estimate."""
+    out = tmp_path / "e.mcap"
+    process = subprocess.Popen(
+        [str(ASLAM), "estimate", str(recording), "-o", str(out), "-v"], stderr=subprocess.PIPE
+    )
+    process.stderr.close()
+    assert process.wait(timeout=120) == 0
+    assert out.exists()
