@@ -346,8 +346,9 @@ def can_fork() -> bool:
 
 
 class EstimateSteps:
-    """The estimator fed keyframe by keyframe from a reader: iterate for one ``StepResult`` per
-    keyframe, in order; ``close()`` stops the reader (also when never iterated).
+    """The estimator fed keyframe by keyframe from a reader: iterate once for one ``StepResult`` per
+    keyframe, in order. The iteration ending in any way (the last step, an error, a ``break``, the
+    iterator closed) stops the reader; so does ``close()``, also when never iterated.
 
     The reader gives keyframes, or on a dense stream (``keyframe_window_m`` > 0) every frame worth
     describing, of which :func:`keyframes_taken` takes the keyframes here, next to the map.
@@ -372,12 +373,15 @@ class EstimateSteps:
             )
         else:
             taken = ((keyframe, keyframe.action) for keyframe in self._reader)
-        for frame, action in taken:
-            start = time.perf_counter()
-            step = estimator.add_keyframe(frame.stamp_ns, action, frame.histogram)
-            counts.slam_s += time.perf_counter() - start
-            counts.keyframes += 1
-            yield step
+        try:
+            for frame, action in taken:
+                start = time.perf_counter()
+                step = estimator.add_keyframe(frame.stamp_ns, action, frame.histogram)
+                counts.slam_s += time.perf_counter() - start
+                counts.keyframes += 1
+                yield step
+        finally:  # a caller's loop left early must not leave the forked reader blocked on its pipe
+            self.close()
 
     def close(self) -> None:
         close = getattr(self._reader, "close", None)

@@ -79,6 +79,26 @@ def test_close_after_some_steps_stops_the_reader(long):
     closed_unfinished(steps)
 
 
+def histogram_threads() -> list[str]:
+    return [t.name for t in threading.enumerate() if t.name.startswith("aslam-histogram")]
+
+
+@pytest.mark.parametrize("reader_process", [True, False])
+def test_leaving_the_loop_of_steps_early_stops_the_reader(long, reader_process):
+    """A notebook's ``for step in steps: ... break`` (or ``iter(steps).close()``) never calls
+    ``steps.close()``: the reader (a child blocked on its full pipe, or the histogram threads in
+    this process) must stop when the loop is left, not when ``steps`` is collected."""
+    steps = run_estimate(
+        Recording(long).samples(), Estimator(EstimatorConfig()), reader_process=reader_process
+    )
+    for step in steps:
+        if step.keyframe == 2:
+            break
+    assert readers() == []
+    assert histogram_threads() == []
+    del steps
+
+
 def test_an_error_in_the_reader_is_raised_in_the_parent(tmp_path):
     path = write_with_corrupt_image(tmp_path / "bad.mcap", ImageFormat.PNG)
     with pytest.raises(RecordingError, match="corrupt PNG"):
