@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 import logging
 import threading
 from collections.abc import Iterator
@@ -158,10 +157,10 @@ def png_gray(data: bytes) -> np.ndarray | None:
         return None
     import imagecodecs
 
-    _listen_to_decoder_warnings()
     _decoder_warned.flag = False
     try:
-        pixels = imagecodecs.png_decode(data)
+        with _listening_to_decoder_warnings():
+            pixels = imagecodecs.png_decode(data)
     except Exception:  # a refusal (a CRC, a truncated stream): OpenCV decodes it or names it
         return None
     if _decoder_warned.flag or pixels.dtype != np.uint8:  # libpng had doubts: OpenCV's libpng decides
@@ -178,14 +177,39 @@ class _NoteDecoderWarning(logging.Handler):
         _decoder_warned.flag = True
 
 
-@functools.cache
-def _listen_to_decoder_warnings() -> None:
-    """imagecodecs reports libpng's warnings through the ``imagecodecs`` logger: kept off the
-    terminal (the error contract: one line, and nothing on success) and noted, so the image a
-    warning was about takes OpenCV's path."""
-    logger = logging.getLogger("imagecodecs")
-    logger.addHandler(_NoteDecoderWarning())
-    logger.propagate = False
+class _DecoderWarnings:
+    """imagecodecs reports libpng's warnings through the ``imagecodecs`` logger: while any thread
+    decodes they are kept off the terminal (the error contract: one line, and nothing on success)
+    and noted, so the image a warning was about takes OpenCV's path. Reference counted like
+    :class:`_QuietOpenCV`: after the last decode the logger is the caller's again (a notebook's own
+    imagecodecs warnings reach its logging), with no handler of ours left on it."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._users = 0
+        self._handler = _NoteDecoderWarning()
+        self._saved_propagate = True
+
+    @contextmanager
+    def __call__(self) -> Iterator[None]:
+        logger = logging.getLogger("imagecodecs")
+        with self._lock:
+            if self._users == 0:
+                self._saved_propagate = logger.propagate
+                logger.addHandler(self._handler)
+                logger.propagate = False
+            self._users += 1
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._users -= 1
+                if self._users == 0:
+                    logger.removeHandler(self._handler)
+                    logger.propagate = self._saved_propagate
+
+
+_listening_to_decoder_warnings = _DecoderWarnings()
 
 
 def libpng_gray(rgb: np.ndarray) -> np.ndarray:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import subprocess
 import zlib
 from pathlib import Path
@@ -108,3 +109,17 @@ def test_a_decoder_warning_stays_off_the_terminal(tmp_path):
     )
     assert done.returncode == 2
     assert "corrupt PNG data" in one_error_line(done.stderr)
+
+
+def test_decoding_leaves_the_imagecodecs_logger_as_it_was():
+    """A notebook that decodes (``aslam.app.info.describe``, an estimate read in-process) keeps its
+    logging: the handler that notes libpng's warnings is there only while an image decodes; it was
+    left installed, with the logger's propagation off, so the user's own imagecodecs warnings were
+    swallowed from then on."""
+    logger = logging.getLogger("imagecodecs")
+    warns = (Path(__file__).parent / "data" / "png" / "libpng-warns-then-fails.png").read_bytes()
+    plain = png_of(np.random.default_rng(2).integers(0, 256, (24, 32, 3), dtype=np.uint8))
+    assert png_gray(warns) is None
+    assert png_gray(plain) is not None
+    assert logger.handlers == []
+    assert logger.propagate
