@@ -819,7 +819,7 @@ def _run_in(
         for task in plan.tasks:
             rows_of.setdefault(task.key, []).append(task)
         own = client is None
-        with _dask_logs_quiet():
+        with _dask_logs_quiet(), _environment_kept() if own else contextlib.nullcontext():
             client = open_client(workers=workers, scheduler=scheduler) if own else client
             try:
                 if own and scheduler is not None:
@@ -1024,6 +1024,23 @@ def _dask_logs_quiet() -> Iterator[None]:
     finally:
         for logger, level in zip(loggers, levels, strict=True):
             logger.setLevel(level)
+
+
+@contextlib.contextmanager
+def _environment_kept() -> Iterator[None]:
+    """This process's environment as it was, once the cluster the sweep started is closed.
+
+    Dask's nanny sets its workers' variables (``OMP_NUM_THREADS``, ``MKL_NUM_THREADS`` and
+    ``OPENBLAS_NUM_THREADS`` at 1) in the environment of the process that starts them, before each
+    spawn, and leaves them there: a notebook that ran a sweep had its later subprocesses and
+    thread pools limited to one thread."""
+    saved = dict(os.environ)
+    try:
+        yield
+    finally:
+        for name in set(os.environ) - set(saved):
+            del os.environ[name]
+        os.environ.update(saved)
 
 
 def _close(client: Any, *, local: bool) -> None:

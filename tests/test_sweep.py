@@ -374,8 +374,11 @@ def test_a_bad_scheduler_file_is_one_line_before_any_work(recordings, tmp_path, 
     assert not results.exists()
 
 
-def test_a_rerun_skips_the_done_tasks_and_force_recomputes(local_run, recordings):
+def test_a_rerun_skips_the_done_tasks_and_force_recomputes(local_run, recordings, monkeypatch):
     _code, results = local_run
+    # A notebook's own setting, which Dask's nanny overwrote (with 1) for good when it spawned workers.
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")
+    monkeypatch.delenv("MKL_NUM_THREADS", raising=False)
     sweep = read_sweep_file(_write_sweep(recordings))
     estimates = {p: p.stat().st_mtime_ns for p in (results / "estimates").glob("*.mcap")}
     assert len(estimates) == 2
@@ -395,6 +398,7 @@ def test_a_rerun_skips_the_done_tasks_and_force_recomputes(local_run, recordings
     assert not any(path.exists() for path in dead) and live.exists()
     live.unlink()
     assert sorted(seen) == [(0, True), (1, False), (2, True)]  # the failed task is tried again
+    assert os.environ["OMP_NUM_THREADS"] == "3" and "MKL_NUM_THREADS" not in os.environ
     assert {p: p.stat().st_mtime_ns for p in (results / "estimates").glob("*.mcap")} == estimates
     assert _figures(_rows(results)) == _figures(_rows(local_run[1]))
     forced = run_sweep(sweep, results, workers=1, force=True)
