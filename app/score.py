@@ -384,7 +384,8 @@ def score(
     return Report(
         estimate_path=estimate,
         estimate=info,
-        recording_path=recording_path,
+        # the recording read is no source of truth when it held none (a bag without it, not a recording)
+        recording_path=recording_path if evaluation.has_ground_truth else None,
         stamps_ns=tuple(stamps),
         actions=action_array,
         true_poses=run_truth,

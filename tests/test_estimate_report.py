@@ -392,6 +392,23 @@ def test_report_without_the_recording_warns_and_continues(recording: Path, tmp_p
     assert json.loads(capsys.readouterr().out)["ground_truth"] is True
 
 
+def test_a_recording_without_truth_is_not_named_as_the_source_of_it(estimate_file: Path, tmp_path: Path):
+    """``--recording`` naming a file with no ground truth in it (here not a recording at all): the
+    report continues without ground truth, so neither the Report nor the graph JSON names that file
+    as where the truth came from (both did: ``"recording": ".../notes.mcap"`` beside
+    ``"ground_truth": false``)."""
+    from aslam.app.score import score
+
+    not_a_recording = tmp_path / "notes.mcap"
+    not_a_recording.write_text("notes\n")
+    warnings: list[str] = []
+    report = score(estimate_file, recording=not_a_recording, on_warning=warnings.append)
+    assert "reporting without ground truth" in warnings[-1]
+    assert report.summary["ground_truth"] is False
+    assert report.recording_path is None
+    assert report.graph_json()["recording"] is None
+
+
 # --- the application layer and the CLI conventions ------------------------------------------------
 
 
