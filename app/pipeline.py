@@ -342,7 +342,9 @@ class ReaderProcess:
 
 
 def can_fork() -> bool:
-    return "fork" in multiprocessing.get_all_start_methods()
+    """Whether this process may fork the reader: the platform can, and this is no daemonic process
+    (a Dask worker's, a ``multiprocessing`` pool's), which multiprocessing forbids children."""
+    return "fork" in multiprocessing.get_all_start_methods() and not multiprocessing.current_process().daemon
 
 
 class EstimateSteps:
@@ -402,9 +404,9 @@ def run_estimate(
 
     With a reader process it starts reading at once (:class:`ReaderProcess`): what the caller does
     before iterating runs alongside. ``reader_process=False`` keeps the reader in this process,
-    started on the first step: needed where this process may not have children (a daemonic
-    process, such as a Dask worker), and right where one core per run is wanted (a sweep running
-    one task per core).
+    started on the first step: right where one core per run is wanted (a sweep running one task
+    per core). Where this process may not have children (:func:`can_fork`: a daemonic process,
+    such as a Dask worker) the reader is in this process either way; the steps are the same.
     """
     counts = counts if counts is not None else PipelineCounts()
     describe = estimator.observation_model

@@ -99,6 +99,35 @@ def test_leaving_the_loop_of_steps_early_stops_the_reader(long, reader_process):
     del steps
 
 
+def _estimate_in_a_daemon(recording: Path, output: Path, answers) -> None:
+    from aslam.app.estimate import estimate
+
+    try:
+        answers.put(estimate(recording, output, EstimatorConfig(), timing=False).keyframes)
+    except BaseException as err:
+        answers.put(f"{type(err).__name__}: {err}")
+
+
+def test_estimate_with_its_defaults_runs_in_a_daemonic_process(square, tmp_path):
+    """A researcher's own Dask task (its worker a daemonic process, as a ``multiprocessing`` pool's)
+    calling ``estimate()`` with its defaults: the reader cannot be a child there, so it reads in
+    that process, with the same bytes; it was ``AssertionError: daemonic processes are not allowed
+    to have children``."""
+    from aslam.app.estimate import estimate
+
+    context = multiprocessing.get_context("spawn")
+    answers = context.Queue()
+    daemon = context.Process(
+        target=_estimate_in_a_daemon, args=(square, tmp_path / "daemon.mcap", answers), daemon=True
+    )
+    daemon.start()
+    keyframes = answers.get(timeout=120)
+    daemon.join()
+    assert isinstance(keyframes, int) and keyframes > 10, keyframes
+    estimate(square, tmp_path / "here.mcap", EstimatorConfig(), timing=False)
+    assert (tmp_path / "daemon.mcap").read_bytes() == (tmp_path / "here.mcap").read_bytes()
+
+
 def test_an_error_in_the_reader_is_raised_in_the_parent(tmp_path):
     path = write_with_corrupt_image(tmp_path / "bad.mcap", ImageFormat.PNG)
     with pytest.raises(RecordingError, match="corrupt PNG"):
