@@ -1,4 +1,7 @@
-"""The report's PNG figures (matplotlib, Agg), each written atomically.
+"""The report's PNG figures, each written atomically.
+
+Drawn on matplotlib ``Figure`` objects of their own, never through pyplot: a notebook's backend
+and figures stay as they were (``matplotlib.use("Agg")`` here switched an inline backend away).
 
 * ``hypotheses.png``: hypothesis count per keyframe (the paper's figure 8);
 * ``errors.png``: x, y and heading error per keyframe, best and belief-weighted (figures 9-11);
@@ -31,15 +34,10 @@ keyframe or more)."""
 
 
 def _save(fig: Any, path: Path) -> None:
-    import matplotlib.pyplot as plt
-
     def write(temporary: Path) -> None:
         fig.savefig(temporary, format="png", dpi=DPI)
 
-    try:
-        write_atomically(path, write)
-    finally:
-        plt.close(fig)
+    write_atomically(path, write)
 
 
 def write_plots(folder: Path, report: Report, on_warning: Callable[[str], None] | None = None) -> list[Path]:
@@ -49,10 +47,8 @@ def write_plots(folder: Path, report: Report, on_warning: Callable[[str], None] 
     Drawn with matplotlib's default style, not the settings of a matplotlibrc (the user's, or one in
     the current folder, which matplotlib also reads): the same report gives the same bytes anywhere.
     """
-    import matplotlib
     import matplotlib.style
 
-    matplotlib.use("Agg")
     title = report.estimate_path.name
     make_output_folder(folder)
     paths = [folder / name for name in PLOT_NAMES[:4]]
@@ -85,10 +81,11 @@ def _aligned(poses: np.ndarray, truth: np.ndarray, stamps_ns: np.ndarray) -> np.
 
 def _trajectory_figure(report: Report, title: str) -> Any:
     """The embedded trajectory and odometry alone, aligned to the truth as evo aligns them for APE."""
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     assert report.embedding is not None
-    fig, ax = plt.subplots(figsize=(7.5, 7.5), layout="constrained")
+    fig = Figure(figsize=(7.5, 7.5), layout="constrained")
+    ax = fig.subplots()
     optimised, odometry = report.embedding.poses, report.embedding.odometry
     truth = report.true_poses
     known = None if truth is None else np.isfinite(truth).all(axis=1)
@@ -125,9 +122,10 @@ def _trajectory_figure(report: Report, title: str) -> Any:
 def _pr_figure(evaluation: Evaluation, committed: dict[str, Any], title: str) -> Any:
     """Precision against recall over a threshold on the claim's belief (highest first), the
     best hypothesis's own operating point (every claim: the lowest threshold) and the final map's."""
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
-    fig, ax = plt.subplots(figsize=(6.5, 5.5), layout="constrained")
+    fig = Figure(figsize=(6.5, 5.5), layout="constrained")
+    ax = fig.subplots()
     curve = evaluation.pr_curve() if evaluation.has_ground_truth else None
     if curve is None or curve.revisits == 0:
         why = "no ground truth" if curve is None else "no true revisit to find"
@@ -213,10 +211,11 @@ def _revisit_spans(ax: Any, evaluation: Evaluation) -> None:
 
 
 def _hypotheses_figure(evaluation: Evaluation, title: str) -> Any:
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
     from matplotlib.ticker import MaxNLocator
 
-    fig, ax = plt.subplots(figsize=(9, 3.6), layout="constrained")
+    fig = Figure(figsize=(9, 3.6), layout="constrained")
+    ax = fig.subplots()
     counts = evaluation.hypothesis_counts
     keyframes = np.arange(len(counts))
     _revisit_spans(ax, evaluation)
@@ -243,10 +242,11 @@ axis scaled to them would draw as large as errors of a metre."""
 
 def _errors_figure(evaluation: Evaluation, title: str, *, measured: bool) -> Any:
     """``measured``: False for a truth by index, whose "errors" are frame numbers, not poses."""
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
     from matplotlib.ticker import MaxNLocator
 
-    fig, axes = plt.subplots(3, 1, figsize=(9, 7.5), sharex=True, layout="constrained")
+    fig = Figure(figsize=(9, 7.5), layout="constrained")
+    axes = fig.subplots(3, 1, sharex=True)
     keyframes = np.arange(evaluation.keyframes)
     names = [("x error (m)", 0), ("y error (m)", 1), ("heading error (°)", 2)]
     for ax, (label, column) in zip(axes, names, strict=True):
@@ -286,10 +286,11 @@ def _map_figure(
 ) -> Any:
     """``true_poses``: this run's keyframes' truth; ``map_truth``: every keyframe's of the map (a run
     in a prior map: the map's sessions', then this run's), where the places are drawn."""
-    import matplotlib.pyplot as plt
     from matplotlib.collections import LineCollection
+    from matplotlib.figure import Figure
 
-    fig, ax = plt.subplots(figsize=(7.5, 7.5), layout="constrained")
+    fig = Figure(figsize=(7.5, 7.5), layout="constrained")
+    ax = fig.subplots()
     has_truth = true_poses is not None and bool(np.isfinite(true_poses).all(axis=1).any())
     start = np.zeros(3)
     if has_truth:

@@ -17,6 +17,7 @@ from conftest import one_error_line, square_route
 from mcap.reader import make_reader
 
 from aslam.app.gates import parse_condition
+from aslam.app.plots import PLOT_NAMES
 from aslam.cli.app import main
 from aslam.core.estimator import Estimator, MapLink, MapState
 from aslam.data_formats.estimate import (
@@ -553,6 +554,29 @@ def test_error_plot_of_a_truth_by_index_draws_no_errors(estimate_file: Path, tmp
     errors = _drawn_figures(report, tmp_path, monkeypatch)["errors.png"]
     assert all(len(line.get_xdata()) == 0 for ax in errors.axes for line in ax.lines)
     assert any("not measured" in text.get_text() for text in errors.axes[0].texts)
+
+
+def test_plots_leave_a_notebooks_matplotlib_as_it_was(estimate_file: Path, tmp_path: Path):
+    """``write_plots`` from a notebook: its backend (inline, here svg) and its open figures stay;
+    ``matplotlib.use("Agg")`` switched the backend, so the notebook's later figures were not shown."""
+    import matplotlib
+    import matplotlib.pyplot as plt
+
+    from aslam.app.plots import write_plots
+    from aslam.app.score import score
+
+    before = matplotlib.get_backend()
+    matplotlib.use("svg")
+    try:
+        mine = plt.figure()
+        written = write_plots(tmp_path / "plots", score(estimate_file))
+        assert matplotlib.get_backend() == "svg"
+        assert plt.get_fignums() == [mine.number]
+        plt.close(mine)
+    finally:
+        matplotlib.use(before)
+    assert [path.name for path in written] == list(PLOT_NAMES)
+    assert all(path.read_bytes().startswith(b"\x89PNG") for path in written)
 
 
 def test_report_trajectory_files_score_the_same_with_evo_ape(estimate_file: Path, tmp_path: Path, capsys):
