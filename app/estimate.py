@@ -45,14 +45,18 @@ class EstimateProgress:
 
 @dataclass(frozen=True)
 class EstimateSummary:
-    """What one run produced."""
+    """What one run produced: the estimate file written, and counts and timings of the run (the
+    map itself is read back from ``output`` by :func:`aslam.app.score.score`)."""
 
     output: Path
     samples: int
+    """Images read."""
     keyframes: int
     states: int
+    """Places of the best hypothesis's map."""
     links: int
     hypotheses: int
+    """Hypotheses alive after the last keyframe."""
     wall_s: float
     slam_s: float
     embed_s: float

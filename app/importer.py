@@ -38,6 +38,8 @@ Progress = Callable[[int, int], None]  # (images done, images total)
 
 @dataclass(frozen=True)
 class ImportResult:
+    """What ``import_image_folder`` wrote, and the warning lines it also gave ``on_warning``."""
+
     output: Path
     images: int  # in the folder
     frames: int  # written (images outside a stamped pose file's span are dropped)

@@ -111,9 +111,13 @@ class Plan:
 
 @dataclass(frozen=True)
 class RecordResult:
+    """What ``record`` wrote: the recording (and contact sheet), its image counts and timings."""
+
     output: Path
     frames: int
+    """Images written: the keyframes' and, with ``fps``, the frames between them."""
     keyframes: int
+    """Poses of the route: its start and one after each action."""
     seconds: float
     render_seconds: float  # the render/encode/write loop only (excludes world building, GL start-up)
     contact_sheet: Path | None

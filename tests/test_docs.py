@@ -14,3 +14,33 @@ def test_usage_lists_every_estimator_parameter_with_its_current_default():
     assert table in (DOCS / "usage.md").read_text(), (
         "docs/usage.md's estimator table is stale; replace it with:\n" + table
     )
+
+
+def python_example(document: str, heading: str) -> str:
+    """The first ```python block under ``heading`` in ``docs/<document>``."""
+    text = (DOCS / document).read_text()
+    section = text[text.index(f"\n{heading}\n") :]
+    start = section.index("```python\n") + len("```python\n")
+    return section[start : section.index("```\n", start)]
+
+
+def test_the_python_examples_run_as_written(tmp_path, monkeypatch, capsys):
+    """architecture.md's "From Python" (record, estimate, score, a gate, an error) and recorder.md's
+    Python API, run as a user pastes them; the estimate its EstimatorConfig made has the bytes of
+    the command with the same option."""
+    from aslam.cli.app import main
+
+    monkeypatch.chdir(tmp_path)
+    exec(compile(python_example("recorder.md", "## Python API"), "recorder.md", "exec"), {})
+    assert Path("x.mcap").stat().st_size > 0
+    exec(compile(python_example("architecture.md", "## From Python"), "architecture.md", "exec"), {})
+    printed = capsys.readouterr().out.splitlines()
+    keyframes, precision, heard = printed[0].split(" ", 2)
+    assert int(keyframes) > 60 and float(precision) > 0.9 and heard == "[]"
+    assert printed[1] == "[]"
+    assert printed[2] == (
+        "EstimateError run.mcap not an aslam estimate file"
+        " (no 'aslam.estimate' metadata; is it a recording?) 2"
+    )
+    assert main(["estimate", "run.mcap", "-o", "cli.est.mcap", "--beta", "3", "--no-timing", "-q"]) == 0
+    assert Path("cli.est.mcap").read_bytes() == Path("run.est.mcap").read_bytes()
