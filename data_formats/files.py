@@ -176,24 +176,27 @@ _WRITTEN_MEANWHILE = (
 
 
 def _move_into_place(partial: Path, target: Path, *, replace: bool) -> bool:
-    """Rename ``partial`` to ``target``; True if that created ``target`` (it was not there).
+    """Rename ``partial`` to ``target``; True if that created ``target`` (nothing was there), so a
+    command failing after it takes the file back, ``--force`` or not.
 
     Without ``replace`` the move is a hard link, which fails (``FileExistsError``) when ``target``
     exists, atomically, where a check before a rename would leave a moment for another writer. A
-    file system without hard links (FAT, some network shares) gets the rename.
+    file system without hard links (FAT, some network shares) gets that check, then the rename.
     """
     if not replace:
         try:
             os.link(partial, target)
         except FileExistsError:
             raise
-        except OSError:
-            pass
+        except OSError:  # no hard links here
+            if os.path.lexists(target):
+                raise FileExistsError(errno.EEXIST, os.strerror(errno.EEXIST), str(target)) from None
         else:
             _discard(partial)
             return True
+    created = not os.path.lexists(target)
     os.replace(partial, target)
-    return False
+    return created
 
 
 _current: CommandFiles | None = None
@@ -363,9 +366,11 @@ def check_output_path(
         if not _forced(force):
             raise error("already exists; refusing to overwrite it (use --force)", path=path)
     if not real.parent.is_dir():
+        # a symlink's own folder is there: the folder it points into is the one missing
+        folder = path.parent if real_path(path.parent) == real.parent else real.parent
         if real.parent.exists():
-            raise error(f"{path.parent} is not a folder", path=path)
-        raise error(f"folder {path.parent} does not exist", path=path)
+            raise error(f"{folder} is not a folder", path=path)
+        raise error(f"folder {folder} does not exist", path=path)
     problem = write_problem(real.parent)
     if problem is not None:  # found now, not after the work (a whole render, for a contact sheet)
         raise error(f"cannot write: {problem}", path=path)

@@ -12,6 +12,7 @@ import hashlib
 import json
 import math
 import os
+import shutil
 import signal
 import struct
 import subprocess
@@ -165,6 +166,14 @@ def test_a_symlink_output_is_followed_and_its_target_replaced(estimate_file: Pat
     assert main(["report", str(estimate_file), "-q", "--json", str(link), "--force"]) == 0
     assert link.is_symlink() and link.resolve() == target.resolve()
     assert json.loads(target.read_text())["keyframes"] > 0
+
+
+def test_a_symlink_into_a_missing_folder_names_that_folder(estimate_file: Path, tmp_path: Path, capsys):
+    """The error named the symlink's own folder, which is there, as the one that does not exist."""
+    link = tmp_path / "g.json"
+    link.symlink_to(tmp_path / "gone" / "g.json")
+    assert main(["report", str(estimate_file), "-q", "--graph", str(link)]) == 2
+    one_error_line(capsys, f"{link}: folder {tmp_path / 'gone'} does not exist")
 
 
 def test_fifo_input_is_refused_at_once(tmp_path: Path):
@@ -977,6 +986,70 @@ def test_an_output_another_process_wrote_meanwhile_is_not_overwritten_outside_a_
     assert {p.read_text() for p in tmp_path.iterdir()} == {"theirs"}
     write_atomically(path, lambda temporary: temporary.write_text("forced"), force=True)
     assert path.read_text() == "forced"
+
+
+def test_a_forced_command_failing_at_a_later_output_takes_back_the_files_it_created(tmp_path: Path):
+    """With --force the outputs moved into place before one that could not be (a folder made under
+    its name meanwhile) stayed, new files included; now only a file it replaced stays (replaced, it
+    cannot be put back)."""
+    from aslam.data_formats.files import command_files, write_atomically
+
+    old, new, blocked = tmp_path / "old.json", tmp_path / "new.json", tmp_path / "blocked.json"
+    old.write_text("before")
+    with (
+        pytest.raises(InputError, match=r"blocked\.json: cannot write: Is a directory"),
+        command_files() as files,
+    ):
+        files.force = True
+        for path in (old, new, blocked):
+            write_atomically(path, lambda temporary: temporary.write_text("mine"))
+        blocked.mkdir()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["blocked.json", "old.json"]
+
+
+@pytest.fixture
+def fat_folder(tmp_path: Path):
+    """A FAT file system (no hard links: a USB stick, a camera's card) mounted through FUSE; needs
+    root, mkfs.vfat and fusefat (.ci/run installs them), as the kernel here has no vfat."""
+    if os.geteuid() != 0 or not (shutil.which("mkfs.vfat") and shutil.which("fusefat")):
+        pytest.skip("needs root, mkfs.vfat and fusefat (apt-get install dosfstools fusefat)")
+    image, folder = tmp_path / "fat.img", tmp_path / "fat"
+    with image.open("wb") as f:
+        f.truncate(4 * 1024 * 1024)
+    subprocess.run(["mkfs.vfat", str(image)], check=True, capture_output=True)
+    folder.mkdir()
+    done = subprocess.run(["fusefat", "-o", "rw+", str(image), str(folder)], capture_output=True, text=True)
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount FAT through FUSE here: {done.stderr.strip()}")
+    try:
+        yield folder
+    finally:
+        subprocess.run(["umount", str(folder)], check=False)
+
+
+def test_without_hard_links_outputs_are_still_created_never_replaced_and_taken_back(
+    recording: Path, fat_folder: Path, capsys
+):
+    """On FAT the outputs are moved by a rename after a check. The rename was taken for a
+    replacement: outputs moved before one another process wrote meanwhile were left in place."""
+    from aslam.data_formats.files import command_files, write_atomically
+
+    with (
+        pytest.raises(InputError, match=r"b\.json: was written by another process"),
+        command_files() as files,
+    ):
+        files.force = False
+        for name in ("a.json", "b.json"):
+            write_atomically(fat_folder / name, lambda temporary: temporary.write_text("mine"))
+        (fat_folder / "b.json").write_text("theirs")
+    assert [p.name for p in fat_folder.iterdir()] == ["b.json"]
+    assert (fat_folder / "b.json").read_text() == "theirs"
+    estimate = str(fat_folder / "e.mcap")
+    assert main(["estimate", str(recording), "-o", estimate, "-q"]) == 0
+    assert main(["estimate", str(recording), "-o", estimate, "-q"]) == 2
+    one_error_line(capsys, "already exists; refusing to overwrite it (use --force)")
+    assert main(["estimate", str(recording), "-o", estimate, "-q", "--force"]) == 0
+    assert sorted(p.name for p in fat_folder.iterdir()) == ["b.json", "e.mcap"]
 
 
 def test_two_estimates_writing_one_output_at_once_are_one_success_and_one_error(tmp_path: Path):
