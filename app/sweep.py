@@ -47,7 +47,7 @@ from aslam.data_formats.files import (
     write_problem,
 )
 from aslam.data_formats.provenance import tool_version
-from aslam.recorder.config import RecordConfig
+from aslam.recorder.config import CameraSpec, NoiseModel, NoiseParams, RecordConfig
 
 RESULTS_PARQUET = "results.parquet"
 RESULTS_CSV = "results.csv"
@@ -480,7 +480,7 @@ class SweepPlan:
                     "state": self.state(task),
                     "same_as": task.same_as,
                     "recording": str(task.source.path),
-                    "render": "" if task.source.render is None else _render_text(task.source.render),
+                    "render": "" if task.source.render is None else render_text(task.source.render),
                     "parameters": dict(task.parameters),
                 }
                 for task in self.tasks
@@ -1087,7 +1087,7 @@ def rows(
             "key": task.key[:16],
             "status": "ok" if result.ok else "error",
             "recording": str(task.source.path),
-            "render": "" if task.source.render is None else _render_text(task.source.render),
+            "render": "" if task.source.render is None else render_text(task.source.render),
             "same_as": task.same_as,
         }
         row.update({f"param.{name}": getattr(task.config, name) for name in sweep.parameter_names()})
@@ -1107,17 +1107,45 @@ def rows(
     return out
 
 
-def _render_text(config: RecordConfig) -> str:
-    cam = config.camera
-    parts = [
-        f"route={config.route}",
-        f"seed={config.seed}",
-        f"laps={config.laps}",
-        f"size={cam.width_px}x{cam.height_px}",
-        f"noise={config.noise.noise:g}",
-        f"aliasing={config.aliasing:g}",
+def render_text(config: RecordConfig) -> str:
+    """A render's configuration as the tables show it: its route and seed, then every setting (as
+    the sweep file's ``[[render]]`` key) that is not the default, so no two renders read alike."""
+    noise, camera = config.noise, config.camera
+    usual_noise, usual_camera = NoiseParams.of_model(noise.model), CameraSpec()
+    settings = [
+        ("laps", config.laps, None),
+        (
+            "size",
+            f"{camera.width_px}x{camera.height_px}",
+            f"{usual_camera.width_px}x{usual_camera.height_px}",
+        ),
+        ("noise_model", str(noise.model), str(NoiseModel.DEFAULT)),
+        ("noise", noise.noise, usual_noise.noise),
+        ("drift_deg_per_m", noise.drift_deg_per_m, usual_noise.drift_deg_per_m),
+        ("jitter_m", noise.jitter_m, usual_noise.jitter_m),
+        ("jitter_deg", noise.jitter_deg, usual_noise.jitter_deg),
+        ("wander_m", noise.wander_m, usual_noise.wander_m),
+        ("wander_deg", noise.wander_deg, usual_noise.wander_deg),
+        ("wander_length_m", noise.wander_length_m, usual_noise.wander_length_m),
+        ("aliasing", config.aliasing, 0.0),
+        ("lighting_change", config.lighting_change, 0.0),
+        ("odometry_reset_at", config.odometry_reset_at, None),
+        ("world", config.world, None),
+        ("fov_deg", camera.fov_deg, usual_camera.fov_deg),
+        ("camera_height_m", camera.height_m, usual_camera.height_m),
+        ("fps", config.fps, None),
+        ("jpeg_quality", config.jpeg_quality, None),
     ]
+    parts = [f"route={config.route}", f"seed={config.seed}"]
+    parts += [f"{key}={_setting_text(value)}" for key, value, usual in settings if value != usual]
     return " ".join(parts)
+
+
+def _setting_text(value: Any) -> str:
+    """``value`` short (``0.5``, not ``0.5000``), yet never two values as one text (``0.1234567``)."""
+    if isinstance(value, float) and float(f"{value:g}") == value:
+        return f"{value:g}"
+    return str(value)
 
 
 def arrow_table(

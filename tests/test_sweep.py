@@ -32,14 +32,15 @@ from aslam.app.sweep import (
     pareto_front,
     plan_tasks,
     render_path,
+    render_text,
     resolve_objectives,
     rows,
     run_sweep,
 )
-from aslam.app.sweep_file import read_sweep_file
+from aslam.app.sweep_file import RENDER_KEYS, read_sweep_file
 from aslam.cli.app import main
 from aslam.core.errors import ConfigError, InputError
-from aslam.recorder.config import CameraSpec, RecordConfig
+from aslam.recorder.config import CameraSpec, NoiseParams, RecordConfig
 from aslam.recorder.record import record
 
 FIGURES = ["keyframes", "loop_closure.precision", "loop_closure.recall", "error.best.x_m.mean"]
@@ -482,6 +483,50 @@ def test_sweep_file_values_are_checked_by_building_the_configs(tmp_path, text, n
     with pytest.raises(ConfigError) as caught:
         read_sweep_file(path)
     assert needle in str(caught.value) and str(path) in str(caught.value)
+
+
+#: A value other than the default for every ``[[render]]`` key but route and seeds.
+OTHER_RENDER_SETTINGS = {
+    "laps": 3,
+    "size": "64x48",
+    "noise_model": "paper",
+    "noise": 0.05,
+    "drift_deg_per_m": 1.0,
+    "jitter_m": 0.1,
+    "jitter_deg": 2.5,
+    "wander_m": 0.2,
+    "wander_deg": 1.0,
+    "wander_length_m": 5.0,
+    "aliasing": 0.5,
+    "lighting_change": 0.25,
+    "odometry_reset_at": 7,
+    "world": "w.obj",
+    "fov_deg": 70.0,
+    "camera_height_m": 1.0,
+    "fps": 2.0,
+    "jpeg_quality": 90,
+}
+
+
+def test_every_render_setting_tells_renders_apart_in_the_tables(tmp_path):
+    """The tables' render column named route, seed, laps, size, noise and aliasing only: renders
+    differing in lighting_change, wander, jitter, fps, … read alike. Now every setting not at its
+    default is named, and only those."""
+    assert set(OTHER_RENDER_SETTINGS) == set(RENDER_KEYS) - {"route", "seeds"}
+    (tmp_path / "w.obj").write_text("")
+    render = '[[render]]\nroute = "paper"\nseeds = [1]\n'
+    tables = [render] + [
+        f"{render}{key} = {json.dumps(value)}\n" for key, value in OTHER_RENDER_SETTINGS.items()
+    ]
+    sweep_file = tmp_path / "s.toml"
+    sweep_file.write_text("".join(tables) + "[[grid]]\nbeta = 3.0\n")
+    labels = [render_text(config) for config in read_sweep_file(sweep_file).renders]
+    shown = {key: f"{v:g}" if isinstance(v, float) else v for key, v in OTHER_RENDER_SETTINGS.items()}
+    shown["world"] = tmp_path / "w.obj"
+    assert labels == ["route=paper seed=1"] + [
+        f"route=paper seed=1 {key}={value}" for key, value in shown.items()
+    ]
+    assert render_text(RecordConfig(noise=NoiseParams(noise=0.1234567))).endswith(" noise=0.1234567")
 
 
 def test_render_lists_multiply_and_grids_multiply_in_file_order(tmp_path):
