@@ -319,8 +319,10 @@ def score(
         ground_truth_topic is not None
         and run.ground_truth_topic is not None
         and ground_truth_topic not in read
+        and all(session.recording is not None for session in sessions)
     ):
-        # this run lacks the topic named (its own read instead), and so does every session of its map
+        # this run lacks the topic named (its own read instead), and so does every session of its
+        # map; a session whose recording was not found (its warning said so) may have had it
         raise RecordingError(
             f"no ground-truth topic '{ground_truth_topic}' in it or in any session of its map",
             path=recording_path,

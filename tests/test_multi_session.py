@@ -252,6 +252,29 @@ def test_a_truth_topic_no_session_has_is_an_error(mixed, chain, words, tmp_path,
     assert f"{mixed[run]}: {words}" in line
 
 
+def test_a_truth_topic_only_a_missing_map_session_had_is_no_error(tmp_path, capsys):
+    """The map's bag, the one session with /ground_truth, deleted: the report said no session has
+    the topic (exit 2, as for a typo) though it cannot know. The run is now scored on its own topic,
+    the map's keyframes unscored, as the warning about the missing bag says."""
+    bag, run = tmp_path / "first_bag.mcap", tmp_path / "second.mcap"
+    write_square_bag(bag, square_route(), 7, ground_truth_topic="/ground_truth")
+    write_square_recording(run, second_session_route(5), seed=11)
+    the_map, estimate = tmp_path / "bag.est.mcap", tmp_path / "run.est.mcap"
+    assert main(["estimate", str(bag), "-o", str(the_map), "-q"]) == 0
+    assert main(["estimate", str(run), "--map", str(the_map), "-o", str(estimate), "-q"]) == 0
+    bag.unlink()
+    capsys.readouterr()
+    assert main(["report", str(estimate), "--json", "-", "--ground-truth-topic", "/ground_truth"]) == 0
+    captured = capsys.readouterr()
+    warnings = [line for line in captured.err.splitlines() if line.startswith("aslam:")]
+    assert warnings == [
+        f"aslam: warning: recording {bag} (named in {the_map}) not found; the map's keyframes from it"
+        " are not scored"
+    ]
+    summary = json.loads(captured.out)
+    assert summary["ground_truth"] is True and summary["loop_closure"]["claims"] > 0
+
+
 @pytest.mark.parametrize("change", ["missing", "damaged", "another map", "the same map again"])
 def test_a_map_no_longer_there_leaves_its_keyframes_unscored_and_says_so(tmp_path, capsys, change):
     """The second session's estimate, the third's map, deleted, cut short, or estimated again into
