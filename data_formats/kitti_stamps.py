@@ -40,12 +40,17 @@ class KittiStampsUnusable(Exception):
 def kitti_stamp_file(folder: Path) -> Path | None:
     """The KITTI stamp file beside ``folder`` (in its parent), if there is one; two (both names)
     are ambiguous: :class:`KittiStampsUnusable`. The parent of the folder as a path names it
-    (``image_0`` typed in ``00/``, ``.`` typed in ``image_0/``), so the path is made absolute first."""
-    parent = Path(os.path.abspath(folder)).parent
-    found = [parent / name for name in (SECONDS_FILE, DATE_TIME_FILE) if (parent / name).is_file()]
-    if len(found) > 1:
-        raise KittiStampsUnusable(f"{found[0]} and {found[1]} are not used: which one stamps {folder}?")
-    return found[0] if found else None
+    (``image_0`` typed in ``00/``, ``.`` typed in ``image_0/``), so the path is made absolute first;
+    a folder that is a symlink (``cam0 -> /data/kitti/sequences/00/image_0``) has it beside the
+    folder it points to, looked in when there is none beside the link."""
+    named = Path(os.path.abspath(folder)).parent
+    for parent in dict.fromkeys([named, Path(os.path.realpath(folder)).parent]):
+        found = [parent / name for name in (SECONDS_FILE, DATE_TIME_FILE) if (parent / name).is_file()]
+        if len(found) > 1:
+            raise KittiStampsUnusable(f"{found[0]} and {found[1]} are not used: which one stamps {folder}?")
+        if found:
+            return found[0]
+    return None
 
 
 def read_kitti_stamps(path: Path, folder: Path, images: int) -> tuple[int, ...]:

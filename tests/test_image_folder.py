@@ -564,6 +564,20 @@ def test_kitti_odometry_times_stamp_the_frames(tmp_path, capsys, monkeypatch):
     assert open_image_folder(Path(".")).stamps == "KITTI 00/times.txt"
 
 
+def test_kitti_stamps_are_found_through_a_symlinked_image_folder(tmp_path):
+    """``cam0 -> …/sequences/00/image_0``: the stamps beside the folder the link points to were not
+    looked for, and the frames took 1 Hz in silence."""
+    images = tmp_path / "sequences" / "00" / "image_0"
+    write_images(images, 3, name=lambda i: f"{i:06d}.png")
+    (images.parent / "times.txt").write_text("0.000000e+00\r\n1.036000e-01\r\n2.072000e-01\r\n\r\n")
+    link = tmp_path / "cam0"
+    link.symlink_to(images)
+    for folder in (link, Path(f"{link}/")):
+        opened = open_image_folder(folder)
+        assert opened.stamps == "KITTI 00/times.txt" and opened.warnings == ()
+        assert [s.stamp_ns for s in opened.samples()] == [0, 103_600_000, 207_200_000]
+
+
 def test_kitti_raw_timestamps_stamp_the_frames_to_the_nanosecond(tmp_path):
     """``image_02/timestamps.txt`` beside ``image_02/data/``: dates and times, read as UTC."""
     images = tmp_path / "2011_09_26_drive_0001_sync" / "image_02" / "data"
