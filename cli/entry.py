@@ -21,14 +21,23 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 _received: list[int] = []
 
+#: A child that multiprocessing's spawn started (a sweep's Dask worker) runs the console script
+#: again, as ``__mp_main__``, to find its functions: it imports this module but runs no command.
+#: It ignores Ctrl-C, the command's to handle (it closes its workers), and SIGTERM and SIGHUP end it:
+#: with our handlers it swallowed them (``kill PID`` of a worker left it computing).
+_SPAWNED_CHILD = "__mp_main__" in sys.modules
+
 
 def _remember(signum: int, _frame: object) -> None:
     _received.append(signum)
 
 
-for _signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
-    if signal.getsignal(_signum) is not signal.SIG_IGN:  # nohup, a background job: stay ignored
-        signal.signal(_signum, _remember)
+if _SPAWNED_CHILD:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+else:
+    for _signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        if signal.getsignal(_signum) is not signal.SIG_IGN:  # nohup, a background job: stay ignored
+            signal.signal(_signum, _remember)
 
 
 class _ClosedStdout(io.TextIOBase):

@@ -1135,6 +1135,38 @@ def test_ctrl_c_a_library_swallowed_ends_the_render_at_the_next_frame(tmp_path: 
     assert list(tmp_path.iterdir()) == []
 
 
+#: What the ``aslam`` console script is (pip writes it), and a child that multiprocessing's spawn
+#: starts from it as Dask starts a sweep's workers, reporting its signal handlers.
+SPAWNING_CONSOLE_SCRIPT = """
+import multiprocessing, signal
+from aslam.cli.entry import run
+
+def handlers(queue):
+    got = [signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)]
+    queue.put([getattr(h, "name", getattr(h, "__name__", str(h))) for h in got])
+
+if __name__ == "__main__":
+    context = multiprocessing.get_context("spawn")
+    queue = context.Queue()
+    child = context.Process(target=handlers, args=(queue,))
+    child.start()
+    print(queue.get())
+    child.join()
+"""
+
+
+def test_a_sweep_worker_spawned_from_the_console_script_can_be_terminated(tmp_path: Path):
+    """A spawned child runs the console script again, importing aslam.cli.entry, which installed the
+    command's signal handlers there: a sweep's Dask worker swallowed SIGTERM and SIGHUP (``kill
+    PID`` left it computing; SIGTERM to a sweep's process group took 4 s, its nannies' timeout,
+    instead of 0.1 s). Ctrl-C stays the command's: its workers ignore it and are closed by it."""
+    script = tmp_path / "aslam_script.py"
+    script.write_text(SPAWNING_CONSOLE_SCRIPT)
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "['SIG_IGN', 'SIG_DFL', 'SIG_DFL']"
+
+
 def test_a_reader_killed_from_outside_is_one_line_not_an_internal_error(tmp_path: Path):
     """The estimate's forked reader killed alone (the out-of-memory killer picks the largest
     process; an operator's ``kill PID``): before, exit 70, ``internal error: RuntimeError``."""
