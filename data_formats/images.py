@@ -177,27 +177,26 @@ class _NoteDecoderWarning(logging.Handler):
         _decoder_warned.flag = True
 
 
-class _DecoderWarnings:
-    """imagecodecs reports libpng's warnings through the ``imagecodecs`` logger: while any thread
-    decodes they are kept off the terminal (the error contract: one line, and nothing on success)
-    and noted, so the image a warning was about takes OpenCV's path. Reference counted like
-    :class:`_QuietOpenCV`: after the last decode the logger is the caller's again (a notebook's own
-    imagecodecs warnings reach its logging), with no handler of ours left on it."""
+class _WhileDecoding:
+    """A setting held while any thread decodes: ``_hold`` before the first decode, ``_release``
+    after the last. Reference counted, so decoding threads can overlap and the caller's own setting
+    comes back after the last one."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._users = 0
-        self._handler = _NoteDecoderWarning()
-        self._saved_propagate = True
+
+    def _hold(self) -> None:
+        raise NotImplementedError
+
+    def _release(self) -> None:
+        raise NotImplementedError
 
     @contextmanager
     def __call__(self) -> Iterator[None]:
-        logger = logging.getLogger("imagecodecs")
         with self._lock:
             if self._users == 0:
-                self._saved_propagate = logger.propagate
-                logger.addHandler(self._handler)
-                logger.propagate = False
+                self._hold()
             self._users += 1
         try:
             yield
@@ -205,8 +204,31 @@ class _DecoderWarnings:
             with self._lock:
                 self._users -= 1
                 if self._users == 0:
-                    logger.removeHandler(self._handler)
-                    logger.propagate = self._saved_propagate
+                    self._release()
+
+
+class _DecoderWarnings(_WhileDecoding):
+    """imagecodecs reports libpng's warnings through the ``imagecodecs`` logger: while any thread
+    decodes they are kept off the terminal (the error contract: one line, and nothing on success)
+    and noted, so the image a warning was about takes OpenCV's path. After the last decode the
+    logger is the caller's again (a notebook's own imagecodecs warnings reach its logging), with no
+    handler of ours left on it."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._handler = _NoteDecoderWarning()
+        self._saved_propagate = True
+
+    def _hold(self) -> None:
+        logger = logging.getLogger("imagecodecs")
+        self._saved_propagate = logger.propagate
+        logger.addHandler(self._handler)
+        logger.propagate = False
+
+    def _release(self) -> None:
+        logger = logging.getLogger("imagecodecs")
+        logger.removeHandler(self._handler)
+        logger.propagate = self._saved_propagate
 
 
 _listening_to_decoder_warnings = _DecoderWarnings()
@@ -220,33 +242,24 @@ def libpng_gray(rgb: np.ndarray) -> np.ndarray:
     return cv2.transform(rgb.astype(np.float32), _LIBPNG_GRAY).astype(np.uint8)
 
 
-class _QuietOpenCV:
+class _QuietOpenCV(_WhileDecoding):
     """Silence OpenCV's log while any thread decodes, so a corrupt image's warning (``[ WARN:0@…]
-    PNG input buffer is incomplete``) does not reach stderr; the error says it instead. Reference
-    counted, so decoding threads can overlap and the user's level comes back after the last one."""
+    PNG input buffer is incomplete``) does not reach stderr; the error says it instead."""
 
     def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self._users = 0
+        super().__init__()
         self._saved_level = 0
 
-    @contextmanager
-    def __call__(self) -> Iterator[None]:
+    def _hold(self) -> None:
         import cv2
 
-        logging = cv2.utils.logging
-        with self._lock:
-            if self._users == 0:
-                self._saved_level = logging.getLogLevel()
-                logging.setLogLevel(logging.LOG_LEVEL_SILENT)
-            self._users += 1
-        try:
-            yield
-        finally:
-            with self._lock:
-                self._users -= 1
-                if self._users == 0:
-                    logging.setLogLevel(self._saved_level)
+        self._saved_level = cv2.utils.logging.getLogLevel()
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+
+    def _release(self) -> None:
+        import cv2
+
+        cv2.utils.logging.setLogLevel(self._saved_level)
 
 
 _quiet_opencv = _QuietOpenCV()
