@@ -1,7 +1,8 @@
-"""Docs that are generated from code stay equal to it."""
+"""Docs that are generated from the code, or list what it offers, stay equal to it."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 from aslam.app.config_file import estimator_options_markdown
@@ -14,6 +15,40 @@ def test_usage_lists_every_estimator_parameter_with_its_current_default():
     assert table in (DOCS / "usage.md").read_text(), (
         "docs/usage.md's estimator table is stale; replace it with:\n" + table
     )
+
+
+#: Where each command's options are described, one row each.
+OPTIONS_DOCUMENTED_IN = {
+    "record": "recorder.md",
+    "import": "usage.md",
+    "info": "usage.md",
+    "estimate": "usage.md",
+    "report": "usage.md",
+    "sweep": "sweep.md",
+}
+
+
+def test_every_option_of_every_command_is_in_its_document():
+    """An option added to a command and not to its document is caught here, not by a user reading
+    ``--help`` beside the docs (``estimate --map``, ``import``'s and ``info``'s options were missing)."""
+    import typer
+
+    from aslam.cli.app import COMMAND_MODULES, _register_commands, app
+
+    _register_commands()
+    commands = typer.main.get_command(app).commands
+    assert set(OPTIONS_DOCUMENTED_IN) == set(COMMAND_MODULES)
+    missing = [
+        f"{name} {option} ({document})"
+        for name, document in OPTIONS_DOCUMENTED_IN.items()
+        for parameter in commands[name].params
+        for option in parameter.opts
+        if option.startswith("--")
+        and option != "--help"
+        # in the first cell of a table row: `--rate HZ`, `-o, --output FILE`, `-q`, `--quiet` / …
+        and not re.search(rf"^\| `[^|\n]*{re.escape(option)}(?![\w-])", (DOCS / document).read_text(), re.M)
+    ]
+    assert missing == [], missing
 
 
 def python_example(document: str, heading: str) -> str:
