@@ -163,12 +163,14 @@ class Task:
 
 def render_path(results_dir: Path, config: RecordConfig) -> tuple[Path, str]:
     """Where a render of ``config`` goes, and its identity: the SHA-256 of the configuration and of
-    the files it names (a route or world file edited since is another render, not a stale one).
+    the files it names (a route or world file edited since is another render, not a stale one),
+    with every file the world file loads (its buffers, materials, textures), as the recorder says.
 
     A file counts by its name and bytes, not its folder, as in the recording: the sweep's folder
     copied elsewhere (another checkout, a CI cache) finds its renders and keeps its task keys.
     """
     from aslam.recorder.routes import PRESETS
+    from aslam.recorder.world import scene_companions
 
     recorded = asdict(config)
     files = {}
@@ -178,6 +180,9 @@ def render_path(results_dir: Path, config: RecordConfig) -> tuple[Path, str]:
     if config.world is not None and Path(config.world).is_file():
         files["world"] = source_sha256(Path(config.world))
         recorded["world"] = Path(config.world).name
+        companions = scene_companions(Path(config.world))
+        if companions:  # a self-contained world (a .glb, a bare .obj) keeps the identity it had
+            files["world_companions"] = companions
     named = {"files": files} if files else {}  # a preset's render keeps the identity it always had
     identity = _digest({"render": recorded, **named, "version": tool_version()})
     name = f"{Path(config.route).stem}-seed{config.seed}-{identity[:12]}.mcap"

@@ -24,7 +24,8 @@ A kidnap (``connected[i]`` False) is not a path: no corridor is carved along it.
 **Scene files** (:func:`load_scene_world`): any ``.glb``, ``.gltf`` or ``.obj`` trimesh can load,
 in metres with +z up and the floor at z = 0 (the frame of the route).  Before anything is rendered
 the route is checked against the mesh: every segment of the path at camera height must not cross
-the mesh and every pose must have floor below.
+the mesh and every pose must have floor below.  The files it loads besides itself (buffers,
+materials, textures) are noted as it loads them (:func:`scene_companions`).
 """
 
 from __future__ import annotations
@@ -393,6 +394,9 @@ class SceneWorld:
     path: Path
     scene: object  # trimesh.Scene
     mesh: object  # trimesh.Trimesh: the whole scene in world coordinates, for ray tests
+    companions: dict[str, str | None]
+    """The other files the scene file loads, name → SHA-256 (None: named but missing); see
+    :class:`~aslam.recorder.scene_files.CompanionResolver`."""
 
     kind = "scene-file"
 
@@ -414,6 +418,8 @@ def load_scene_world(path: Path) -> SceneWorld:
     """Load a scene file with trimesh; one-line :class:`WorldError` when it cannot be used."""
     import trimesh
 
+    from aslam.recorder.scene_files import CompanionResolver
+
     path = Path(path)
     if path.suffix.lower() not in SCENE_SUFFIXES:
         raise WorldError(
@@ -421,8 +427,9 @@ def load_scene_world(path: Path) -> SceneWorld:
         )
     if not path.is_file():
         raise WorldError("scene file not found", path=path)
+    resolver = CompanionResolver(str(path))
     try:
-        scene = trimesh.load(path, force="scene")
+        scene = trimesh.load(path, force="scene", resolver=resolver)
     except Exception as err:  # trimesh raises many types for malformed files
         raise WorldError(f"cannot load scene: {type(err).__name__}: {err}", path=path) from err
     try:
@@ -431,7 +438,19 @@ def load_scene_world(path: Path) -> SceneWorld:
         raise WorldError(f"cannot flatten scene geometry: {err}", path=path) from err
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise WorldError("scene has no triangle geometry", path=path)
-    return SceneWorld(path, scene, mesh)
+    return SceneWorld(path, scene, mesh, resolver.read)
+
+
+def scene_companions(path: Path) -> dict[str, str | None]:
+    """The files besides ``path`` that loading it reads (glTF buffers and images, OBJ materials and
+    their textures), name → SHA-256: with the file's own bytes, what decides the world.
+
+    Empty for a scene that cannot be loaded: its render fails, saying why, and is never kept.
+    """
+    try:
+        return load_scene_world(path).companions
+    except WorldError:
+        return {}
 
 
 def ray_distance(triangles: np.ndarray, origin: np.ndarray, direction: np.ndarray) -> float:

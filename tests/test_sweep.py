@@ -880,6 +880,46 @@ def test_an_edited_route_file_is_another_render(tmp_path):
     assert render_path(tmp_path, RecordConfig(route=str(route)))[1] != first[1]
 
 
+def test_an_edited_texture_or_material_of_a_world_is_another_render(tmp_path):
+    """A world file's companions (an .obj's .mtl and its texture, a .gltf's buffers) change what is
+    rendered: each is in the render's identity. Only the named file counted: a sweep reused the
+    render of the old texture. A self-contained world keeps the identity it had."""
+    from dataclasses import asdict
+
+    import trimesh
+    from PIL import Image
+
+    from aslam.app.sweep import _digest
+    from aslam.data_formats.files import source_sha256
+    from aslam.data_formats.provenance import tool_version
+
+    floor = trimesh.creation.box(extents=(10, 10, 0.1))
+    uv = (floor.vertices[:, :2] + 5) / 10
+    floor.visual = trimesh.visual.TextureVisuals(uv=uv, image=Image.new("RGB", (8, 8), (90, 30, 30)))
+    floor.export(tmp_path / "floor.obj")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["floor.obj", "material.mtl", "material_0.png"]
+    config = RecordConfig(world=tmp_path / "floor.obj")
+    first = render_path(tmp_path / "out", config)
+    assert render_path(tmp_path / "out", config) == first
+    Image.new("RGB", (8, 8), (30, 90, 30)).save(tmp_path / "material_0.png")
+    textured = render_path(tmp_path / "out", config)
+    assert textured[1] != first[1]
+    mtl = tmp_path / "material.mtl"
+    mtl.write_text(mtl.read_text().replace("Kd 0.4", "Kd 0.8"))
+    assert render_path(tmp_path / "out", config)[1] not in (first[1], textured[1])
+
+    floor.export(tmp_path / "floor.glb")
+    glb = RecordConfig(world=tmp_path / "floor.glb")
+    before = _digest(
+        {
+            "render": {**asdict(glb), "world": "floor.glb"},
+            "files": {"world": source_sha256(tmp_path / "floor.glb")},
+            "version": tool_version(),
+        }
+    )
+    assert render_path(tmp_path / "out", glb)[1] == before
+
+
 def test_a_route_file_in_another_folder_is_the_same_render(tmp_path):
     """A recording holds its route file's name and bytes, not its folder: a sweep's folder copied
     elsewhere (another checkout, a CI cache) names the same render, so its task keys are the same.
