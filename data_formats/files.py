@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import functools
 import hashlib
 import os
 import stat
@@ -98,6 +99,10 @@ class CommandFiles:
     interrupt skips, the end of the command removes."""
     folders: list[Path] = field(default_factory=list)
     """Folders the command created for its outputs, deepest first: a failed command removes them."""
+    results: list[Callable[[], None]] = field(default_factory=list)
+    """Result documents for stdout or another stream (``report --json -``), written in order once
+    every output is in place: a command whose outputs fail prints none (a pipeline would read a
+    complete-looking result of a failed command); one that cannot be written takes them back."""
     after_commit: list[Callable[[], None]] = field(default_factory=list)
     """Run once the outputs are in place (the command's "wrote …" lines); dropped on a rollback."""
     owner_pid: int = field(default_factory=os.getpid)
@@ -137,6 +142,15 @@ class CommandFiles:
                     else f"cannot write: {err.strerror or err}"
                 )
                 raise item.error(problem, path=item.shown) from err
+        results, self.results = self.results, []
+        try:
+            for write in results:
+                write()
+        except BaseException:
+            for target in created:
+                _discard(target)
+            self.rollback()
+            raise
         self._remove_temporaries()
         self.folders = []
         after, self.after_commit = self.after_commit, []
@@ -148,6 +162,7 @@ class CommandFiles:
         if os.getpid() != self.owner_pid:
             return
         staged, self.staged = self.staged, []
+        self.results = []
         self.after_commit = []
         for item in staged:
             _discard(item.partial)
@@ -566,14 +581,36 @@ def write_text_output(
     force: bool | None = None,
     error: type[InputError] = InputError,
 ) -> Path | None:
-    """Write ``text`` to ``target``, ``-`` meaning stdout; the path written (None for stdout)."""
+    """Write ``text`` to ``target``, ``-`` meaning stdout; the path written (None for stdout).
+
+    Inside :func:`command_files` a document for stdout or another stream (``/dev/stdout``, a pipe)
+    waits in :attr:`CommandFiles.results` until every file output is in place.
+    """
     if str(target) == "-":
+        path, write = None, functools.partial(_write_stdout, text)
+    else:
+        path = Path(target)
+        write = functools.partial(
+            write_atomically, path, lambda p: p.write_text(text, encoding="utf-8"), error=error, force=force
+        )
+    files = current()
+    if files is not None and (path is None or is_stream_output(path)):
+        files.results.append(write)
+    else:
+        write()
+    return path
+
+
+def _write_stdout(text: str) -> None:
+    """``text`` on stdout; a failure other than a closed pipe (the CLI's exit 141) names stdout,
+    also where the command's outputs are committed, after the command's own code has returned."""
+    try:
         sys.stdout.write(text)
         sys.stdout.flush()
-        return None
-    path = Path(target)
-    write_atomically(path, lambda p: p.write_text(text, encoding="utf-8"), error=error, force=force)
-    return path
+    except BrokenPipeError:
+        raise
+    except OSError as err:
+        raise InputError(err.strerror or str(err), path="stdout") from err
 
 
 def check_mcap_input(path: Path, *, error: type[InputError], what: str) -> int:

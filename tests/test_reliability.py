@@ -1076,6 +1076,63 @@ def test_two_estimates_writing_one_output_at_once_are_one_success_and_one_error(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["e.mcap", "long.mcap"]
 
 
+@pytest.mark.parametrize("result", ["-", "/dev/stdout"])
+def test_a_report_whose_output_is_taken_meanwhile_prints_no_result(
+    estimate_file: Path, tmp_path: Path, result
+):
+    """``report --graph g.json --json -``, g.json written by another process while the plots are
+    drawn: before, the summary JSON was on stdout as soon as it was made, and the command then
+    exited 2 at the commit, a pipeline having read a complete-looking result. Now a result for
+    stdout is written once every file output is in place: none here."""
+    graph, plots = tmp_path / "g.json", tmp_path / "plots"
+    argv = [
+        "report",
+        str(estimate_file),
+        "--graph",
+        str(graph),
+        "--plots",
+        str(plots),
+        "--json",
+        result,
+        "-q",
+    ]
+    run = subprocess.Popen([str(ASLAM), *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not list(tmp_path.glob(".g.json.partial-*")) and run.poll() is None:
+        assert time.monotonic() < deadline
+        time.sleep(0.005)
+    graph.write_text("theirs")
+    assert run.poll() is None, "the report ended before its graph could be taken"
+    out, err = run.communicate(timeout=120)
+    assert run.returncode == 2
+    assert err == (
+        f"aslam: error: {graph}: was written by another process while this command ran; "
+        "refusing to overwrite it (use --force)\n"
+    )
+    assert "{" not in out  # stdout: nothing with "-"; with /dev/stdout the tables, but no JSON
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["g.json"]
+    assert graph.read_text() == "theirs"
+
+
+def test_a_result_for_stdout_that_cannot_be_written_takes_the_outputs_back(
+    estimate_file: Path, tmp_path: Path
+):
+    """Written after the outputs are in place, a result whose stdout has gone (``| head -0``) still
+    leaves none of them (exit 141, nothing on stderr)."""
+    out = tmp_path / "g.json"
+    run = subprocess.Popen(
+        [str(ASLAM), "report", str(estimate_file), "--graph", str(out), "--json", "-", "-q"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    run.stdout.close()
+    err = run.stderr.read()
+    assert run.wait(timeout=120) == 141
+    assert err == ""
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_a_full_stdout_is_one_line_naming_it(recording: Path):
     """``> /dev/full``: before, ``aslam: error: No space left on device``, naming nothing."""
     if not os.path.exists("/dev/full"):
