@@ -984,7 +984,9 @@ def _stop_overdue(client: Any, running: Mapping[str, Any], limit: float) -> dict
 
     Python code running in a worker's thread cannot be interrupted: the future is cancelled (so
     the scheduler gives it to no other worker) and its worker restarted by its nanny, a new
-    process. A worker without a nanny cannot be restarted and computes on; its row says so.
+    process. A worker without a nanny (``dask worker --no-nanny``) cannot be restarted and computes
+    on; its row says so. Dask refuses the whole restart if one worker named has no nanny, so
+    only those with one are named.
     """
     overdue: dict[str, str] = {}  # key -> worker
     for worker, seconds in client.run(executing_seconds, on_error="return").items():
@@ -995,20 +997,24 @@ def _stop_overdue(client: Any, running: Mapping[str, Any], limit: float) -> dict
     if not overdue:
         return {}
     client.cancel([running[key] for key in overdue])
-    workers = sorted(set(overdue.values()))
-    try:
-        restarted = client.restart_workers(workers, raise_for_error=False)
-    except ValueError as err:  # a worker without a nanny
-        restarted = dict.fromkeys(workers, error_text(err))
+    known = client.scheduler_info()["workers"]
+    nannied = sorted({worker for worker in overdue.values() if known.get(worker, {}).get("nanny")})
+    restarted = client.restart_workers(nannied, raise_for_error=False) if nannied else {}
     head = f"timed out: still computing after {limit:g} s (--task-timeout)"
     stopped = {}
     for key, worker in overdue.items():
-        status = restarted[worker]
-        how = (
-            "stopped by restarting its worker"
-            if status == "OK"
-            else f"its worker could not be restarted ({status}) and computes on until the task ends"
-        )
+        status = restarted.get(worker)
+        if worker not in known:
+            how = "its worker has left the cluster"
+        elif status is None:
+            how = (
+                "its worker has no nanny to restart it (dask worker --no-nanny) and computes on "
+                "until the task ends"
+            )
+        elif status == "OK":
+            how = "stopped by restarting its worker"
+        else:
+            how = f"its worker could not be restarted ({status}) and computes on until the task ends"
         stopped[key] = (worker, f"{head}; {how}")
     return stopped
 

@@ -352,6 +352,100 @@ def test_a_task_over_the_timeout_is_stopped_and_its_worker_replaced(recordings, 
     assert capsys.readouterr().out.splitlines()[0] == "2 tasks, 1 already done, 1 to run"
 
 
+def test_a_task_over_the_timeout_on_a_worker_without_a_nanny_fails_and_its_worker_computes_on(
+    recordings, tmp_path
+):
+    """`dask worker --no-nanny`: Dask cannot restart a worker without a nanny (its client refuses
+    with a ValueError, which the row quoted). The row fails saying so and that the worker computes
+    on, and it does: the process is still there, busy, after the sweep ended."""
+    sweep = tmp_path / "s.toml"
+    sweep.write_text(
+        f'figures = ["keyframes"]\n[recordings]\npaths = ["{recordings / "good.mcap"}"]\n' + SLOW_GRID
+    )
+    results = tmp_path / "results"
+    scheduler, address = _scheduler(tmp_path)
+    dask = Path(sys.executable).with_name("dask")
+    worker = subprocess.Popen(
+        [str(dask), "worker", address, "--no-nanny", "--nthreads", "1", "--no-dashboard"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        with Client(address, timeout=30) as client:
+            client.wait_for_workers(1, timeout=60)
+        code = main(
+            ["sweep", str(sweep), "-o", str(results), "--scheduler", address, "--task-timeout", "1", "-q"]
+        )
+        process = psutil.Process(worker.pid)  # no nanny: the worker is the `dask worker` process
+        before = process.cpu_times().user
+        time.sleep(1.0)
+        busy_s = process.cpu_times().user - before
+    finally:
+        worker.kill()  # SIGTERM waits for the task it computes: a minute
+        worker.wait(timeout=30)
+        scheduler.terminate()
+        scheduler.wait(timeout=30)
+    assert code == 3
+    (row,) = _rows(results)
+    assert row["error"] == (
+        "timed out: still computing after 1 s (--task-timeout); its worker has no nanny to restart "
+        "it (dask worker --no-nanny) and computes on until the task ends"
+    )
+    assert busy_s > 0.1
+
+
+def test_overdue_tasks_on_a_worker_with_a_nanny_and_one_without_each_get_their_own_text(tmp_path):
+    """A cluster of your own mixing `dask worker` and `dask worker --no-nanny`, a task over the
+    limit on each at the same check: Dask refused the restart of both for the one without a nanny,
+    so the worker that had one computed on, and its row named the other worker's ValueError."""
+    from aslam.app.sweep import _stop_overdue, executing_seconds
+
+    scheduler, address = _scheduler(tmp_path)
+    dask = Path(sys.executable).with_name("dask")
+    command = [str(dask), "worker", address, "--nthreads", "1", "--no-dashboard"]
+    workers = [
+        subprocess.Popen(command + flag, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        for flag in ([], ["--no-nanny"])
+    ]
+    try:
+        with Client(address, timeout=30) as client:
+            client.wait_for_workers(2, timeout=60)
+            nanny = {
+                addr: info["nanny"] is not None for addr, info in client.scheduler_info()["workers"].items()
+            }
+            running = {
+                addr: client.submit(time.sleep, 60, workers=[addr], pure=False, key=f"sleep-{i}")
+                for i, addr in enumerate(sorted(nanny))
+            }
+            running = {future.key: future for future in running.values()}
+            deadline = time.monotonic() + 60
+            while sum(len(keys) for keys in client.run(executing_seconds).values()) < 2:
+                assert time.monotonic() < deadline
+                time.sleep(0.1)
+            time.sleep(0.6)
+            stopped = _stop_overdue(client, running, 0.5)
+    finally:
+        for worker in workers:
+            worker.kill()  # the one without a nanny sleeps on; SIGTERM would wait for it
+            worker.wait(timeout=30)
+        scheduler.terminate()
+        scheduler.wait(timeout=30)
+    head = "timed out: still computing after 0.5 s (--task-timeout); "
+    assert sorted(stopped.values()) == sorted(
+        (
+            worker,
+            head
+            + (
+                "stopped by restarting its worker"
+                if has_nanny
+                else "its worker has no nanny to restart it (dask worker --no-nanny) and computes on "
+                "until the task ends"
+            ),
+        )
+        for worker, has_nanny in nanny.items()
+    )
+
+
 def test_a_bad_scheduler_file_is_one_line_before_any_work(recordings, tmp_path, capsys, monkeypatch):
     from aslam.app import sweep as sweep_module
 
