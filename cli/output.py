@@ -7,15 +7,17 @@ to stderr, so a pipeline can take stdout as it is.
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import sys
 from collections.abc import Callable, Iterator
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 if TYPE_CHECKING:
     from rich.console import Console
+    from rich.text import Text
 
 QUIET = [False]
 """Set by ``--quiet`` as it is parsed: the warnings the command's output handling gives before the
@@ -77,16 +79,34 @@ def _live_display_wanted() -> bool:
 def table_console(*, stderr: bool = False) -> Console:
     """The console a command's tables (its result) are printed on: no markup or emoji codes read
     in the text (a path or topic ``a[/x]b`` is printed as it is, never parsed), and in a pipe or a
-    file full width, so a log never holds a name or a number cut at 80 columns."""
-    from rich.console import Console
-
+    file full width, so a log never holds a name or a number cut at 80 columns; control
+    characters shown as escapes (:func:`_printable_console_class`)."""
     stream = sys.stderr if stderr else sys.stdout
     try:
         terminal = stream.isatty()  # the stream itself: FORCE_COLOR asks for colour, not a width
     except (AttributeError, ValueError):
         terminal = False
     width = None if terminal else 10_000
-    return Console(stderr=stderr, markup=False, emoji=False, highlight=False, width=width)
+    console_class = _printable_console_class()
+    return console_class(stderr=stderr, markup=False, emoji=False, highlight=False, width=width)
+
+
+@functools.cache
+def _printable_console_class() -> type[Console]:
+    """Made at first use: rich is imported by the commands that print, never at start-up."""
+    from rich.console import Console
+
+    class PrintableConsole(Console):
+        """Every text printed (a line, a table's cell) made :func:`~aslam.core.errors.printable`:
+        a file name, topic or metadata value with a newline or an escape sequence in it stays on
+        its line and never recolours the terminal."""
+
+        def render_str(self, text: str, **options: Any) -> Text:
+            from aslam.core.errors import printable
+
+            return super().render_str(printable(text), **options)
+
+    return PrintableConsole
 
 
 class Terminal:
@@ -118,7 +138,11 @@ class Terminal:
     def _line(self, text: str) -> None:
         """One line on stderr. A stderr whose reader is gone (``2>&1 | head -1``) loses the line and
         nothing else: the command runs on, as with stderr closed, and its exit code says how it
-        ended (it was 141 with no output, the run stopped at its first line about itself)."""
+        ended (it was 141 with no output, the run stopped at its first line about itself). A name in
+        it (``wrote a\\nb.mcap``) is :func:`~aslam.core.errors.printable`: one line, no escapes acted on."""
+        from aslam.core.errors import printable
+
+        text = printable(text)
         try:
             if self._console is not None and self._console.is_terminal:
                 self._console.print(text, markup=False, highlight=False, soft_wrap=True)

@@ -124,6 +124,8 @@ class LiveDisplay:
     def result(self, task: Task, result: TaskResult, reused: bool) -> None:
         from rich.text import Text
 
+        from aslam.core.errors import printable
+
         summary = result.summary or {}
         figures = [figure_text(summary.get(k)) for k in self.figures]
         if result.ok:
@@ -131,8 +133,9 @@ class LiveDisplay:
         else:
             self.failed += 1
             wall = ""
-        # Text, never markup: a recording's name, a route file's or an error may hold [brackets]
-        cells = (task.source.label, parameters_text(task), *figures, wall, result.worker)
-        self.rows.append((str(task.index), *map(Text, cells), Text(result.error or "")))
+        # Text, never markup: a recording's name, a route file's or an error may hold [brackets];
+        # printable: a newline or an escape sequence in one neither breaks nor recolours the table
+        cells = (task.source.label, parameters_text(task), *figures, wall, result.worker, result.error or "")
+        self.rows.append((str(task.index), *(Text(printable(cell)) for cell in cells)))
         self.progress.update(self.bar, advance=1, failed=self.failed)
         self.live.update(self._render())

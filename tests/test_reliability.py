@@ -1257,3 +1257,41 @@ def test_a_stderr_whose_reader_is_gone_loses_lines_not_the_run(recording: Path, 
     process.stderr.close()
     assert process.wait(timeout=120) == 0
     assert out.exists()
+
+
+# --- hostile file names (session 20) ------------------------------------------------------------
+
+CONTROL_NAME = "r\n\x1b[31m.mcap"
+"""A newline and an escape sequence: shown as ``r\\n\\x1b[31m.mcap``, on one line, never acted on."""
+
+
+def test_a_name_with_control_characters_is_exact_and_escaped_in_the_error_line(tmp_path: Path, capsys):
+    """It was ``r \\x1b[31m.mcap``: the newline made a space, naming a file that is not there."""
+    assert main(["info", str(tmp_path / CONTROL_NAME)]) == 2
+    one_error_line(capsys, "r\\n\\x1b[31m.mcap: no such file")
+
+
+def test_wrote_lines_and_tables_show_a_name_with_control_characters_escaped(
+    recording: Path, tmp_path: Path, capsys
+):
+    """The ``wrote`` line broke in two and its escape recoloured the terminal; the report's and
+    info's tables printed the name raw. JSON keeps the name exact."""
+    source = tmp_path / CONTROL_NAME
+    shutil.copy(recording, source)
+    estimate = tmp_path / "e\t\x1b[31m.mcap"
+    assert main(["estimate", str(source), "-o", str(estimate)]) == 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "\x1b" not in err
+    assert err.startswith(f"wrote {tmp_path}/e\\t\\x1b[31m.mcap (")
+
+    assert main(["report", str(estimate), "--json", str(tmp_path / "s\n.json")]) == 0
+    out, err = capsys.readouterr()
+    assert "\x1b" not in out + err
+    assert out.splitlines()[0] == "aslam report — e\\t\\x1b[31m.mcap"
+    assert f"{tmp_path}/r\\n\\x1b[31m.mcap" in out  # the ground-truth row, on its line
+    assert err == f"wrote {tmp_path}/s\\n.json\n"
+
+    assert main(["info", str(source), "--json", "-"]) == 0
+    assert json.loads(capsys.readouterr().out)["path"] == str(source)
+    assert main(["info", str(source)]) == 0
+    assert capsys.readouterr().out.splitlines()[0].startswith(f"{tmp_path}/r\\n\\x1b[31m.mcap (")

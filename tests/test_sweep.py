@@ -1256,3 +1256,26 @@ def test_a_grid_is_the_product_of_its_values_and_each_configuration_one_task(tmp
     reordered = [dict(reversed(grid.items())) for grid in grids]
     again = plan_tasks(read_sweep_file(_grid_sweep(folder / "b.toml", reordered)), folder / "results")
     assert {t.key for t in again} == {t.key for t in tasks}
+
+
+def test_the_live_table_shows_a_name_with_control_characters_escaped(tmp_path, recordings):
+    """The live table's rows printed a recording's name raw: its newline broke the row in two, its
+    escape sequence recoloured the terminal."""
+    import io
+
+    from rich.console import Console
+
+    from aslam.cli.output import Terminal
+    from aslam.cli.sweep_display import LiveDisplay
+
+    shutil.copy(recordings / "good.mcap", tmp_path / "n\n\x1b[31m.mcap")
+    path = tmp_path / "s.toml"
+    path.write_text('[recordings]\npaths = ["*.mcap"]\n')
+    sweep = read_sweep_file(path)
+    [task] = plan_tasks(sweep, tmp_path / "out")
+    display = LiveDisplay(Terminal(), ())
+    display.result(task, TaskResult(task.index, task.key, {}, "bad\nline", (), 1.0, 1.0, "w"), False)
+    screen = io.StringIO()
+    Console(file=screen, width=200, force_terminal=True).print(display._render())
+    [row] = [line for line in screen.getvalue().splitlines() if "n\\n" in line]
+    assert "n\\n\\x1b[31m.mcap" in row and "bad\\nline" in row
