@@ -43,6 +43,7 @@ from aslam.data_formats.files import (
     full_path,
     remove_stale_partials,
     source_sha256,
+    utf8_text,
     write_atomically,
     write_problem,
 )
@@ -1171,7 +1172,10 @@ def arrow_table(
     arrays = {}
     for name in names:
         values = [row.get(name) for row in data]
-        arrays[name] = pa.array(values, type=_arrow_type(name, values))
+        kind = _arrow_type(name, values)
+        if kind == pa.string():  # a recording's name may hold a byte that is not UTF-8
+            values = [utf8_text(value) if isinstance(value, str) else value for value in values]
+        arrays[name] = pa.array(values, type=kind)
     return pa.table(arrays)
 
 

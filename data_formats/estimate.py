@@ -544,7 +544,7 @@ class EstimateWriter:
                 from aslam.data_formats.foxglove import write_scene
 
                 write_scene(self._writer, scene)
-            self._writer.add_metadata(ESTIMATE_METADATA, metadata.as_record())
+            self._writer.add_metadata(ESTIMATE_METADATA, files.utf8_metadata(metadata.as_record()))
             if timing is not None:
                 self._writer.add_metadata(TIMING_METADATA, timing.as_record())
             self._writer.finish()

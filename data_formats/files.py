@@ -29,7 +29,7 @@ import os
 import stat
 import sys
 import threading
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
@@ -303,6 +303,19 @@ def check_input_file(path: Path, *, error: type[InputError], what: str) -> int:
     note_input(path, error=error)
     _warn_stale(real_path(path))  # e.g. a recording whose writer was killed while replacing it
     return st.st_size
+
+
+def utf8_text(text: str) -> str:
+    """``text`` as a UTF-8 file holds it (MCAP metadata, a Parquet or CSV column): a byte of a file
+    name in it that is not UTF-8 (``$'\\xff.mcap'``; Python holds it as a surrogate, ``\\udcff``,
+    which no UTF-8 writer takes) becomes U+FFFD, so the file is written. ``report`` then finds no
+    recording at that name and says so (``--recording`` names it)."""
+    return text.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+
+
+def utf8_metadata(metadata: Mapping[str, str]) -> dict[str, str]:
+    """An MCAP metadata map with every value :func:`utf8_text`."""
+    return {key: utf8_text(value) for key, value in metadata.items()}
 
 
 def full_path(path: Path | str) -> Path:

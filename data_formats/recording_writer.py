@@ -12,7 +12,7 @@ import numpy as np
 from aslam.data_formats import ros_msgs
 from aslam.data_formats.camera import CameraIntrinsics
 from aslam.data_formats.errors import RecordingError
-from aslam.data_formats.files import AtomicFile
+from aslam.data_formats.files import AtomicFile, utf8_metadata
 from aslam.data_formats.images import EncodedImage, ImageFormat
 from aslam.data_formats.recording import (
     BASE_FRAME,
@@ -77,7 +77,7 @@ class RecordingWriter:
                 )
             }
             # Metadata first: it survives if the recording is cut short.
-            self._writer.add_metadata(METADATA_NAME, dict(metadata))
+            self._writer.add_metadata(METADATA_NAME, utf8_metadata(metadata))
         except BaseException:
             self.abort()
             raise

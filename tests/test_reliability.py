@@ -1295,3 +1295,28 @@ def test_wrote_lines_and_tables_show_a_name_with_control_characters_escaped(
     assert json.loads(capsys.readouterr().out)["path"] == str(source)
     assert main(["info", str(source)]) == 0
     assert capsys.readouterr().out.splitlines()[0].startswith(f"{tmp_path}/r\\n\\x1b[31m.mcap (")
+
+
+def test_names_that_are_not_utf8_are_written_not_an_internal_error(recording: Path, tmp_path: Path, capsys):
+    """``$'\\xff.mcap'`` reaches Python as ``\\udcff.mcap``, which the MCAP metadata (UTF-8) could
+    not hold: estimate and import exited 70. The byte is stored as U+FFFD; report then finds no
+    recording at that name and says so, and ``--recording`` names it."""
+    source = tmp_path / os.fsdecode(b"\xff.mcap")
+    shutil.copy(recording, source)
+    estimate = tmp_path / os.fsdecode(b"\xffe.mcap")
+    assert main(["estimate", str(source), "-o", str(estimate)]) == 0
+    assert "wrote" in capsys.readouterr().err
+    assert main(["report", str(estimate), "--json", "-"]) == 0
+    out, err = capsys.readouterr()
+    assert json.loads(out)["ground_truth"] is False
+    assert f"recording {tmp_path}/\ufffd.mcap (named in {tmp_path}/\\udcffe.mcap) not found" in err
+    assert main(["report", str(estimate), "--recording", str(source), "--json", "-"]) == 0
+    assert json.loads(capsys.readouterr().out)["ground_truth"] is True
+
+    folder = tmp_path / os.fsdecode(b"\xffimages")
+    folder.mkdir()
+    for i in range(3):
+        (folder / f"{i:03d}.png").write_bytes(PNG)
+    assert main(["import", str(folder), "-o", str(tmp_path / "i.mcap")]) == 0
+    assert main(["info", str(tmp_path / "i.mcap"), "--json", "-"]) == 0
+    assert json.loads(capsys.readouterr().out)["metadata"]["entries"]["folder"] == f"{tmp_path}/\ufffdimages"

@@ -36,6 +36,7 @@ from aslam.app.sweep import (
     resolve_objectives,
     rows,
     run_sweep,
+    table_bytes,
 )
 from aslam.app.sweep_file import RENDER_KEYS, read_sweep_file
 from aslam.cli.app import main
@@ -1256,6 +1257,21 @@ def test_a_grid_is_the_product_of_its_values_and_each_configuration_one_task(tmp
     reordered = [dict(reversed(grid.items())) for grid in grids]
     again = plan_tasks(read_sweep_file(_grid_sweep(folder / "b.toml", reordered)), folder / "results")
     assert {t.key for t in again} == {t.key for t in tasks}
+
+
+def test_a_recording_whose_name_is_not_utf8_has_its_row_in_the_tables(tmp_path, recordings):
+    """``$'\\xff.mcap'`` (``\\udcff`` to Python) stopped the sweep at its end, exit 70: Parquet and
+    CSV text is UTF-8. The byte is written as U+FFFD."""
+    source = tmp_path / os.fsdecode(b"\xff.mcap")  # no TOML text can name it: a glob finds it
+    shutil.copy(recordings / "good.mcap", source)
+    path = tmp_path / "s.toml"
+    path.write_text('[recordings]\npaths = ["*.mcap"]\n')
+    sweep = read_sweep_file(path)
+    tasks = plan_tasks(sweep, tmp_path / "out")
+    assert [task.source.path for task in tasks] == [source]
+    results = [TaskResult(t.index, t.key, {}, None, (), 1.0, 1.0, "w") for t in tasks]
+    tables = table_bytes(sweep, tasks, results)
+    assert f"{tmp_path}/\ufffd.mcap" in tables["results.csv"].decode()
 
 
 def test_the_live_table_shows_a_name_with_control_characters_escaped(tmp_path, recordings):
