@@ -24,6 +24,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import functools
+import glob
 import hashlib
 import os
 import stat
@@ -42,9 +43,26 @@ PARTIAL_MARK = ".partial-"
 _STREAM_PATHS = ("/dev/stdout", "/dev/stderr", "/dev/fd/", "/proc/self/fd/")
 
 
+NAME_MAX_BYTES = 255
+"""The longest file name most file systems take (ext4, XFS, btrfs, APFS, tmpfs)."""
+_PARTIAL_EXTRA_BYTES = 1 + len(PARTIAL_MARK) + 10  # the dot, the mark, a process id
+
+
 def partial_name(path: Path) -> Path:
     """Where ``path`` lives until it is complete: a hidden name in the same folder."""
-    return path.with_name(f".{path.name}{PARTIAL_MARK}{os.getpid()}")
+    return path.with_name(f"{_partial_prefix(path)}{os.getpid()}")
+
+
+def _partial_prefix(path: Path) -> str:
+    """``.NAME.partial-``, how every temporary name of ``path`` starts. A name too long to take
+    the suffix (a 255-byte name was refused as "File name too long" after all the work) is cut
+    to its first bytes and a digest of the whole, so two long names in one folder stay apart."""
+    name = os.fsencode(path.name)
+    if len(name) + _PARTIAL_EXTRA_BYTES <= NAME_MAX_BYTES:
+        return f".{path.name}{PARTIAL_MARK}"
+    digest = hashlib.sha256(name).hexdigest()[:16]
+    kept = name[: NAME_MAX_BYTES - _PARTIAL_EXTRA_BYTES - len(digest) - 1]
+    return f".{os.fsdecode(kept)}~{digest}{PARTIAL_MARK}"
 
 
 def _temporary(target: Path) -> Path:
@@ -425,7 +443,7 @@ def _claim_output(path: Path, real: Path, error: type[InputError]) -> None:
 def stale_partials(target: Path) -> list[Path]:
     """Temporary files of ``target`` left by runs that were killed (their process is gone)."""
     try:
-        candidates = list(target.parent.glob(f".{target.name}{PARTIAL_MARK}*"))
+        candidates = list(target.parent.glob(f"{glob.escape(_partial_prefix(target))}*"))
     except OSError:
         return []
     return sorted(candidate for candidate in candidates if _writer_gone(candidate))

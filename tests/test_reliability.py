@@ -1320,3 +1320,23 @@ def test_names_that_are_not_utf8_are_written_not_an_internal_error(recording: Pa
     assert main(["import", str(folder), "-o", str(tmp_path / "i.mcap")]) == 0
     assert main(["info", str(tmp_path / "i.mcap"), "--json", "-"]) == 0
     assert json.loads(capsys.readouterr().out)["metadata"]["entries"]["folder"] == f"{tmp_path}/\ufffdimages"
+
+
+def test_an_output_name_of_255_bytes_is_written(recording: Path, tmp_path: Path, capsys):
+    """The longest name a file system takes was refused, "File name too long", after the whole
+    run: its temporary name (``.NAME.partial-PID``) was longer. Now that one is cut."""
+    for name in ("x" * 250 + ".mcap", "é" * 125 + ".mcap"):
+        output = tmp_path / name
+        assert len(os.fsencode(output.name)) == 255
+        assert main(["estimate", str(recording), "-o", str(output)]) == 0, capsys.readouterr().err
+        assert output.stat().st_size > 0
+    assert [p.name for p in tmp_path.iterdir() if ".partial-" in p.name] == []
+
+
+def test_a_temporary_file_left_for_a_name_with_brackets_is_found(recording: Path, tmp_path: Path, capsys):
+    """``a[1].mcap``'s leftover was looked for with the name as a glob (``[1]`` matches ``1``):
+    never found, never named in the warning."""
+    stale = tmp_path / ".a[1].mcap.partial-999999999"
+    stale.write_bytes(b"half")
+    assert main(["estimate", str(recording), "-o", str(tmp_path / "a[1].mcap")]) == 0
+    assert f"{stale}: temporary file left by an interrupted run" in capsys.readouterr().err
