@@ -15,7 +15,6 @@ without it (the file was found, not named by the user).
 from __future__ import annotations
 
 import calendar
-import os
 import re
 from array import array
 from collections.abc import Iterator
@@ -23,6 +22,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from aslam.data_formats import ros_msgs
+from aslam.data_formats.files import full_path, real_path
 from aslam.data_formats.format_names import StampUnit
 from aslam.data_formats.pose_files import stamp_text_ns
 
@@ -43,8 +43,7 @@ def kitti_stamp_file(folder: Path) -> Path | None:
     (``image_0`` typed in ``00/``, ``.`` typed in ``image_0/``), so the path is made absolute first;
     a folder that is a symlink (``cam0 -> /data/kitti/sequences/00/image_0``) has it beside the
     folder it points to, looked in when there is none beside the link."""
-    named = Path(os.path.abspath(folder)).parent
-    for parent in dict.fromkeys([named, Path(os.path.realpath(folder)).parent]):
+    for parent in dict.fromkeys([full_path(folder).parent, real_path(folder).parent]):
         found = [parent / name for name in (SECONDS_FILE, DATE_TIME_FILE) if (parent / name).is_file()]
         if len(found) > 1:
             raise KittiStampsUnusable(f"{found[0]} and {found[1]} are not used: which one stamps {folder}?")
