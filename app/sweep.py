@@ -867,7 +867,7 @@ def _compute(
     tasks: Sequence[Task],
     *,
     force: bool,
-    task_timeout: float | None = None,
+    task_timeout: float | None,
     done_before: int = 0,
     total: int | None = None,
 ) -> Iterable[tuple[Task, TaskResult]]:
