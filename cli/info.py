@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -40,6 +39,7 @@ def info(
     """
     from aslam.app.info import describe
     from aslam.data_formats.files import check_output_path, write_text_output
+    from aslam.data_formats.json_text import json_text
     from aslam.data_formats.sources import TopicChoice
 
     terminal = output.Terminal(quiet=quiet, verbose=verbose)
@@ -49,7 +49,7 @@ def info(
     with output.counted_progress(terminal, "info", unit="images") as on_progress:  # every image is decoded
         result = describe(recording, topics, on_progress=on_progress, on_warning=terminal.warning)
     if json_out is not None:
-        written = write_text_output(json_out, json.dumps(result.as_dict(), indent=2, sort_keys=False) + "\n")
+        written = write_text_output(json_out, json_text(result.as_dict(), indent=2))
         if written is not None:
             terminal.wrote(f"wrote {written}")
         return

@@ -168,12 +168,11 @@ def _dry_run(
 ) -> None:
     """The plan on stdout (a line and the tasks to run, or JSON); exit 2 as the run would, when it
     could not save its results."""
-    import json
-
     from rich.table import Table
 
     from aslam.app.sweep import dry_run
     from aslam.data_formats.files import write_text_output
+    from aslam.data_formats.json_text import json_text
 
     plan = dry_run(
         spec,
@@ -185,7 +184,7 @@ def _dry_run(
         on_warning=terminal.warning,
     )
     if json_out is not None:
-        written = write_text_output(json_out, json.dumps(plan.as_dict(), indent=2) + "\n")
+        written = write_text_output(json_out, json_text(plan.as_dict(), indent=2))
         if written is not None:
             terminal.wrote(f"wrote {written}")
     else:

@@ -1,4 +1,5 @@
-"""JSON documents as ``report`` writes them (the graph JSON, the summary JSON).
+"""JSON documents as the commands write them (``report``'s graph and summary JSON, ``info --json``,
+``sweep --dry-run --json``).
 
 No negative zero: ``-0.0`` (a heading of −0.0, a KITTI ``y_m = −t_x`` of 0) is a sign no measured
 value has, and it makes two runs that agree differ in their bytes and in a diff.
