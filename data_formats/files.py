@@ -8,7 +8,8 @@ so an interrupted run never leaves a half file under the final name. The rules (
 * an output that resolves (``realpath``: symlinks and ``..`` followed) to an input of the same
   command, or to another of its outputs, is refused (exit 2), with or without ``--force``;
 * an existing regular file is replaced only with ``--force``; a symlink is followed and its target
-  replaced atomically;
+  replaced atomically; without ``--force`` an output is moved into place by a hard link, which
+  cannot replace, so one another process wrote meanwhile is refused, not overwritten;
 * a character device or FIFO (``/dev/null``, ``/dev/stdout``, a pipe) is written directly, never
   renamed over, and needs no ``--force``;
 * inputs must be regular files (a FIFO or a device is refused at once instead of hanging).
@@ -16,7 +17,8 @@ so an interrupted run never leaves a half file under the final name. The rules (
 Inside :func:`command_files` (the CLI opens one per command) the outputs are *staged*: complete
 files wait under their temporary names and are renamed together when the command succeeds, so a
 command that fails leaves none of its outputs, and outputs are checked against every input the
-command opened, whenever it opened it.
+command opened, whenever it opened it. A result for stdout and the "wrote" lines wait for them too
+(:attr:`CommandFiles.results`, :attr:`CommandFiles.after_commit`).
 """
 
 from __future__ import annotations
