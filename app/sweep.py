@@ -48,7 +48,7 @@ from aslam.data_formats.files import (
     write_problem,
 )
 from aslam.data_formats.provenance import tool_version
-from aslam.recorder.config import CameraSpec, NoiseModel, NoiseParams, RecordConfig
+from aslam.recorder.config import NoiseParams, RecordConfig
 
 RESULTS_PARQUET = "results.parquet"
 RESULTS_CSV = "results.csv"
@@ -1124,15 +1124,16 @@ def render_text(config: RecordConfig) -> str:
     """A render's configuration as the tables show it: its route and seed, then every setting (as
     the sweep file's ``[[render]]`` key) that is not the default, so no two renders read alike."""
     noise, camera = config.noise, config.camera
-    usual_noise, usual_camera = NoiseParams.of_model(noise.model), CameraSpec()
+    usual = RecordConfig()
+    usual_noise, usual_camera = NoiseParams.of_model(noise.model), usual.camera  # noise: its model's
     settings = [
-        ("laps", config.laps, None),
+        ("laps", config.laps, usual.laps),
         (
             "size",
             f"{camera.width_px}x{camera.height_px}",
             f"{usual_camera.width_px}x{usual_camera.height_px}",
         ),
-        ("noise_model", str(noise.model), str(NoiseModel.DEFAULT)),
+        ("noise_model", noise.model, usual.noise.model),
         ("noise", noise.noise, usual_noise.noise),
         ("drift_deg_per_m", noise.drift_deg_per_m, usual_noise.drift_deg_per_m),
         ("jitter_m", noise.jitter_m, usual_noise.jitter_m),
@@ -1140,14 +1141,14 @@ def render_text(config: RecordConfig) -> str:
         ("wander_m", noise.wander_m, usual_noise.wander_m),
         ("wander_deg", noise.wander_deg, usual_noise.wander_deg),
         ("wander_length_m", noise.wander_length_m, usual_noise.wander_length_m),
-        ("aliasing", config.aliasing, 0.0),
-        ("lighting_change", config.lighting_change, 0.0),
-        ("odometry_reset_at", config.odometry_reset_at, None),
-        ("world", config.world, None),
+        ("aliasing", config.aliasing, usual.aliasing),
+        ("lighting_change", config.lighting_change, usual.lighting_change),
+        ("odometry_reset_at", config.odometry_reset_at, usual.odometry_reset_at),
+        ("world", config.world, usual.world),
         ("fov_deg", camera.fov_deg, usual_camera.fov_deg),
         ("camera_height_m", camera.height_m, usual_camera.height_m),
-        ("fps", config.fps, None),
-        ("jpeg_quality", config.jpeg_quality, None),
+        ("fps", config.fps, usual.fps),
+        ("jpeg_quality", config.jpeg_quality, usual.jpeg_quality),
     ]
     parts = [f"route={config.route}", f"seed={config.seed}"]
     parts += [f"{key}={_setting_text(value)}" for key, value, usual in settings if value != usual]
