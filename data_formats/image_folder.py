@@ -259,7 +259,7 @@ def _kitti_stamps(folder: Path, n: int, warnings: list[str]) -> tuple[tuple[int,
         return None
 
 
-def _kitti_stamps_unread(folder: Path, why: str, warnings: list[str]) -> None:
+def _warn_kitti_stamps_unused(folder: Path, why: str, warnings: list[str]) -> None:
     """A KITTI stamp file beside the folder that another source of stamps overrides, said once."""
     try:
         path = kitti_stamp_file(folder)
@@ -400,7 +400,7 @@ def open_image_folder(
     if stamp_file is not None:
         how = f"pose file {stamp_file.path.name}{in_unit}"
     elif rate_hz is not None:
-        _kitti_stamps_unread(folder, f"--rate {rate_hz:g} Hz gives the stamps", warnings)
+        _warn_kitti_stamps_unused(folder, f"--rate {rate_hz:g} Hz gives the stamps", warnings)
         start = START_STAMP_NS if interpolated is None else interpolated.first_stamp_ns
         assert start is not None
         if start + (n - 1) * 1e9 / rate_hz > LAST_STAMP_NS:
