@@ -100,7 +100,6 @@ def report(
 
     from aslam.app.gates import failed_conditions, parse_condition
     from aslam.app.score import score, summary_keys
-    from aslam.cli.tables import print_report
 
     terminal = Terminal(quiet=quiet, verbose=verbose)
     keys = summary_keys()
@@ -143,7 +142,7 @@ def report(
         )
     stdout_taken = "-" in (graph, json_out)
     if not quiet or not stdout_taken:
-        print_report(table_console(stderr=stdout_taken), result)
+        _print_tables(table_console(stderr=stdout_taken), result)
     written: list[Path] = []
     if graph is not None:
         written += _write_json(graph, result.graph_json(), indent=1)
@@ -163,6 +162,21 @@ def report(
     failed = failed_conditions(conditions, result.summary)
     if failed:
         raise QualityGateFailed(f"quality gate failed: {'; '.join(failed)}")
+
+
+def _print_tables(console: Any, result: Any) -> None:
+    """The report's tables. On stdout they are the command's result, so like its documents they are
+    written once every file output is in place: a command that then fails (an output written by
+    another process meanwhile) prints none. On stderr (stdout taken by a document) at once."""
+    from aslam.cli.tables import print_report
+    from aslam.data_formats.files import write_text_output
+
+    if console.stderr:
+        print_report(console, result)
+        return
+    with console.capture() as captured:
+        print_report(console, result)
+    write_text_output("-", captured.get())
 
 
 def _write_trajectories(
