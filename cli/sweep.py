@@ -124,8 +124,10 @@ def sweep(
     spec = read_sweep_file(sweep_file)
     if scheduler_file is not None:
         scheduler = scheduler_address(scheduler_file)
+    # what a run and a dry run both take, so that the dry run plans exactly what the run would do
+    options = {"workers": workers, "scheduler": scheduler, "force": force, "task_timeout": task_timeout}
     if dry_run:
-        _dry_run(spec, output, workers, scheduler, force, task_timeout, json_out, terminal)
+        _dry_run(spec, output, options, json_out, terminal)
         return
     display = (
         LiveDisplay(terminal, spec.figures)
@@ -136,10 +138,7 @@ def sweep(
         run = run_sweep(
             spec,
             output,
-            workers=workers,
-            scheduler=scheduler,
-            force=force,
-            task_timeout=task_timeout,
+            **options,
             extra_figures=[o.key for o in objectives],
             on_plan=display.plan,
             on_result=display.result,
@@ -157,14 +156,7 @@ def sweep(
 
 
 def _dry_run(
-    spec: Any,
-    output: Path,
-    workers: int | None,
-    scheduler: str | None,
-    force: bool,
-    task_timeout: float | None,
-    json_out: str | None,
-    terminal: Terminal,
+    spec: Any, output: Path, options: dict[str, Any], json_out: str | None, terminal: Terminal
 ) -> None:
     """The plan on stdout (a line and the tasks to run, or JSON); exit 2 as the run would, when it
     could not save its results."""
@@ -174,15 +166,7 @@ def _dry_run(
     from aslam.data_formats.files import write_text_output
     from aslam.data_formats.json_text import json_text
 
-    plan = dry_run(
-        spec,
-        output,
-        workers=workers,
-        scheduler=scheduler,
-        force=force,
-        task_timeout=task_timeout,
-        on_warning=terminal.warning,
-    )
+    plan = dry_run(spec, output, **options, on_warning=terminal.warning)
     if json_out is not None:
         written = write_text_output(json_out, json_text(plan.as_dict(), indent=2))
         if written is not None:
