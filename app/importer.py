@@ -89,7 +89,7 @@ def import_image_folder(
     same_name = [image for image in source.images if image.name in names]
     check_output_path(output, force=True, inputs=[p for p in (odometry, ground_truth) if p] + same_name)
     first = source.images[0]
-    height_px, width_px = read_image(first, 0).decode_gray().shape
+    height_px, width_px = read_image(first).decode_gray().shape
     camera = CameraIntrinsics(width_px, height_px, DEFAULT_FOV_DEG if fov_deg is None else fov_deg)
     warnings: list[str] = []
 

@@ -66,9 +66,8 @@ def is_raw_encoding(encoding: str) -> bool:
     return encoding.lower() in _LAYOUTS
 
 
-def _error(problem: str, stamp_ns: int | None, path: Path | str | None) -> ImageEncodingError:
-    where = f"image at stamp {stamp_ns} ns: " if stamp_ns is not None else ""
-    return ImageEncodingError(f"{where}{problem}", path=path)
+def _error(problem: str, where: str, path: Path | str | None) -> ImageEncodingError:
+    return ImageEncodingError(f"{where}: {problem}" if where else problem, path=path)
 
 
 def _pixels(
@@ -78,21 +77,21 @@ def _pixels(
     height: int,
     step: int,
     is_bigendian: bool,
-    stamp_ns: int | None,
+    where: str,
     path: Path | str | None,
 ) -> tuple[np.ndarray, _Layout]:
     """The pixels as ``(H, W)`` or ``(H, W, C)`` in native byte order, uint8 or uint16."""
     layout = _LAYOUTS.get(encoding.lower())
     if layout is None:
         raise _error(
-            f"unknown image encoding '{encoding}' (accepted: {', '.join(sorted(_LAYOUTS))})", stamp_ns, path
+            f"unknown image encoding '{encoding}' (accepted: {', '.join(sorted(_LAYOUTS))})", where, path
         )
     row_bytes = width * layout.channels * layout.bytes_per_channel
     if width <= 0 or height <= 0 or step < row_bytes or len(data) < step * height:
         raise _error(
             f"{len(data)} bytes do not hold a {width}x{height} {encoding} image with step {step} "
             f"(needs step ≥ {max(row_bytes, 0)} and {max(step, row_bytes, 0) * max(height, 0)} bytes)",
-            stamp_ns,
+            where,
             path,
         )
     rows = np.frombuffer(data, dtype=np.uint8, count=step * height).reshape(height, step)[:, :row_bytes]
@@ -128,17 +127,17 @@ def raw_to_gray(
     step: int,
     is_bigendian: bool,
     *,
-    stamp_ns: int | None = None,
+    where: str = "",
     path: Path | str | None = None,
 ) -> np.ndarray:
     """Grey uint8 ``(height, width)`` of one raw image message.
 
-    ``stamp_ns`` and ``path`` only name the image in the ``ImageEncodingError`` raised for an unknown
-    encoding or bytes that do not hold the stated size.
+    ``path`` and ``where`` (the message in it, ``LazyImage.where``) only name the image in the
+    ``ImageEncodingError`` raised for an unknown encoding or bytes that do not hold the stated size.
     """
     import cv2
 
-    values, layout = _pixels(data, encoding, width, height, step, is_bigendian, stamp_ns, path)
+    values, layout = _pixels(data, encoding, width, height, step, is_bigendian, where, path)
     kind = layout.kind
     if kind == "gray":
         return np.ascontiguousarray(_to_8bit(values))

@@ -155,14 +155,15 @@ def image_format(data: bytes, path: Path) -> ImageFormat:
     raise ImageFolderError(f"not a PNG or JPEG file (starts with {data[:8].hex(' ')})", path=path)
 
 
-def read_image(path: Path, stamp_ns: int) -> LazyImage:
-    """The file's bytes as a LazyImage (encoding "png" or "jpeg"), decoded only on request."""
+def read_image(path: Path) -> LazyImage:
+    """The file's bytes as a LazyImage (encoding "png" or "jpeg"), decoded only on request; its
+    errors name the file alone (its stamp may be made up: a rate, the default 1 Hz)."""
     try:
         data = path.read_bytes()
     except OSError as err:
         raise ImageFolderError(f"cannot read: {err.strerror or err}", path=path) from err
     fmt = image_format(data, path)
-    return LazyImage(data, fmt.value, path=path, stamp_ns=stamp_ns)
+    return LazyImage(data, fmt.value, path=path)
 
 
 @dataclass(frozen=True)
@@ -346,7 +347,7 @@ class ImageFolder:
         for stamp, order, item in heapq.merge(*streams, key=lambda row: (row[0], row[1])):
             if order == 2:
                 assert isinstance(item, Path)
-                yield from assembler.add_image(stamp, read_image(item, stamp))
+                yield from assembler.add_image(stamp, read_image(item))
             elif order == 0:
                 yield from assembler.add_odometry(stamp, item)  # type: ignore[arg-type]
             else:

@@ -270,10 +270,13 @@ class LazyImage:
 
     ``encoding`` is ``"png"``, ``"jpeg"`` or a raw ``sensor_msgs/Image`` encoding
     (``image_encodings.RAW_ENCODINGS``: mono8/16, rgb8, bgra8, yuv422, Bayer, …); ``width``,
-    ``height``, ``step`` and ``is_bigendian`` are known up front only for raw images.
+    ``height``, ``step`` and ``is_bigendian`` are known up front only for raw images. ``where``
+    names the image within ``path`` for an error: a message of a bag or recording (``"image on
+    '/camera' at stamp 5 ns"``), or nothing where ``path`` is the image file itself (an image
+    folder's frame, whose stamp may be made up: a default rate).
     """
 
-    __slots__ = ("data", "encoding", "height", "is_bigendian", "path", "stamp_ns", "step", "width")
+    __slots__ = ("data", "encoding", "height", "is_bigendian", "path", "step", "where", "width")
 
     def __init__(
         self,
@@ -281,7 +284,7 @@ class LazyImage:
         encoding: str,
         *,
         path: Path | str,
-        stamp_ns: int,
+        where: str = "",
         width: int = 0,
         height: int = 0,
         step: int = 0,
@@ -290,17 +293,17 @@ class LazyImage:
         self.data = data
         self.encoding = encoding
         self.path = Path(path)
-        self.stamp_ns = stamp_ns
+        self.where = where
         self.width = width
         self.height = height
         self.step = step
         self.is_bigendian = is_bigendian
 
     def __repr__(self) -> str:
-        return f"LazyImage({self.encoding}, {len(self.data)} bytes, stamp_ns={self.stamp_ns})"
+        return f"LazyImage({self.encoding}, {len(self.data)} bytes, {self.where or self.path.name})"
 
     def _error(self, problem: str) -> RecordingError:
-        return RecordingError(f"image at stamp {self.stamp_ns} ns: {problem}", path=self.path)
+        return RecordingError(f"{self.where}: {problem}" if self.where else problem, path=self.path)
 
     def _check_header(self) -> None:
         """Refuse, before decoding, an image whose header is missing or claims more than the limit."""
@@ -346,6 +349,6 @@ class LazyImage:
             self.height,
             self.step,
             self.is_bigendian,
-            stamp_ns=self.stamp_ns,
+            where=self.where,
             path=self.path,
         )

@@ -140,6 +140,7 @@ def _check_type(path: Path, what: str, topic: str, datatype: str, accepted: tupl
 
 
 def _lazy_image(path: Path, topic: str, datatype: str, msg: Any, stamp_ns: int) -> LazyImage:
+    where = f"image on '{topic}' at stamp {stamp_ns} ns"
     if datatype == ros_msgs.COMPRESSED_IMAGE:
         fmt = str(msg.format)
         lowered = fmt.lower()
@@ -163,7 +164,7 @@ def _lazy_image(path: Path, topic: str, datatype: str, msg: Any, stamp_ns: int) 
                 "(accepted: png, jpeg)",
                 path=path,
             )
-        return LazyImage(bytes(msg.data), kind, path=path, stamp_ns=stamp_ns)
+        return LazyImage(bytes(msg.data), kind, path=path, where=where)
     encoding = str(msg.encoding)
     if not is_raw_encoding(encoding):
         raise RecordingError(
@@ -175,7 +176,7 @@ def _lazy_image(path: Path, topic: str, datatype: str, msg: Any, stamp_ns: int) 
         bytes(msg.data),
         encoding.lower(),
         path=path,
-        stamp_ns=stamp_ns,
+        where=where,
         width=int(msg.width),
         height=int(msg.height),
         step=int(msg.step),

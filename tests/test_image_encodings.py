@@ -174,10 +174,11 @@ def test_every_listed_encoding_decodes_exactly_its_size():
         (bytes(12), "hsv8", 4, 3, 4, "unknown image encoding 'hsv8'"),
     ],
 )
-def test_bad_raw_image_names_the_stamp(data, encoding, width, height, step, needle):
+def test_bad_raw_image_names_the_message(data, encoding, width, height, step, needle):
     with pytest.raises(ImageEncodingError) as caught:
-        raw_to_gray(data, encoding, width, height, step, False, stamp_ns=1234, path="bag.mcap")
+        where = "image on '/cam' at stamp 1234 ns"
+        raw_to_gray(data, encoding, width, height, step, False, where=where, path="bag.mcap")
     assert isinstance(caught.value, InputError)
     message = str(caught.value)
-    assert message.startswith("bag.mcap: image at stamp 1234 ns: ")
+    assert message.startswith("bag.mcap: image on '/cam' at stamp 1234 ns: ")
     assert needle in message and "\n" not in message

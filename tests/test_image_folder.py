@@ -791,6 +791,18 @@ def test_a_bad_image_fails_the_import_naming_the_file(tmp_path, damage):
     assert not out.exists() and list(tmp_path.glob(".rec.mcap*")) == []
 
 
+@pytest.mark.parametrize("frame", [0, 2])
+def test_a_damaged_frame_is_named_by_its_file_alone(tmp_path, frame):
+    """A frame's stamp may be made up (here the default 1 Hz), and the first frame, decoded for the
+    recording's size before any stamp is known, was said to be 'at stamp 0 ns': the file names it."""
+    paths = write_images(tmp_path / "imgs", 4)
+    data = paths[frame].read_bytes()
+    paths[frame].write_bytes(data[:-20])
+    with pytest.raises(InputError) as caught:
+        import_image_folder(tmp_path / "imgs", tmp_path / "rec.mcap")
+    assert str(caught.value) == f"{paths[frame]}: corrupt PNG data ({len(data) - 20} bytes)"
+
+
 def test_import_refuses_to_overwrite(tmp_path):
     write_images(tmp_path / "imgs", 1)
     out = tmp_path / "rec.mcap"

@@ -86,9 +86,9 @@ def test_corrupt_pixel_data_is_still_refused_with_the_file_named(tmp_path):
     rgb = np.random.default_rng(1).integers(0, 256, (24, 32, 3), dtype=np.uint8)
     data = bytearray(png_of(rgb))
     data[60] ^= 0xFF  # inside the IDAT stream: its CRC no longer matches
-    image = LazyImage(bytes(data), "png", path=tmp_path / "r.mcap", stamp_ns=5)
+    image = LazyImage(bytes(data), "png", path=tmp_path / "r.mcap", where="image on '/c' at stamp 5 ns")
     assert png_gray(bytes(data)) is None
-    with pytest.raises(RecordingError, match=r"r\.mcap.*stamp 5 ns: corrupt PNG data"):
+    with pytest.raises(RecordingError, match=r"r\.mcap: image on '/c' at stamp 5 ns: corrupt PNG data"):
         image.decode_gray()
 
 

@@ -91,7 +91,7 @@ def test_every_image_gets_the_poses_at_its_stamp_or_is_counted_dropped(odometry,
             samples += assembler.add_ground_truth(*next(streams[kind]))
         else:
             stamp = next(streams[kind])
-            samples += assembler.add_image(stamp, LazyImage(b"", "png", path=PATH, stamp_ns=stamp))
+            samples += assembler.add_image(stamp, LazyImage(b"", "png", path=PATH))
     samples += assembler.finish()
 
     expected = []

@@ -551,7 +551,11 @@ def test_truncated_image_data_names_the_stamp(tmp_path):
             msg.data = msg.data[:-1]
     path = write_rosbag2(tmp_path / "bag", messages=rows)
     sample = next(iter_bag_samples(path))
-    with pytest.raises(InputError, match=rf"image at stamp {T0_NS} ns: {WIDTH * HEIGHT * 3 - 1} bytes"):
+    # The message is named by its topic and stamp, as a bad encoding is (a bag may hold two cameras).
+    problem = f"{WIDTH * HEIGHT * 3 - 1} bytes do not hold a {WIDTH}x{HEIGHT} bgr8 image"
+    with pytest.raises(
+        InputError, match=rf"^{path}: image on '{IMAGE_TOPIC}' at stamp {T0_NS} ns: {problem} "
+    ):
         sample.image.decode_gray()
 
 
