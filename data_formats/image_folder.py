@@ -87,14 +87,27 @@ OTHER_IMAGE_SUFFIXES = (
 )  # fmt: skip
 
 
+def is_hidden(path: Path) -> bool:
+    """Hidden files are never frames: macOS's ``._NAME.png`` beside each file on a FAT or exFAT
+    disk holds no image, ``.DS_Store`` none either."""
+    return path.name.startswith(".")
+
+
+def holds_frames(folder: Path) -> bool:
+    """Whether ``folder`` has a file that would be one of its frames (``aslam estimate`` on it is
+    then told to ``aslam import`` it), by the rule :func:`list_images` applies."""
+    return any(
+        p.suffix.lower() in IMAGE_SUFFIXES and not is_hidden(p) and p.is_file() for p in folder.iterdir()
+    )
+
+
 def list_images(folder: Path) -> list[Path]:
     """The png/jpg files of ``folder`` (not its subfolders), in natural file-name order, or by value
     where every name is a number (``0.05.png`` before ``0.1.png``: stamps as Python writes them).
 
-    Hidden files are not frames (macOS's ``._NAME.png`` beside each file on a FAT or exFAT disk);
-    a frame that cannot be read (a broken link: a dataset on a disk not mounted; a pipe) or is
-    stored in another image format is refused, since skipping it would pair every later frame
-    wrongly. Folders are never frames, whatever their names.
+    Hidden files are not frames (:func:`is_hidden`); a frame that cannot be read (a broken link: a
+    dataset on a disk not mounted; a pipe) or is stored in another image format is refused, since
+    skipping it would pair every later frame wrongly. Folders are never frames, whatever their names.
     """
     folder = Path(folder)
     if not folder.exists():
@@ -105,7 +118,7 @@ def list_images(folder: Path) -> list[Path]:
     try:
         for path in folder.iterdir():
             suffix = path.suffix.lower()
-            if path.name.startswith(".") or suffix not in IMAGE_SUFFIXES + OTHER_IMAGE_SUFFIXES:
+            if is_hidden(path) or suffix not in IMAGE_SUFFIXES + OTHER_IMAGE_SUFFIXES:
                 continue
             if path.is_dir():
                 continue

@@ -29,6 +29,7 @@ from aslam.data_formats import ros_msgs
 from aslam.data_formats.camera import CameraIntrinsics
 from aslam.data_formats.errors import BagError
 from aslam.data_formats.files import check_input_file, source_files
+from aslam.data_formats.image_folder import holds_frames
 from aslam.data_formats.mcap_file import McapFile
 from aslam.data_formats.pose_limits import implausible
 from aslam.data_formats.pose_sync import Sample, SampleAssembler
@@ -43,7 +44,6 @@ from aslam.data_formats.recording import (
 from aslam.data_formats.recording_info import TopicInfo
 
 TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
-IMAGE_FILE_SUFFIXES = (".png", ".jpg", ".jpeg")
 _BAG1_MAGIC = b"#ROSBAG V2.0"
 _SQLITE_MAGIC = b"SQLite format 3\x00"
 ESTIMATE_METADATA_NAME = "aslam.estimate"
@@ -79,7 +79,7 @@ def classify(
     if path.is_dir():
         if (path / "metadata.yaml").is_file():
             return SourceKind.ROSBAG2, None
-        if any(p.suffix.lower() in IMAGE_FILE_SUFFIXES for p in path.iterdir() if p.is_file()):
+        if holds_frames(path):
             return SourceKind.IMAGE_FOLDER, None
         raise BagError("is a folder with neither a rosbag2 metadata.yaml nor png/jpg images", path=path)
     check_input_file(path, error=BagError, what="an MCAP recording")  # a FIFO is refused, never opened

@@ -575,6 +575,17 @@ def test_open_source_tells_inputs_apart(tmp_path, bags):
     folder.mkdir()
     cv2.imwrite(str(folder / "0001.png"), np.zeros((4, 4), np.uint8))
     assert open_source(folder) is SourceKind.IMAGE_FOLDER
+    # The frames import takes, and only those: a .jfif or upper-case .JPG is one; macOS's ._NAME.png
+    # (AppleDouble metadata, not an image) is not.
+    for name, kind in (("0001.JFIF", SourceKind.IMAGE_FOLDER), ("._0001.png", None)):
+        other = tmp_path / f"images-{kind}"
+        other.mkdir()
+        shutil.copy(folder / "0001.png", other / name)
+        if kind is None:
+            with pytest.raises(BagError, match=r"neither a rosbag2 metadata\.yaml nor png/jpg images"):
+                open_source(other)
+        else:
+            assert open_source(other) is kind
     renamed = tmp_path / "driver.dat"
     shutil.copy(bags["rosbag1"], renamed)
     cases = {
