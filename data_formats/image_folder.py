@@ -116,7 +116,9 @@ def list_images(folder: Path) -> list[Path]:
         raise ImageFolderError("is a file, not a folder of images", path=folder)
     images = []
     try:
-        for path in folder.iterdir():
+        # In name order, so that of several frames refused the first is named, whatever the file
+        # system lists first.
+        for path in sorted(folder.iterdir(), key=_natural_key):
             suffix = path.suffix.lower()
             if is_hidden(path) or suffix not in IMAGE_SUFFIXES + OTHER_IMAGE_SUFFIXES:
                 continue

@@ -829,6 +829,17 @@ def test_hidden_files_are_not_frames_and_an_unreadable_or_unstorable_frame_is_re
         open_image_folder(tmp_path / "imgs")
 
 
+def test_of_several_frames_refused_the_first_by_name_is_named(tmp_path):
+    """The error names the same frame on every file system (each lists a folder in its own order):
+    a folder exported as BMP from frame 0 on is refused at frame 0."""
+    for i in range(12):
+        cv2.imwrite(str(tmp_path / f"{i}.bmp"), np.zeros((H, W), np.uint8))
+    (tmp_path / "12.png").symlink_to(tmp_path / "unmounted" / "12.png")
+    with pytest.raises(InputError) as caught:
+        open_image_folder(tmp_path)
+    assert str(caught.value).startswith(f"{tmp_path / '0.bmp'}: a .bmp image among the frames")
+
+
 def test_frames_named_by_time_are_in_time_order_and_odd_entries_are_not_frames(tmp_path):
     """``str(t)`` names (0.05, 0.1, 0.15) sort by value, not as text; a folder named like an image
     is no frame; a pipe or a HEIC among the frames is refused by name."""
