@@ -144,13 +144,16 @@ def _lazy_image(path: Path, topic: str, datatype: str, msg: Any, stamp_ns: int) 
     if datatype == ros_msgs.COMPRESSED_IMAGE:
         fmt = str(msg.format)
         lowered = fmt.lower()
-        # image_transport writes e.g. "bgr8; jpeg compressed bgr8"; depth formats are not images here;
-        # a driver that leaves the field empty is read by the bytes.
+        # image_transport writes e.g. "bgr8; jpeg compressed bgr8"; a driver that leaves the field
+        # empty is read by the bytes.
+        why = ""
         if not lowered.strip():
             sniffed = sniffed_format(bytes(msg.data[:8]))
             kind = None if sniffed is None else sniffed.value
-        elif "compresseddepth" in lowered:
+            why = " and its bytes are neither PNG nor JPEG"
+        elif "compresseddepth" in lowered:  # "16UC1; compressedDepth png": says png, holds depths
             kind = None
+            why = " (a depth map, compressed_depth_image_transport's, not a camera image)"
         elif "png" in lowered:
             kind = "png"
         elif "jpeg" in lowered or "jpg" in lowered:
@@ -158,7 +161,6 @@ def _lazy_image(path: Path, topic: str, datatype: str, msg: Any, stamp_ns: int) 
         else:
             kind = None
         if kind is None:
-            why = " and its bytes are neither PNG nor JPEG" if not lowered.strip() else ""
             raise RecordingError(
                 f"unknown image encoding '{fmt}'{why} on '{topic}' at stamp {stamp_ns} ns "
                 "(accepted: png, jpeg)",

@@ -526,6 +526,31 @@ def test_compressed_images_with_no_format_are_read_by_their_bytes(tmp_path):
         list(iter_bag_samples(path))
 
 
+def test_a_compressed_depth_topic_is_refused_as_depth_not_as_an_unknown_png(tmp_path):
+    """compressed_depth_image_transport's format names png ("16UC1; compressedDepth png") and its data
+    is a 12-byte header and a 16-bit PNG of depths: the error said '(accepted: png, jpeg)' alone."""
+    import struct
+
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    rows = bag_messages(ts, Options(compressed=True))
+    for _log, topic, _type, msg in rows:
+        if topic == f"{IMAGE_TOPIC}/compressed":
+            depth_mm = np.full((HEIGHT, WIDTH), 1500, np.uint16)
+            header = struct.pack("<iff", 0, 0.0, 0.0)  # ConfigHeader: format, depthParam[2]
+            msg.format = "16UC1; compressedDepth png"
+            msg.data = np.frombuffer(header + cv2.imencode(".png", depth_mm)[1].tobytes(), np.uint8)
+    path = write_rosbag2(tmp_path / "bag", messages=rows)
+    with pytest.raises(RecordingError) as caught:
+        list(iter_bag_samples(path))
+    assert str(caught.value) == (
+        f"{path}: unknown image encoding '16UC1; compressedDepth png' (a depth map, "
+        f"compressed_depth_image_transport's, not a camera image) on '{IMAGE_TOPIC}/compressed' at stamp "
+        f"{T0_NS} ns (accepted: png, jpeg)"
+    )
+
+
 def test_unknown_encoding_names_topic_and_stamp(tmp_path):
     from rosbags.typesys import Stores, get_typestore
 
