@@ -215,6 +215,25 @@ class _QuietNativeStderr:
         self._saved_fd = None
 
 
+class _LibraryLogsDropped:
+    """A library's log record, where no handler of its own takes it, is dropped while the command
+    runs, as its ``warnings`` are: Python's last-resort handler printed it on stderr, even with
+    --quiet. Under a read-only HOME (a CI container) matplotlib logged two lines on
+    every `report --plots` ("mkdir -p failed", "created a temporary cache directory")."""
+
+    def __enter__(self) -> _LibraryLogsDropped:
+        import logging
+
+        self._handler = logging.NullHandler()
+        logging.root.addHandler(self._handler)
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        import logging
+
+        logging.root.removeHandler(self._handler)
+
+
 def _quiet_closed_stdout() -> None:
     """After a closed pipe: send the rest of stdout to /dev/null so the exit flush cannot fail."""
     if sys.stdout is not sys.__stdout__:
@@ -248,7 +267,7 @@ def main(argv: list[str] | None = None, *, startup_signals: list[int] | None = N
     from aslam.data_formats.files import command_files
 
     QUIET[0] = False  # until this command's --quiet is parsed
-    with _Signals() as signals, _QuietNativeStderr(), warnings.catch_warnings():
+    with _Signals() as signals, _QuietNativeStderr(), _LibraryLogsDropped(), warnings.catch_warnings():
         if startup_signals:  # arrived while the console script was importing us
             signals.received = startup_signals[0]
             error_line(_ended_by(signals.exit_code))
