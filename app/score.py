@@ -30,7 +30,7 @@ from aslam.core.mapgraph import GrowableArray
 from aslam.core.metrics import AssignmentScore, Evaluation, evaluate, score_assignment
 from aslam.data_formats.errors import EstimateError, RecordingError
 from aslam.data_formats.estimate import EstimateFile, iter_keyframes, map_digest, read_estimate
-from aslam.data_formats.files import full_path, source_files, source_sha256
+from aslam.data_formats.files import file_name_from_utf8, full_path, source_files, source_sha256
 from aslam.data_formats.graph_json import build_graph_json
 from aslam.data_formats.pose_sync import TRUTH_MAX_GAP_NS
 from aslam.data_formats.recording import world_identity
@@ -557,7 +557,7 @@ def _find_map(
     """
     prior = info.metadata.prior_map
     assert prior is not None
-    named = Path(prior.path)
+    named = file_name_from_utf8(prior.path)
     candidates = [c for c in dict.fromkeys((named, full_path(path).parent / named.name)) if c.exists()]
     if not candidates:
         warn(f"map {prior.path} (named in {path}) not found; {_MAP_LOST}")
@@ -633,7 +633,7 @@ def _find_recording(
             )
         return full_path(given)
     named, size_bytes = info.metadata.recording.path, info.metadata.recording.size_bytes
-    path = Path(named)
+    path = file_name_from_utf8(named)
     if not path.exists():
         beside = full_path(estimate).parent / path.name
         try:

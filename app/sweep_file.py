@@ -22,7 +22,7 @@ from typing import Any
 from aslam.app.config_file import read_toml, type_problem
 from aslam.core.config import REPORT_RANGES, REVISIT_HEADING_DEG, REVISIT_RADIUS_M, EstimatorConfig
 from aslam.core.errors import ConfigError
-from aslam.data_formats.files import full_path
+from aslam.data_formats.files import file_name_from_utf8, full_path
 from aslam.recorder.config import CameraSpec, NoiseModel, NoiseParams, RecordConfig, parse_size
 
 DEFAULT_FIGURES = (
@@ -155,7 +155,7 @@ def _recordings(value: Any, base: Path, problems: list[str]) -> tuple[Path, ...]
         return ()
     found: dict[Path, None] = {}
     for pattern in patterns:
-        given = Path(pattern).expanduser()
+        given = file_name_from_utf8(pattern).expanduser()
         full = given if given.is_absolute() else base / given
         if full.exists():  # a file named as it is, even one whose name holds [brackets]
             found[full_path(full)] = None
@@ -221,14 +221,14 @@ def _record_config(knobs: dict[str, Any], base: Path, where: str, problems: list
 
     route = knobs["route"]
     if route not in PRESETS:
-        route_path = Path(route) if Path(route).is_absolute() else base / route
+        route_path = base / file_name_from_utf8(route)  # an absolute one stays as it is
         if not route_path.is_file():
             problems.append(f"{where}: route '{route}' is neither a preset ({', '.join(PRESETS)}) nor a file")
             return None
         route = str(route_path)
     world = knobs.get("world")
     if world is not None:
-        world_path = Path(world) if Path(world).is_absolute() else base / world
+        world_path = base / file_name_from_utf8(world)
         if not world_path.is_file():
             problems.append(f"{where}: world '{world}' is not a file")
             return None

@@ -333,6 +333,15 @@ def utf8_text(text: str) -> str:
     return text.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
 
 
+def file_name_from_utf8(text: str) -> Path:
+    """The file a name read from a UTF-8 file names (an estimate's recording and map, a sweep
+    file's paths): the inverse of :func:`utf8_text`, the name's UTF-8 bytes as this process's file
+    system calls take them. Under a locale that is not UTF-8 (``LC_ALL=C`` with ``PYTHONUTF8=0``, a
+    Latin-1 locale) Python spells the file ``café`` as ``caf\\udcc3\\udca9`` or ``cafÃ©``, and
+    ``café`` itself named no file."""
+    return Path(os.fsdecode(text.encode("utf-8", "surrogateescape")))
+
+
 def utf8_metadata(metadata: Mapping[str, str]) -> dict[str, str]:
     """An MCAP metadata map with every value :func:`utf8_text`."""
     return {key: utf8_text(value) for key, value in metadata.items()}

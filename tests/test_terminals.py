@@ -3,6 +3,7 @@ encode UTF-8, narrow and wide terminals, logs that are no terminal, a read-only 
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 from pathlib import Path
@@ -28,3 +29,34 @@ def test_a_read_only_home_adds_no_line_and_leaves_no_folder_behind(estimate_file
     assert done.stderr == ""
     assert sorted(p.name for p in (tmp_path / "plots").iterdir())[0] == "errors.png"
     assert list(temporary.iterdir()) == []
+
+
+C_LOCALE = {"LC_ALL": "C", "LANG": "C", "PYTHONUTF8": "0"}
+"""A locale whose encoding is ASCII, Python's UTF-8 mode off: file names are bytes Python spells
+with surrogate escapes, and stdout cannot encode "—"."""
+
+
+def test_a_non_ascii_name_read_from_a_file_is_found_under_a_c_locale(recording: Path, tmp_path: Path):
+    """An estimate holds its recording's name as UTF-8 text, and a sweep file its recordings'.
+    Under a C locale without UTF-8 mode the name 'café×.mcap' read back was a name no file has
+    (Python spells that file 'caf\\udcc3\\udca9…'): the report went without ground truth, and the
+    sweep refused a recording that is there."""
+    named = tmp_path / "café×.mcap"
+    named.write_bytes(recording.read_bytes())
+    estimate = tmp_path / "e.mcap"
+    env = {**os.environ, **C_LOCALE}
+
+    def aslam(*args: str) -> subprocess.CompletedProcess[str]:
+        done = subprocess.run([str(ASLAM), *args], capture_output=True, text=True, env=env, timeout=120)
+        assert done.returncode == 0, done.stderr
+        return done
+
+    aslam("estimate", str(named), "-o", str(estimate), "-q")
+    report = json.loads(aslam("report", str(estimate), "--json", "-").stdout)
+    assert report["ground_truth"] is True
+    sweep_file = tmp_path / "sweep.toml"
+    sweep_file.write_text('[recordings]\npaths = ["café×.mcap"]\n[grid]\nbeta = 3.0\n', encoding="utf-8")
+    plan = json.loads(
+        aslam("sweep", str(sweep_file), "-o", str(tmp_path / "out"), "--dry-run", "--json", "-").stdout
+    )
+    assert plan["tasks"] == 1 and plan["cannot_write"] is None
