@@ -64,10 +64,10 @@ def _print_tables(result: RecordingInfo) -> None:
     topics = Table()
     topics.add_column("topic")
     topics.add_column("type")
-    topics.add_column("messages", justify="right")
+    topics.add_column("messages", justify="right", no_wrap=True)
     for t in result.topics:
         topics.add_row(t.topic, t.datatype, str(t.messages))
-    console.print(topics)
+    output.print_table(console, topics)
 
     summary = Table(show_header=False, box=None, pad_edge=False)
     summary.add_column(style="bold")
@@ -89,7 +89,7 @@ def _print_tables(result: RecordingInfo) -> None:
         )
     summary.add_row("odometry path", f"{result.odometry_distance_m:.2f} m")
     summary.add_row("truncated", "yes" if result.truncated else "no")
-    console.print(summary)
+    output.print_table(console, summary)
 
     if result.metadata:
         meta = Table(title="metadata", title_justify="left")

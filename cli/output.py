@@ -17,6 +17,7 @@ import typer
 
 if TYPE_CHECKING:
     from rich.console import Console
+    from rich.table import Table
     from rich.text import Text
 
 QUIET = [False]
@@ -86,9 +87,41 @@ def table_console(*, stderr: bool = False) -> Console:
         terminal = stream.isatty()  # the stream itself: FORCE_COLOR asks for colour, not a width
     except (AttributeError, ValueError):
         terminal = False
-    width = None if terminal else 10_000
+    width = None if terminal else UNCUT_WIDTH
     console_class = _printable_console_class()
     return console_class(stderr=stderr, markup=False, emoji=False, highlight=False, width=width)
+
+
+UNCUT_WIDTH = 10_000
+"""The width of a table in a pipe or a file: as wide as its content (:func:`table_console`)."""
+
+
+def print_table(console: Console, table: Table) -> None:
+    """Print ``table`` with no cell cut to "…": no column is made narrower than its longest word (a
+    path, a figure), nor a ``no_wrap`` column (figures kept on one line) than its longest cell.
+    On a window too narrow for that the table is wider than the window, and the terminal wraps its
+    lines: on a 40-column terminal the report's errors read "0.1…" for 0.159."""
+    from rich.measure import Measurement
+
+    options = console.options
+    for column in table.columns:
+        cells = [*column.cells, *([column.header] if table.show_header else [])]
+        widths = [Measurement.get(console, options, cell) for cell in cells]
+        needed = [width.maximum if column.no_wrap else width.minimum for width in widths]
+        column.min_width = max([column.min_width or 0, *needed])
+    needed_width = Measurement.get(console, options.update_width(UNCUT_WIDTH), table).minimum
+    console.print(_AtLeast(table, needed_width), crop=False)
+
+
+class _AtLeast:
+    """A renderable drawn at least ``width`` columns wide, wider than the console if need be
+    (``Console.print``'s own ``width`` is capped at the console's)."""
+
+    def __init__(self, renderable: Any, width: int) -> None:
+        self.renderable, self.width = renderable, width
+
+    def __rich_console__(self, console: Console, options: Any) -> Any:
+        yield from console.render(self.renderable, options.update_width(max(options.max_width, self.width)))
 
 
 @functools.cache

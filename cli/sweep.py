@@ -14,7 +14,7 @@ from typing import Annotated, Any
 import typer
 
 from aslam.cli.app import app
-from aslam.cli.output import QuietOption, Terminal, VerboseOption, table_console
+from aslam.cli.output import QuietOption, Terminal, VerboseOption, print_table, table_console
 from aslam.cli.sweep_display import LiveDisplay, PlainDisplay, figure_text, parameters_text, plan_text
 
 
@@ -182,7 +182,7 @@ def _dry_run(
                 table.add_column(name)
             for task in plan.to_run:
                 table.add_row(str(task.index), task.source.label, parameters_text(task))
-            console.print(table)
+            print_table(console, table)
     plan.check_writable()
 
 
@@ -197,9 +197,9 @@ def _print_pareto(run: Any, objectives: list[Any]) -> None:
     for name in ("task", "recording", "parameters"):
         table.add_column(name)
     for objective in objectives:  # ↑ maximised, ↓ minimised
-        table.add_column(("↑ " if objective.maximise else "↓ ") + objective.key)
+        table.add_column(("↑ " if objective.maximise else "↓ ") + objective.key, no_wrap=True)
     for result in front:
         task = run.tasks[result.index]
         values = [figure_text(result.summary.get(o.key)) for o in objectives]
         table.add_row(str(task.index), task.source.label, parameters_text(task), *values)
-    table_console().print(table)
+    print_table(table_console(), table)

@@ -49,12 +49,14 @@ def print_report(console: Console, report: Report) -> None:
     """The report's tables and the hypothesis sparkline."""
     from rich.table import Table
 
+    from aslam.cli.output import print_table
+
     s = report.summary
     estimate, recording = report.estimate_path, report.recording_path
     console.print(f"aslam report — {estimate.name}", soft_wrap=True)  # a name, never wrapped
     table = Table(show_header=False)
     table.add_column("measure", style="bold")
-    table.add_column("value", justify="right")
+    table.add_column("value", justify="right", no_wrap=True)
     loop = s["loop_closure"]
     reloc = s["relocalisation"]
     rows = [
@@ -83,7 +85,7 @@ def print_report(console: Console, report: Report) -> None:
     ]
     for name, value in rows:
         table.add_row(name, _fmt(value, 1 if name == "keyframes/s" else 3))
-    console.print(table)
+    print_table(console, table)
 
     if s["ground_truth"] and recording is None:  # the truth by keyframe index
         console.print("Revisit errors: not measured (a truth by index has frame numbers, not poses)")
@@ -97,7 +99,7 @@ def print_report(console: Console, report: Report) -> None:
             ("median", "right"),
             ("max", "right"),
         ):
-            errors.add_column(name, justify=justify)  # type: ignore[arg-type]
+            errors.add_column(name, justify=justify, no_wrap=name != "error")  # type: ignore[arg-type]
         for axis, label in (("x_m", "x (m)"), ("y_m", "y (m)"), ("heading_deg", "heading (°)")):
             for kind in ("best", "weighted"):
                 stats = s["error"][kind][axis]
@@ -107,7 +109,7 @@ def print_report(console: Console, report: Report) -> None:
                     *(_fmt(stats[stat]) for stat in ("mean", "median", "max")),
                     end_section=kind == "weighted",
                 )
-        console.print(errors)
+        print_table(console, errors)
 
     counts = report.evaluation.hypothesis_counts
     console.print(f"hypotheses over the run (max {s['hypotheses']['max']}):", highlight=False)

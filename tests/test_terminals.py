@@ -5,10 +5,13 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 from pathlib import Path
 
 from conftest import ASLAM
+
+from aslam.cli.app import main
 
 
 def test_a_read_only_home_adds_no_line_and_leaves_no_folder_behind(estimate_file: Path, tmp_path: Path):
@@ -60,3 +63,38 @@ def test_a_non_ascii_name_read_from_a_file_is_found_under_a_c_locale(recording: 
         aslam("sweep", str(sweep_file), "-o", str(tmp_path / "out"), "--dry-run", "--json", "-").stdout
     )
     assert plan["tasks"] == 1 and plan["cannot_write"] is None
+
+
+def _on_a_terminal(argv: list[str], columns: int) -> str:
+    """What ``argv`` shows on a terminal ``columns`` wide (a pseudo-terminal as stdout and stderr)."""
+    import pty
+
+    leader, follower = pty.openpty()
+    env = {**os.environ, "COLUMNS": str(columns), "TERM": "xterm"}
+    with subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=follower, stderr=follower, env=env) as done:
+        os.close(follower)
+        shown = bytearray()
+        while True:
+            try:
+                chunk = os.read(leader, 65536)
+            except OSError:  # EIO: the command ended, its side of the terminal closed
+                break
+            if not chunk:
+                break
+            shown += chunk
+        assert done.wait(timeout=120) == 0, shown.decode(errors="replace")
+    os.close(leader)
+    return re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "", shown.decode())
+
+
+def test_a_narrow_terminal_cuts_no_figure_of_the_reports_tables(estimate_file: Path, tmp_path: Path):
+    """On a terminal narrower than the tables, rich cut their cells to fit: at 40 columns every
+    maximum error read "0.1…" and "5.2…". Now a table is as wide as its figures need, wider than
+    the window if it must be (the terminal wraps the line)."""
+    summary = tmp_path / "s.json"
+    assert main(["report", str(estimate_file), "--json", str(summary), "-q"]) == 0
+    errors = json.loads(summary.read_text())["error"]["best"]
+    shown = _on_a_terminal([str(ASLAM), "report", str(estimate_file)], columns=40)
+    assert "…" not in shown
+    for axis in ("x_m", "y_m", "heading_deg"):
+        assert f"{errors[axis]['max']:.3f}" in shown
