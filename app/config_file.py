@@ -5,6 +5,7 @@ option > ``--config`` file (TOML, an ``[estimator]`` table) > ``--paper-faithful
 
 from __future__ import annotations
 
+import codecs
 import sys
 import tomllib
 from pathlib import Path
@@ -31,10 +32,11 @@ def estimator_options_markdown() -> str:
 
 
 def read_toml(path: Path, *, what: str) -> dict[str, Any]:
-    """The TOML document at ``path``; ConfigError naming the file on any read or parse problem."""
+    """The TOML document at ``path``; ConfigError naming the file on any read or parse problem. A
+    UTF-8 byte-order mark (Windows editors write one) is skipped, as in pose files: it was refused
+    as "Invalid statement (at line 1, column 1)", a line the file seems not to have."""
     try:
-        with Path(path).open("rb") as f:
-            return tomllib.load(f)
+        return tomllib.loads(Path(path).read_bytes().removeprefix(codecs.BOM_UTF8).decode("utf-8"))
     except FileNotFoundError as err:
         raise ConfigError("no such file", path=path) from err
     except IsADirectoryError as err:

@@ -36,14 +36,15 @@ def read_route_document(path: Path | str) -> Any:
     """The JSON document of a route file, refused (RouteError naming the file and the bound) beyond
     the bounds above or when it is not JSON.
 
-    The file must be a regular file (a FIFO is refused, not waited on) of UTF-8 text. Values the
+    The file must be a regular file (a FIFO is refused, not waited on) of UTF-8 text, a byte-order
+    mark before it skipped (it was refused: "Unexpected UTF-8 BOM"). Values the
     route parser itself checks (types, a forward leg's sign and length) are left to it.
     """
     size = check_input_file(Path(path), error=RouteError, what="a route file")
     if size > MAX_FILE_BYTES:
         raise RouteError(f"route file is larger than {MAX_FILE_BYTES:,} bytes", path=path)
     try:
-        text = Path(path).read_text(encoding="utf-8")
+        text = Path(path).read_text(encoding="utf-8-sig")  # a byte-order mark (Windows editors) is no text
     except OSError as err:
         raise RouteError(f"cannot read route file: {err.strerror or err}", path=path) from err
     except UnicodeDecodeError as err:

@@ -9,6 +9,7 @@ import re
 import subprocess
 from pathlib import Path
 
+import pytest
 from conftest import ASLAM
 
 from aslam.cli.app import main
@@ -98,3 +99,35 @@ def test_a_narrow_terminal_cuts_no_figure_of_the_reports_tables(estimate_file: P
     assert "…" not in shown
     for axis in ("x_m", "y_m", "heading_deg"):
         assert f"{errors[axis]['max']:.3f}" in shown
+
+
+WINDOWS_TEXT = {"bom": "\ufeff{}", "crlf": "{}", "bom+crlf": "\ufeff{}"}
+"""How a Windows editor saves a file: a UTF-8 byte-order mark first, CRLF line ends, or both."""
+
+
+@pytest.mark.parametrize("saved", WINDOWS_TEXT)
+def test_config_sweep_and_route_files_from_a_windows_editor_are_read(
+    recording: Path, tmp_path: Path, capsys, saved: str
+):
+    """A byte-order mark was refused: a config or sweep file as "not valid TOML (Invalid statement
+    (at line 1, column 1))", a route file as "Unexpected UTF-8 BOM"; pose files skipped it."""
+
+    def write(name: str, text: str) -> Path:
+        path = tmp_path / name
+        newline = "\r\n" if "crlf" in saved else "\n"
+        path.write_bytes(WINDOWS_TEXT[saved].format(text).replace("\n", newline).encode())
+        return path
+
+    config = write("c.toml", "[estimator]\nbeta = 2.5\n")
+    assert (
+        main(["estimate", str(recording), "-o", str(tmp_path / "e.mcap"), "--config", str(config), "-q"]) == 0
+    )
+    sweep_file = write("s.toml", f'[recordings]\npaths = ["{recording}"]\n[grid]\nbeta = 3.0\n')
+    assert main(["sweep", str(sweep_file), "-o", str(tmp_path / "out"), "--dry-run", "--json", "-"]) == 0
+    assert json.loads(capsys.readouterr().out)["tasks"] == 1
+    route = write(
+        "r.json", '{\n "start": {"x_m": 0, "y_m": 0, "yaw_deg": 0},\n "actions": [{"forward_m": 1}]\n}\n'
+    )
+    assert (
+        main(["record", "--route", str(route), "--size", "32x24", "-o", str(tmp_path / "r.mcap"), "-q"]) == 0
+    )
