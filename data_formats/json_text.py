@@ -2,7 +2,8 @@
 ``sweep --dry-run --json``).
 
 No negative zero: ``-0.0`` (a heading of −0.0, a KITTI ``y_m = −t_x`` of 0) is a sign no measured
-value has, and it makes two runs that agree differ in their bytes and in a diff.
+value has, and it makes two runs that agree differ in their bytes and in a diff. File names as
+their bytes read as UTF-8, whatever the locale (:func:`_utf8_name`).
 """
 
 from __future__ import annotations
@@ -13,15 +14,31 @@ from typing import Any
 
 def json_text(document: Any, *, indent: int | None = None) -> str:
     """``document`` as JSON text (``json.dumps`` with ``indent``) ending in a newline."""
-    return json.dumps(without_negative_zero(document), indent=indent) + "\n"
+    return json.dumps(_normalised(document), indent=indent) + "\n"
 
 
-def without_negative_zero(value: Any) -> Any:
-    """``value`` with every float ``-0.0`` in it (in dicts, lists and tuples) made ``0.0``."""
+def _normalised(value: Any) -> Any:
+    """``value`` with every float ``-0.0`` in it (in dicts, lists and tuples) made ``0.0`` and every
+    string :func:`_utf8_name`."""
     if isinstance(value, float):
         return value + 0.0  # x + 0.0 is x, and 0.0 for -0.0 (IEEE 754, round to nearest)
+    if isinstance(value, str):
+        return _utf8_name(value)
     if isinstance(value, dict):
-        return {key: without_negative_zero(item) for key, item in value.items()}
+        return {_normalised(key): _normalised(item) for key, item in value.items()}
     if isinstance(value, list | tuple):
-        return [without_negative_zero(item) for item in value]
+        return [_normalised(item) for item in value]
     return value
+
+
+def _utf8_name(text: str) -> str:
+    """``text`` with the bytes of a file name Python could not decode read as UTF-8. Under a locale
+    that is not UTF-8 (``LC_ALL=C`` with ``PYTHONUTF8=0``) Python holds each byte of ``café`` above
+    127 as a surrogate, and the document said ``"caf\\udcc3\\udca9"`` where a UTF-8 locale's says
+    ``"caf\\u00e9"``; now both say the latter. A byte that is not UTF-8 stays ``\\udcff``."""
+    if text.isascii():
+        return text
+    try:
+        return text.encode("utf-8", "surrogateescape").decode("utf-8", "surrogateescape")
+    except UnicodeEncodeError:  # a surrogate no file name has: the text as it is
+        return text

@@ -131,3 +131,21 @@ def test_config_sweep_and_route_files_from_a_windows_editor_are_read(
     assert (
         main(["record", "--route", str(route), "--size", "32x24", "-o", str(tmp_path / "r.mcap"), "-q"]) == 0
     )
+
+
+def test_json_documents_name_a_file_the_same_under_any_locale(recording: Path, tmp_path: Path):
+    """Under a C locale without UTF-8 mode a name's bytes above 127 reached the JSON documents as
+    surrogates, ``"caf\\udcc3\\udca9\\udcc3\\udc97.mcap"`` where a UTF-8 locale wrote
+    ``"caf\\u00e9\\u00d7.mcap"``: the same command gave other bytes, and a JSON reader other than
+    Python's (jq) no name. A byte that is not UTF-8 is still the surrogate of that byte."""
+    for name in ("café×.mcap", os.fsdecode(b"\xff.mcap")):
+        named = tmp_path / name
+        named.write_bytes(recording.read_bytes())
+        documents = []
+        for locale in ({}, C_LOCALE):
+            argv = [str(ASLAM), "info", str(named), "--json", "-"]
+            done = subprocess.run(argv, capture_output=True, env={**os.environ, **locale}, timeout=120)
+            assert done.returncode == 0, done.stderr
+            documents.append(done.stdout)
+        assert documents[0] == documents[1]
+        assert json.loads(documents[1])["path"] == str(named)
