@@ -13,9 +13,10 @@ a re-run skips tasks whose successful result is saved (``force`` recomputes), an
 left to do writes nothing, so a read-only results folder still gives its rows. A task's key is the
 SHA-256 of its recording's identity (the file's SHA-256, or for a recording to render its
 configuration, which decides its bytes), its full estimator configuration, the scoring options
-and the aslam version. The tables (``results.parquet``, ``results.csv``) hold one row per task, in task order
-(recordings in file order, then parameter sets in grid order), so the same sweep gives the same
-rows, except the timing and worker columns.
+and the code version (``provenance.code_version``: the version and its source's SHA-256, so the
+results of other code are never reused). The tables (``results.parquet``, ``results.csv``) hold
+one row per task, in task order (recordings in file order, then parameter sets in grid order), so
+the same sweep gives the same rows, except the timing and worker columns.
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ from aslam.data_formats.files import (
     write_atomically,
     write_problem,
 )
-from aslam.data_formats.provenance import tool_version
+from aslam.data_formats.provenance import code_version
 from aslam.recorder.config import NoiseParams, RecordConfig
 
 RESULTS_PARQUET = "results.parquet"
@@ -165,7 +166,8 @@ class Task:
 def render_path(results_dir: Path, config: RecordConfig) -> tuple[Path, str]:
     """Where a render of ``config`` goes, and its identity: the SHA-256 of the configuration and of
     the files it names (a route or world file edited since is another render, not a stale one),
-    with every file the world file loads (its buffers, materials, textures), as the recorder says.
+    with every file the world file loads (its buffers, materials, textures), as the recorder says,
+    and the code version (another recorder's render is rendered again).
 
     A file counts by its name and bytes, not its folder, as in the recording: the sweep's folder
     copied elsewhere (another checkout, a CI cache) finds its renders and keeps its task keys.
@@ -182,10 +184,10 @@ def render_path(results_dir: Path, config: RecordConfig) -> tuple[Path, str]:
         files["world"] = source_sha256(Path(config.world))
         recorded["world"] = Path(config.world).name
         companions = scene_companions(Path(config.world))
-        if companions:  # a self-contained world (a .glb, a bare .obj) keeps the identity it had
+        if companions:  # a self-contained world (a .glb, a bare .obj) has none
             files["world_companions"] = companions
-    named = {"files": files} if files else {}  # a preset's render keeps the identity it always had
-    identity = _digest({"render": recorded, **named, "version": tool_version()})
+    named = {"files": files} if files else {}  # a preset names no file
+    identity = _digest({"render": recorded, **named, "version": code_version()})
     name = f"{Path(config.route).stem}-seed{config.seed}-{identity[:12]}.mcap"
     return results_dir / RENDERS_FOLDER / name, identity
 
@@ -260,7 +262,7 @@ def plan_tasks(sweep: Sweep, results_dir: Path, *, hashes: HashCache | None = No
                     "recording": source.identity,
                     "config": asdict(config),
                     "score": asdict(sweep.score),
-                    "version": tool_version(),
+                    "version": code_version(),
                 }
             )
             if (source.path, key) in planned:
@@ -707,8 +709,8 @@ def _probe_scheduler(address: str) -> None:
 
 def check_workers(client: Any, address: str) -> None:
     """A cluster of one's own must have workers, and every one must run this aslam: a worker
-    without it never takes a task (the sweep would wait for ever), and one of another version
-    would file its results under this version's task keys."""
+    without it never takes a task (the sweep would wait for ever), and one of other code (another
+    version, or the same version edited) would file its results under this code's task keys."""
     try:
         client.wait_for_workers(1, timeout=WORKERS_WAIT_S)
     except TimeoutError:
@@ -716,12 +718,12 @@ def check_workers(client: Any, address: str) -> None:
             f"the Dask cluster at {address} has no workers (waited {WORKERS_WAIT_S:g} s)"
         ) from None
     try:
-        versions = client.run(tool_version)  # pickled by reference: a worker must import aslam
+        versions = client.run(code_version)  # pickled by reference: a worker must import aslam
     except Exception as err:
         raise ClusterLost(
             f"a worker of the Dask cluster at {address} cannot run aslam: {error_text(err)}"
         ) from err
-    ours = tool_version()
+    ours = code_version()
     for worker, version in sorted(versions.items()):
         if version != ours:
             raise ClusterLost(

@@ -528,6 +528,63 @@ def test_task_keys_follow_the_recording_bytes_and_the_parameters(recordings, tmp
     assert [t.parameters for t in copied] == [(("beta", 3.0),), (("beta", 2.0),)]
 
 
+def _copy_of_this_aslam(folder: Path, *, edit: str | None = None) -> Path:
+    """This aslam's packages copied under ``folder/aslam`` (a regular package there, so nothing of
+    another checkout is imported), with ``edit`` appended to core/estimator.py: what a user has
+    after an upgrade that changed the estimator but not the version. Returns its PYTHONPATH."""
+    import aslam.app.sweep as sweep_module
+
+    root = Path(sweep_module.__file__).resolve().parent.parent
+    copy = folder / "aslam"
+    for package in ("app", "cli", "core", "data_formats", "recorder"):
+        shutil.copytree(root / package, copy / package, ignore=shutil.ignore_patterns("__pycache__"))
+    (copy / "__init__.py").write_text("")
+    if edit is not None:
+        with (copy / "core" / "estimator.py").open("a") as estimator:
+            estimator.write(edit)
+    return folder
+
+
+def _planned_by(pythonpath: Path, sweep_file: Path, results: Path) -> list[str]:
+    """The task keys and render paths another aslam (at ``pythonpath``) plans for ``sweep_file``."""
+    script = (
+        "import json, sys\n"
+        "import aslam\n"
+        f"assert aslam.__file__.startswith({str(pythonpath)!r}), aslam.__file__\n"
+        "from aslam.app.sweep import plan_tasks\n"
+        "from aslam.app.sweep_file import read_sweep_file\n"
+        "tasks = plan_tasks(read_sweep_file(sys.argv[1]), sys.argv[2])\n"
+        "print(json.dumps([[t.key, str(t.source.path)] for t in tasks]))\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(pythonpath), "PYTHONDONTWRITEBYTECODE": "1"}
+    done = subprocess.run(
+        [sys.executable, "-c", script, str(sweep_file), str(results)],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    return json.loads(done.stdout)
+
+
+def test_results_of_other_code_under_the_same_version_are_never_reused(recordings, tmp_path):
+    """A sweep folder kept across an upgrade: the version stayed 0.1.0 through every change of the
+    estimator, the scoring and the recorder, and the task keys and render names held only it, so
+    the new code took the old code's results and renders for its own (a 2026-12-04 sweep re-run
+    today: '4 already done', precision 0.889 where today's estimator gives 0.921). A copy of the
+    same code elsewhere keeps the keys; one line more in the estimator changes every one."""
+    sweep_file = _write_sweep(recordings)
+    results = tmp_path / "results"
+    here = [[t.key, str(t.source.path)] for t in plan_tasks(read_sweep_file(sweep_file), results)]
+    same = _planned_by(_copy_of_this_aslam(tmp_path / "same"), sweep_file, results)
+    edited = _planned_by(_copy_of_this_aslam(tmp_path / "edited", edit="# a release\n"), sweep_file, results)
+    assert same == here
+    assert len(edited) == len(here) == 3
+    assert all(new[0] != old[0] for new, old in zip(edited, here, strict=True))
+    assert edited[2][1] != here[2][1]  # the render too: another recorder may render other bytes
+    assert [path for _, path in edited[:2]] == [path for _, path in here[:2]]
+
+
 def test_sweep_file_problems_are_one_line_exit_2_naming_the_file(tmp_path, capsys):
     bad = tmp_path / "bad.toml"
     bad.write_text(
@@ -978,7 +1035,7 @@ def test_an_edited_route_file_is_another_render(tmp_path):
 def test_an_edited_texture_or_material_of_a_world_is_another_render(tmp_path):
     """A world file's companions (an .obj's .mtl and its texture, a .gltf's buffers) change what is
     rendered: each is in the render's identity. Only the named file counted: a sweep reused the
-    render of the old texture. A self-contained world keeps the identity it had."""
+    render of the old texture. A self-contained world's identity lists no companions."""
     from dataclasses import asdict
 
     import trimesh
@@ -986,7 +1043,7 @@ def test_an_edited_texture_or_material_of_a_world_is_another_render(tmp_path):
 
     from aslam.app.sweep import _digest
     from aslam.data_formats.files import source_sha256
-    from aslam.data_formats.provenance import tool_version
+    from aslam.data_formats.provenance import code_version
 
     floor = trimesh.creation.box(extents=(10, 10, 0.1))
     uv = (floor.vertices[:, :2] + 5) / 10
@@ -1009,7 +1066,7 @@ def test_an_edited_texture_or_material_of_a_world_is_another_render(tmp_path):
         {
             "render": {**asdict(glb), "world": "floor.glb"},
             "files": {"world": source_sha256(tmp_path / "floor.glb")},
-            "version": tool_version(),
+            "version": code_version(),
         }
     )
     assert render_path(tmp_path / "out", glb)[1] == before
@@ -1133,6 +1190,37 @@ def test_a_cluster_that_cannot_run_the_tasks_is_one_line_not_a_wait_for_ever(
     tls = ["sweep", str(sweep_file), "-o", str(tmp_path / "y"), "--scheduler", "tls://127.0.0.1:1", "-q"]
     assert main(tls) == 2
     assert "cannot reach the Dask scheduler at tls://127.0.0.1:1" in capsys.readouterr().err
+
+
+def test_a_worker_running_other_code_of_the_same_version_is_refused(recordings, tmp_path, capsys):
+    """The cluster's workers were checked for the version alone, 0.1.0 through every change: a
+    worker left on an older checkout computed with its own estimator and filed the results under
+    this code's task keys."""
+    edited = _copy_of_this_aslam(tmp_path / "edited", edit="# a release\n")
+    process, address = _scheduler(tmp_path)
+    try:
+        dask = Path(sys.executable).with_name("dask")
+        worker = subprocess.Popen(
+            [str(dask), "worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard"],
+            env={**os.environ, "PYTHONPATH": str(edited), "PYTHONDONTWRITEBYTECODE": "1"},
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        try:
+            results = tmp_path / "results"
+            code = main(
+                ["sweep", str(_write_sweep(recordings)), "-o", str(results), "--scheduler", address, "-q"]
+            )
+        finally:
+            worker.terminate()
+            worker.wait(timeout=30)
+    finally:
+        process.terminate()
+        process.wait(timeout=30)
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert err.count("\n") == 1 and "runs aslam 0.1.0+src." in err and "; this is aslam 0.1.0+src." in err
+    assert not (results / "tasks").exists()
 
 
 def test_a_glob_never_takes_the_sweeps_own_outputs_and_grids_are_bounded(recordings, tmp_path, monkeypatch):
