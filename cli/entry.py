@@ -99,17 +99,20 @@ def run() -> None:
     By then every output is renamed into place and every child process joined; what teardown
     would add is unloading modules, whose native destructors (GTSAM's, OpenCV's) take 0.1 s, a
     tenth of an estimate's run. The exit functions libraries registered still run (well under a
-    millisecond): matplotlib's removes the cache folder it made in TMPDIR when HOME is read-only,
-    which every `report --plots` left behind.
+    millisecond) where the command ran to its end: matplotlib's removes the cache folder it made in
+    TMPDIR when HOME is read-only, which every `report --plots` left behind. Not after a signal:
+    there Dask's would close a cluster that is being torn down (a sweep's SIGTERM took 1–2 s to
+    exit instead of 0.6–0.8).
     """
-    from aslam.cli.app import EXIT_CLOSED_PIPE, main
+    from aslam.cli.app import EXIT_CLOSED_PIPE, EXIT_HUNG_UP, EXIT_INTERRUPTED, EXIT_TERMINATED, main
 
     code = main(startup_signals=_received)
     try:
         sys.stdout.flush()
     except (OSError, ValueError):  # stdout closed at the very end (``| head``)
         code = code or EXIT_CLOSED_PIPE
-    atexit._run_exitfuncs()
+    if code not in (EXIT_INTERRUPTED, EXIT_TERMINATED, EXIT_HUNG_UP):
+        atexit._run_exitfuncs()
     with contextlib.suppress(OSError, ValueError):
         sys.stderr.flush()
     os._exit(code)
