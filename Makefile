@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 DEMO   := demo
 
-.PHONY: demo test lint bench bench-doc fuzz sysdeps clean
+.PHONY: demo test lint bench bench-doc fuzz sysdeps check-python clean
 
 # Headless OpenGL: Mesa's EGL renders on the CPU; OSMesa is the fallback. Installed only when
 # missing and only where apt-get can run (as root); otherwise the renderer says what is missing.
@@ -19,7 +19,36 @@ sysdeps:
 	  fi; \
 	fi
 
-$(BIN)/python:
+# The venv is made once, by $(PYTHON), which must meet pyproject's requires-python: one below it
+# made a venv that pip then refused to install aslam into, and every later `make`, whatever
+# PYTHON it was given, went on with that venv and failed the same way. A PYTHON given on the
+# command line or in the environment must also be the existing venv's X.Y: `make test
+# PYTHON=python3.12` over a venv of 3.11 ran 3.11 in silence. Checked before anything is made.
+REQUIRES_PYTHON := $(shell sed -n 's/^requires-python = ">=\([0-9.]*\)"$$/\1/p' pyproject.toml)
+PYTHON_GIVEN := $(if $(filter file,$(origin PYTHON)),,given)
+define CHECK_PYTHON
+import os, sys
+floor, venv, python, given = sys.argv[1:]
+have = "%d.%d" % sys.version_info[:2]
+if sys.version_info[:2] < tuple(int(part) for part in floor.split(".")):
+    sys.exit("aslam needs Python >= %s; PYTHON=%s is %s" % (floor, python, have))
+config = os.path.join(venv, "pyvenv.cfg")
+made = have
+if given and os.path.exists(config):
+    for line in open(config):
+        key, _, value = line.partition("=")
+        if key.strip() == "version":
+            made = value.strip()
+if ".".join(made.split(".")[:2]) != have:
+    sys.exit("%s was made with Python %s, not PYTHON=%s (%s): `make clean` removes it,"
+             " or VENV=DIR gives this Python a venv of its own" % (venv, made, python, have))
+endef
+export CHECK_PYTHON
+
+check-python:
+	@$(PYTHON) -c "$$CHECK_PYTHON" '$(REQUIRES_PYTHON)' '$(VENV)' '$(PYTHON)' '$(PYTHON_GIVEN)'
+
+$(BIN)/python: | check-python
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 

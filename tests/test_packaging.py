@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import ast
 import importlib.metadata
+import os
+import shutil
 import subprocess
 import sys
 import tomllib
@@ -148,6 +150,64 @@ def test_every_make_target_that_runs_aslam_checks_the_pyopengl_pin(tmp_path):
         ).stdout
         assert "pip install -q --no-deps 'PyOpenGL==3.1.10'" in plan, target
         assert "m.version('PyOpenGL') != '3.1.10'" in plan, target
+
+
+def _make(folder: Path, *arguments: str, path: str | None = None) -> subprocess.CompletedProcess[str]:
+    """``make`` run in ``folder`` as a user would start it: no PYTHON but the arguments' (a make
+    running this suite passes its own command line down in MAKEFLAGS)."""
+    skip = {"PYTHON", "MAKEFLAGS", "MFLAGS", "MAKELEVEL"}
+    env = {key: value for key, value in os.environ.items() if key not in skip}
+    if path is not None:
+        env["PATH"] = path
+    return subprocess.run(
+        ["make", "-C", str(folder), *arguments], capture_output=True, text=True, env=env, timeout=120
+    )
+
+
+def test_a_python_below_requires_python_is_refused_before_any_venv_is_made(tmp_path):
+    """A PYTHON below requires-python made the venv, upgraded its pip and only then had pip refuse
+    aslam; the half-made venv stayed and every later `make`, whatever PYTHON it was given, reused
+    it. The floor is read from pyproject.toml (raised here above this Python)."""
+    shutil.copy(ROOT / "Makefile", tmp_path)
+    floor = f"{sys.version_info.major}.{sys.version_info.minor + 1}"
+    text = (ROOT / "pyproject.toml").read_text()
+    (tmp_path / "pyproject.toml").write_text(
+        text.replace('requires-python = ">=3.11"', f'requires-python = ">={floor}"')
+    )
+    venv = tmp_path / "venv"
+    done = _make(tmp_path, "lint", f"PYTHON={sys.executable}", f"VENV={venv}")
+    have = f"{sys.version_info.major}.{sys.version_info.minor}"
+    assert done.returncode == 2
+    assert done.stderr.startswith(f"aslam needs Python >= {floor}; PYTHON={sys.executable} is {have}\n")
+    assert not venv.exists()
+
+
+def test_a_python_given_to_a_venv_of_another_version_is_refused(tmp_path):
+    """The venv is made once: `make test PYTHON=python3.12` over a venv of 3.11 ran 3.11 in
+    silence. A PYTHON given must be the venv's X.Y; the Makefile's default (python3) is not checked,
+    so a venv outliving a change of the system's python3 goes on."""
+    venv = tmp_path / "venv"
+    (venv / "bin").mkdir(parents=True)
+    (venv / "bin" / "python").touch()
+    for sentinel in (".installed", ".dev-installed"):
+        (venv / sentinel).touch()
+    other = f"{sys.version_info.major}.{sys.version_info.minor - 1}.13"
+    (venv / "pyvenv.cfg").write_text(f"home = /usr/bin\nversion = {other}\n")
+    done = _make(ROOT, "lint", f"PYTHON={sys.executable}", f"VENV={venv}")
+    have = f"{sys.version_info.major}.{sys.version_info.minor}"
+    assert done.returncode == 2
+    assert done.stderr.startswith(
+        f"{venv} was made with Python {other}, not PYTHON={sys.executable} ({have}):"
+    )
+    assert "/bin/ruff" not in done.stdout  # nothing ran in the venv
+
+    python3 = tmp_path / "path" / "python3"  # the default PYTHON, found on PATH
+    python3.parent.mkdir()
+    python3.symlink_to(sys.executable)
+    path = f"{python3.parent}{os.pathsep}{os.environ['PATH']}"
+    assert _make(ROOT, "check-python", f"VENV={venv}", path=path).returncode == 0
+    (venv / "pyvenv.cfg").write_text(f"home = /usr/bin\nversion = {have}.1\n")
+    assert _make(ROOT, "check-python", f"PYTHON={sys.executable}", f"VENV={venv}").returncode == 0
 
 
 def test_python_dash_m_aslam_is_the_console_script(capsys):
