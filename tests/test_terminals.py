@@ -101,6 +101,18 @@ def test_a_narrow_terminal_cuts_no_figure_of_the_reports_tables(estimate_file: P
         assert f"{errors[axis]['max']:.3f}" in shown
 
 
+def test_the_estimate_progress_line_fits_an_80_column_terminal(recording: Path, tmp_path: Path):
+    """On the commonest terminal width rich cut the progress line's own figures: "115… images"
+    for 115/181 and "0:0…" for the time elapsed."""
+    shown = _on_a_terminal(
+        [str(ASLAM), "estimate", str(recording), "-o", str(tmp_path / "e.mcap")], columns=80
+    )
+    progress = [line for line in re.split(r"[\r\n]", shown) if line.startswith("estimate ")]
+    assert progress, shown
+    assert not [line for line in progress if "…" in line]
+    assert re.search(r" \d+/\d+ images · \d+ kf · \d+ hyp · \d+ kf/s \d+:\d\d:\d\d", progress[-1])
+
+
 WINDOWS_TEXT = {"bom": "\ufeff{}", "crlf": "{}", "bom+crlf": "\ufeff{}"}
 """How a Windows editor saves a file: a UTF-8 byte-order mark first, CRLF line ends, or both."""
 
