@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, fields
+from typing import Any, TypeVar
 
 from aslam.core.errors import ConfigError
 
@@ -76,9 +77,12 @@ class Bounds:
         return f"a number in {left}{number(self.low)}, {number(self.high)}{right}"
 
 
-def _param(default: float | int | str, help: str) -> float | int | str:
+_Value = TypeVar("_Value", float, int, str)
+
+
+def _param(default: _Value, help: str) -> _Value:
     """A configuration field whose help text the CLI and docs read from ``metadata["help"]``."""
-    return field(default=default, metadata={"help": help})  # type: ignore[return-value]
+    return field(default=default, metadata={"help": help})
 
 
 @dataclass(frozen=True)
@@ -339,9 +343,9 @@ class EstimatorConfig:
         return problems
 
     @classmethod
-    def paper_faithful(cls, **overrides: object) -> EstimatorConfig:
+    def paper_faithful(cls, **overrides: Any) -> EstimatorConfig:
         """The paper's estimator: one global histogram per image, candidates along the path only."""
-        paper = {
+        paper: dict[str, Any] = {
             "observation_model": "histogram",
             "new_state_reference": "fixed",
             "cells_x": 1,

@@ -14,7 +14,7 @@ from aslam.core.config import EstimatorConfig
 from aslam.core.mapgraph import PriorMap, SharedMap
 from aslam.core.motion import rel_covariance
 from aslam.core.observation import ObservationModel, observation_model
-from aslam.core.tree import SESSION_START, Hypothesis, HypothesisTree, TreeStats
+from aslam.core.tree import SESSION_START, Hypothesis, HypothesisTree, Node, TreeStats
 
 T = TypeVar("T")
 
@@ -285,8 +285,10 @@ class Estimator:
                 best = int(np.argmin(distances))
                 if not sparse:
                     return best
-                looks = self.observation_model.log_likelihood(distances)
-                return best if looks[best] - looks[0] >= math.log(SPARSE_CHOICE_ODDS) else 0
+                log_likelihoods = self.observation_model.log_likelihood(distances)
+                return (
+                    best if log_likelihoods[best] - log_likelihoods[0] >= math.log(SPARSE_CHOICE_ODDS) else 0
+                )
         if sparse and (not tree.leaves or tree.leaves[0].is_new):
             return 0
         weighed = []  # log (belief × P(frame at the leaf's predicted place)) per frame, one row a leaf
@@ -335,8 +337,9 @@ class Estimator:
         for node in tree.suffix(best):
             if node.is_new:
                 graph.add_state(node.state)
-            if node.parent.state != SESSION_START:
-                graph.add_traversal(node.parent.state, node.state, node.rel)
+            parent: Node = node.parent  # type: ignore[assignment]  # an uncommitted node has one
+            if parent.state != SESSION_START:
+                graph.add_traversal(parent.state, node.state, node.rel)
             assignment.append(node.state)
         keyframes_of: dict[int, list[int]] = {}
         for keyframe, state in enumerate(assignment):

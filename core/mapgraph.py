@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from aslam.core.motion import Rel, fuse_rel, inverse_rel, link_weight
 
@@ -104,7 +105,7 @@ class GrowableArray:
         self._data = np.zeros((capacity, *row_shape), dtype=dtype)
         self._size = 0
 
-    def append(self, row: np.ndarray | float | int) -> int:
+    def append(self, row: npt.ArrayLike) -> int:
         if self._size == len(self._data):
             grown = np.zeros((2 * len(self._data), *self._data.shape[1:]), dtype=self._data.dtype)
             grown[: self._size] = self._data[: self._size]

@@ -242,7 +242,8 @@ def score_assignment(
             judged[t] = True  # another world's place: wrong
         elif all(math.isfinite(v) for v in delta):
             judged[t] = True
-            correct[t] = same_place(*delta, radius_m, heading_rad)
+            dx_m, dy_m, dyaw_rad = delta
+            correct[t] = same_place(dx_m, dy_m, dyaw_rad, radius_m, heading_rad)
     true_revisit = ground_truth_revisits(true_poses, radius_m, heading_deg, worlds)
     run = slice(first_keyframe, None)
     return AssignmentScore(claims[run], correct[run], true_revisit[run], judged[run])
@@ -371,8 +372,8 @@ def evaluate(
         elif claims[t] and finite[0] and hypotheses[0] is revisits[0]:
             judged[t] = True
             best_error[t] = errors[0]
-            delta = true_poses[first + t] - true_poses[revisits[0].state]
-            correct[t] = same_place(*delta.tolist(), radius_m, heading_rad)
+            dx_m, dy_m, dyaw_rad = (true_poses[first + t] - true_poses[revisits[0].state]).tolist()
+            correct[t] = same_place(dx_m, dy_m, dyaw_rad, radius_m, heading_rad)
     if seen != n:
         raise ValueError(f"{seen} steps, {n} counted")
     if not has_truth:

@@ -75,7 +75,7 @@ class Node:
         self.weight = link_weight(rel)
         # The keyframe from which this line's revisits may be the best (a jump by appearance is
         # believed once the motion model has confirmed it: ``JUMP_CONFIRMATIONS``).
-        self.settled_at = 0 if parent is None else parent.settled_at
+        self.settled_at: int = 0 if parent is None else parent.settled_at
         # A jump born while the best line explored new ground without having lost track: it is
         # confirmed twice whatever the other lines predict (docs/estimator.md, "Exploring, not lost").
         self.doubted = False
@@ -342,7 +342,8 @@ class HypothesisTree:
         if self.leaves[0].state == SESSION_START:
             return self._start_session(observation, keyframe)
 
-        self.reference.observe(float(self.model.distances(observation, previous[None, :])[0]))
+        # A keyframe before this one set ``previous`` (the first of a run or a session returned above).
+        self.reference.observe(float(self.model.distances(observation, previous[None, :])[0]))  # type: ignore[index]
         log_new = self._log_new_prior + float(self.model.log_likelihood(self.reference.value))
         action = np.asarray(action, dtype=float)
         action_cov = action_covariance(action, self._noise)
@@ -547,7 +548,7 @@ class HypothesisTree:
         Where the best leaf's prediction already fits the view well (``WELL_EXPLAINED``), within a
         run, the index is not searched and nothing is returned.
         """
-        none = (np.zeros(0, np.int64), [], None, math.inf)
+        none: tuple[np.ndarray, list[float], int | None, float] = (np.zeros(0, np.int64), [], None, math.inf)
         appearance_off = self._log_relocalise == -math.inf and self._log_map_relocalise == -math.inf
         if not self.leaves or (appearance_off and not untested):
             return none
@@ -573,8 +574,8 @@ class HypothesisTree:
         order = np.lexsort((top, distances))
         elsewhere = float(distances[order[0]])
         if untested:
-            found = top[order][: self.config.map_relocalisation_candidates].tolist()
-            return np.array(found, dtype=np.int64), [self._log_enter_map] * len(found), None, elsewhere
+            anywhere = top[order][: self.config.map_relocalisation_candidates].tolist()
+            return np.array(anywhere, dtype=np.int64), [self._log_enter_map] * len(anywhere), None, elsewhere
         from_map = top[order] < self._first_keyframe
         found: list[int] = []
         priors: list[float] = []
@@ -627,7 +628,7 @@ class HypothesisTree:
         """The state the best hypothesis assigns to ``keyframe``."""
         node = self.leaves[0]
         while node.keyframe > keyframe and node is not self.commit_root:
-            node = node.parent
+            node = node.parent  # type: ignore[assignment]  # commit_root is an ancestor of every leaf
         if node.keyframe == keyframe:
             return node.state
         return int(self.committed_state_of_keyframe.view[keyframe])
@@ -1010,19 +1011,20 @@ class HypothesisTree:
         """Move everything above the leaves' deepest common ancestor into the shared map."""
         level = self.leaves
         while len({id(n) for n in level}) > 1:
-            level = [n.parent for n in level]  # type: ignore[misc]  (all leaves share one depth)
+            level = [n.parent for n in level]  # type: ignore[misc]  # all leaves share one depth
         ancestor = level[0]
         path = []
         node = ancestor
         while node is not self.commit_root:
             path.append(node)
-            node = node.parent
+            node = node.parent  # type: ignore[assignment]  # commit_root is an ancestor of every leaf
         for node in reversed(path):
             if node.is_new:
                 self.shared.add_state(node.state)
                 self._index_place(node.state)
-            if node.parent.state != SESSION_START:  # sessions are not linked by odometry
-                self.shared.add_traversal(node.parent.state, node.state, node.rel)
+            parent: Node = node.parent  # type: ignore[assignment]  # an uncommitted node has one
+            if parent.state != SESSION_START:  # sessions are not linked by odometry
+                self.shared.add_traversal(parent.state, node.state, node.rel)
             self.committed_state_of_keyframe.append(node.state)
             self.committed_rel_of_keyframe.append(node.rel)
             if not node.is_new and node.state != SESSION_START:
@@ -1054,7 +1056,7 @@ class HypothesisTree:
         node = leaf
         while node is not self.commit_root:
             nodes.append(node)
-            node = node.parent
+            node = node.parent  # type: ignore[assignment]  # commit_root is an ancestor of every leaf
         return nodes[::-1]
 
     def stats(self) -> TreeStats:
@@ -1072,7 +1074,7 @@ class HypothesisTree:
 
 def _recent_states(node: Node | None, count: int) -> tuple[int, ...]:
     """States of ``node`` and its ancestors, newest first, at most ``count`` of them."""
-    states = []
+    states: list[int] = []
     while node is not None and len(states) < count:
         states.append(node.state)
         node = node.parent
