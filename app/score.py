@@ -667,7 +667,7 @@ def _ground_truth(
     """The truth at ``stamps``; None with a warning ending in ``without`` when there is none
     (``strict``: an error)."""
     try:
-        with closing(open_input(path, topics, on_warning=warn).ground_truth()) as truth:  # type: ignore[arg-type]
+        with closing(open_input(path, topics, on_warning=warn).ground_truth()) as truth:
             poses = truth_at_stamps(stamps, truth)
     except RecordingError as err:
         if strict:

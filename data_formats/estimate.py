@@ -18,7 +18,7 @@ import base64
 import binascii
 import hashlib
 import json
-from collections.abc import Iterator, Mapping
+from collections.abc import Generator, Iterator, Mapping
 from contextlib import closing
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -254,7 +254,8 @@ class EstimateMetadata:
     tool_version: str
     config: dict[str, Any]
     recording: RecordingIdentity
-    topics: dict[str, str]
+    topics: dict[str, str | None]
+    """image, odometry, ground_truth → the topic read (None: found in a bag)."""
     prior_map: MapIdentity | None = None
 
     def as_record(self) -> dict[str, str]:
@@ -357,7 +358,7 @@ class Timing:
 
 
 class EstimateKeyframe(NamedTuple):
-    index: int
+    index: int  # type: ignore[assignment]  # shadows tuple.index(), which nothing calls
     stamp_ns: int
     action: tuple[float, float, float]
     """(x_m, y_m, yaw_rad) since the previous keyframe."""
@@ -570,7 +571,7 @@ def _open(path: Path) -> McapFile:
     return source
 
 
-def _messages(source: McapFile, topic: str) -> Iterator[dict[str, Any]]:
+def _messages(source: McapFile, topic: str) -> Generator[dict[str, Any], None, None]:
     for _schema, _channel, message in source.messages([topic]):
         try:
             decoded = json.loads(message.data, parse_constant=_no_constant)
@@ -593,12 +594,12 @@ def _action(raw: Mapping[str, Any]) -> tuple[float, float, float]:
     return (float(raw["x_m"]), float(raw["y_m"]), float(raw["yaw_rad"]))
 
 
-def iter_keyframes(path: Path) -> Iterator[EstimateKeyframe]:
+def iter_keyframes(path: Path) -> Generator[EstimateKeyframe, None, None]:
     """The keyframes of an estimate file in order, streamed (one chunk in memory at a time)."""
     return _iter_keyframes(_open(path))  # fails early, naming the file, on anything but an estimate
 
 
-def _iter_keyframes(source: McapFile) -> Iterator[EstimateKeyframe]:
+def _iter_keyframes(source: McapFile) -> Generator[EstimateKeyframe, None, None]:
     for raw in _messages(source, KEYFRAME_TOPIC):
         _validate(raw, KEYFRAME_READING_SCHEMA, "keyframe", source.path)
         try:

@@ -581,7 +581,7 @@ def _finish_output(
 
 def write_atomically(
     path: Path,
-    write: Callable[[Path], None],
+    write: Callable[[Path], object],
     *,
     error: type[InputError] = InputError,
     force: bool | None = None,

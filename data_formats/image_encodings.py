@@ -95,6 +95,7 @@ def _pixels(
             path,
         )
     rows = np.frombuffer(data, dtype=np.uint8, count=step * height).reshape(height, step)[:, :row_bytes]
+    values: np.ndarray
     if layout.bytes_per_channel == 2:
         dtype = np.dtype(">u2" if is_bigendian else "<u2")
         values = np.ascontiguousarray(rows).view(dtype).astype(np.uint16)

@@ -146,8 +146,8 @@ def frame_order(images: list[Path]) -> list[Path]:
     """``images`` in natural file-name order, or by value where every name is a number (ties in
     natural order): the same order whatever order they are listed in."""
     images = sorted(images, key=_natural_key)
-    values = [_number(image.stem) for image in images]
-    if all(value is not None for value in values):
+    values = [value for value in (_number(image.stem) for image in images) if value is not None]
+    if len(values) == len(images):
         images = [image for _, image in sorted(zip(values, images, strict=True), key=lambda pair: pair[0])]
     return images
 

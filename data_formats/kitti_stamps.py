@@ -94,8 +94,9 @@ def _date_time_ns(text: str) -> int:
     if match is None:
         raise ValueError(f"'{text}' is not a date and time (2011-09-26 13:02:25.964389445)")
     *fields, fraction = match.groups()
+    year, month, day, hour, minute, second = (int(field) for field in fields)
     try:
-        moment = datetime(*(int(field) for field in fields), tzinfo=UTC)
+        moment = datetime(year, month, day, hour, minute, second, tzinfo=UTC)
     except ValueError as err:
         raise ValueError(f"'{text}' is not a date and time ({err})") from err
     stamp_ns = calendar.timegm(moment.timetuple()) * ros_msgs.NS_PER_S + int((fraction or "0").ljust(9, "0"))

@@ -114,9 +114,9 @@ class McapFile:
             if stats is not None:
                 counts: dict[str, int] = {}
                 for channel_id, count in stats.channel_message_counts.items():
-                    channel = self._summary.channels.get(channel_id)
-                    if channel is not None:
-                        counts[channel.topic] = counts.get(channel.topic, 0) + count
+                    counted = self._summary.channels.get(channel_id)
+                    if counted is not None:
+                        counts[counted.topic] = counts.get(counted.topic, 0) + count
                 self.message_counts = counts
 
     def _error(self, problem: str, err: BaseException | None = None) -> InputError:
@@ -290,9 +290,9 @@ class McapFile:
                             return dict(record.metadata)
                 return None
             with self.path.open("rb") as f:
-                for record in self._linear_records(f):
-                    if isinstance(record, Metadata) and record.name == name:
-                        return dict(record.metadata)
+                for linear in self._linear_records(f):
+                    if isinstance(linear, Metadata) and linear.name == name:
+                        return dict(linear.metadata)
             return None
         except InputError:
             raise

@@ -119,7 +119,9 @@ def stamp_text_ns(text: str, unit: StampUnit | str | None = None) -> int:
     if unit is not None:
         # Past the last nanosecond is past it in any unit: not multiplied, as 1e999999 (a file name)
         # would overflow the product, decimal.Overflow, an internal error.
-        stamp_ns = int(min(value, ros_msgs.LAST_STAMP_NS + 1) * NS_PER_UNIT[StampUnit(unit)])
+        past_last = ros_msgs.LAST_STAMP_NS + 1
+        per_unit = NS_PER_UNIT[StampUnit(unit)]
+        stamp_ns = int(value * per_unit) if value <= past_last else past_last * per_unit
     elif value >= NANOSECOND_STAMP_MIN and value == value.to_integral_value():
         stamp_ns = int(value)
     else:

@@ -15,7 +15,7 @@ import contextlib
 import io
 import json
 import math
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Generator, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -371,7 +371,9 @@ class Recording:
         for line in assembler.warnings():
             warn(line)
 
-    def ground_truth(self, topics: RecordingTopics = RecordingTopics()) -> Iterator[tuple[int, np.ndarray]]:
+    def ground_truth(
+        self, topics: RecordingTopics = RecordingTopics()
+    ) -> Generator[tuple[int, np.ndarray], None, None]:
         """``(stamp_ns, (x_m, y_m, yaw_rad))`` of every ground-truth message, in time order.
 
         RecordingError if the recording has no ground-truth topic.

@@ -15,7 +15,7 @@ without reading its messages, :func:`describe_bag` reads it all for ``aslam info
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator, Iterator
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -421,7 +421,7 @@ def _iter_bag_samples(path: Path, topics: BagTopics, warn: Callable[[str], None]
         warn(line)
 
 
-def iter_bag_ground_truth(path: Path, topic: str) -> Iterator[tuple[int, np.ndarray]]:
+def iter_bag_ground_truth(path: Path, topic: str) -> Generator[tuple[int, np.ndarray], None, None]:
     """``(stamp_ns, (x_m, y_m, yaw_rad))`` of every message on the ground-truth ``topic``, in order
     (what ``report`` scores against, like ``recording.iter_ground_truth``)."""
     path = Path(path)
@@ -429,7 +429,7 @@ def iter_bag_ground_truth(path: Path, topic: str) -> Iterator[tuple[int, np.ndar
     return _iter_bag_ground_truth(path, topic)
 
 
-def _iter_bag_ground_truth(path: Path, topic: str) -> Iterator[tuple[int, np.ndarray]]:
+def _iter_bag_ground_truth(path: Path, topic: str) -> Generator[tuple[int, np.ndarray], None, None]:
     with _open_reader(path) as reader:
         types = _topic_types(reader)
         if topic not in types:

@@ -12,7 +12,7 @@ turns it into a recording, so that stamps, poses and the odometry flag are fixed
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator, Iterator
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -93,7 +93,7 @@ class RecordingInput:
     def image_count(self) -> int | None:
         return self.recording.image_count(self.topics)
 
-    def ground_truth(self) -> Iterator[tuple[int, np.ndarray]]:
+    def ground_truth(self) -> Generator[tuple[int, np.ndarray], None, None]:
         return self.recording.ground_truth(self.topics)
 
     def has_topic(self, topic: str) -> bool:
@@ -134,7 +134,7 @@ class BagInput:
             return None
         return next((t.messages for t in summary.topics if t.topic == summary.resolved.image), None)
 
-    def ground_truth(self) -> Iterator[tuple[int, np.ndarray]]:
+    def ground_truth(self) -> Generator[tuple[int, np.ndarray], None, None]:
         if self.choice.ground_truth is None:
             raise BagError(
                 "no ground-truth topic named for this bag (--ground-truth-topic of estimate or report)",
