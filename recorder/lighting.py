@@ -89,7 +89,8 @@ def tinted_colour(temperature_k: float) -> tuple[float, float, float]:
     base = np.array(DEFAULT_COLOUR)
     colour = base * kelvin_to_rgb(temperature_k) / kelvin_to_rgb(REFERENCE_TEMPERATURE_K)
     colour *= _luminance(base) / _luminance(colour)
-    return tuple(float(c) for c in colour)
+    red, green, blue = (float(c) for c in colour)
+    return red, green, blue
 
 
 def lap_lighting(change: float, laps: int, n_lights: int, seed: int) -> tuple[Lighting, ...]:

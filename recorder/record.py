@@ -145,6 +145,7 @@ def plan(config: RecordConfig) -> Plan:
             f"--odometry-reset-at must be a keyframe of the route (0..{len(commanded) - 1}), got {reset_at}"
         )
     truth, odometry = noise.simulate(commanded, config.noise, config.seed, connected=connected)
+    world: GridWorld | SceneWorld
     if config.world is None:
         from aslam.recorder.world import HEIGHT_M
 
@@ -154,7 +155,7 @@ def plan(config: RecordConfig) -> Plan:
                 f"(ceilings are {HEIGHT_M:g} m), got {config.camera.height_m}"
             )
         drifting = config.noise.model is NoiseModel.PAPER
-        world: GridWorld | SceneWorld = generate_world(
+        world = generate_world(
             commanded,
             config.seed,
             aliasing=config.aliasing,

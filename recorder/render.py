@@ -22,6 +22,7 @@ import ctypes.util
 import math
 import os
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -271,7 +272,7 @@ def _add(scene, pyrender, *, pose=None, **what):
     global _NODE_CLASS
     if _NODE_CLASS is None:
 
-        class SequencedNode(pyrender.Node):
+        class SequencedNode(pyrender.Node):  # type: ignore[name-defined]  # a module passed in, not imported
             def __init__(self, sequence: int, **kwargs):
                 super().__init__(**kwargs)
                 self._sequence = sequence
@@ -372,7 +373,7 @@ def _door_frames_mesh(doors, pyrender):
             (b + d * t / 2, t, DOOR_HEIGHT_M + t, 0.0),
             ((a + b) / 2, np.linalg.norm(b - a) + 2 * t, t, DOOR_HEIGHT_M),
         ):
-            box = trimesh.creation.box((length, depth, height))
+            box = trimesh.creation.box((float(length), depth, height))
             m = np.eye(4)
             c, s = math.cos(yaw), math.sin(yaw)
             m[:2, :2] = [[c, -s], [s, c]]
@@ -415,7 +416,7 @@ class PyrenderRenderer:
         pyrender = import_pyrender()
         self._pyrender = pyrender
         self.camera = camera
-        self._panel_nodes: dict[tuple, object] = {}
+        self._panel_nodes: dict[tuple, Any] = {}
         if getattr(world, "kind", "") == "generated":
             self.scene, self._lights_xy = build_generated_scene(world, pyrender, light_panels=False)
             self._light_z = world.height_m - 0.25
@@ -463,6 +464,7 @@ class PyrenderRenderer:
     def _panel_key(self, lighting: Lighting) -> tuple:
         n = 0 if self._lights_xy is None else len(self._lights_xy)
         on = lighting.lights_on if lighting.lights_on is not None else (True,) * n
+        emissive: tuple[float, ...]
         if lighting.is_default:
             emissive = (1.0, 1.0, 1.0)
         else:

@@ -287,8 +287,8 @@ def parse_route(doc: Any, *, name: str = "route", path: Path | str | None = None
     if problems:
         more = f" (and {len(problems) - 1} more problem(s))" if len(problems) > 1 else ""
         raise RouteError(problems[0] + more, path=path)
-    route_name = doc.get("name") if isinstance(doc.get("name"), str) else name
-    return Route(route_name, start_pose, tuple(actions))
+    route_name = doc.get("name")
+    return Route(route_name if isinstance(route_name, str) else name, start_pose, tuple(actions))
 
 
 def load_route_file(path: Path) -> Route:

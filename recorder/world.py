@@ -35,11 +35,15 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from aslam.recorder import textures as tex
 from aslam.recorder.errors import WorldError
+
+if TYPE_CHECKING:
+    import trimesh
 
 CELL_M = 0.25
 CORRIDOR_HALF_WIDTH_M = 1.0
@@ -97,7 +101,7 @@ class GridWorld:
 
     kind = "generated"
 
-    def cell_of(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def cell_of(self, x: np.ndarray | float, y: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
         i = np.floor((np.asarray(x) - self.origin_xy[0]) / self.cell_m).astype(int)
         j = np.floor((np.asarray(y) - self.origin_xy[1]) / self.cell_m).astype(int)
         return i, j
@@ -183,7 +187,7 @@ def _carve_alcoves(free: np.ndarray, centres_x, centres_y, segments, rng, cell: 
     return opened
 
 
-def _runs(boundary: np.ndarray) -> list[tuple[int, int, int]]:
+def _runs(boundary: np.ndarray) -> list[tuple[int, int, int, int]]:
     """Maximal runs of equal non-zero values along each row: (row, start, stop, value)."""
     out = []
     for r, row in enumerate(boundary):
@@ -392,8 +396,9 @@ class SceneWorld:
     """A user scene loaded with trimesh (metres, +z up, floor at z = 0)."""
 
     path: Path
-    scene: object  # trimesh.Scene
-    mesh: object  # trimesh.Trimesh: the whole scene in world coordinates, for ray tests
+    scene: trimesh.Scene
+    mesh: trimesh.Trimesh
+    """The whole scene in world coordinates, for ray tests."""
     companions: dict[str, str | None]
     """The other files the scene file loads, name → SHA-256 (None: named but missing); see
     :class:`~aslam.recorder.scene_files.CompanionResolver`."""
@@ -429,11 +434,11 @@ def load_scene_world(path: Path) -> SceneWorld:
         raise WorldError("scene file not found", path=path)
     resolver = CompanionResolver(str(path))
     try:
-        scene = trimesh.load(path, force="scene", resolver=resolver)
+        scene: trimesh.Scene = trimesh.load(path, force="scene", resolver=resolver)  # type: ignore[assignment]  # a Scene, forced
     except Exception as err:  # trimesh raises many types for malformed files
         raise WorldError(f"cannot load scene: {type(err).__name__}: {err}", path=path) from err
     try:
-        mesh = scene.to_geometry() if hasattr(scene, "to_geometry") else scene.dump(concatenate=True)
+        mesh = scene.to_geometry()
     except Exception as err:
         raise WorldError(f"cannot flatten scene geometry: {err}", path=path) from err
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
