@@ -216,7 +216,9 @@ def embed(
                 )
             )
     revisit = options.revisit
-    closure_noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([revisit.x_m, revisit.y_m, revisit.yaw_rad]))
+    closure_noise: gtsam.noiseModel.Base = gtsam.noiseModel.Diagonal.Sigmas(
+        np.array([revisit.x_m, revisit.y_m, revisit.yaw_rad])
+    )
     if options.kernel is Kernel.CAUCHY:
         closure_noise = gtsam.noiseModel.Robust.Create(
             gtsam.noiseModel.mEstimator.Cauchy.Create(options.kernel_width), closure_noise

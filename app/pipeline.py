@@ -371,10 +371,12 @@ class EstimateSteps:
         estimator, counts = self._estimator, self._counts
         if self._window_m > 0:
             taken: Iterator[tuple[Frame | Keyframe, np.ndarray]] = keyframes_taken(
-                self._reader, estimator, self._window_m
+                self._reader,  # type: ignore[arg-type]  # frames where window_m > 0 (run_estimate's produce)
+                estimator,
+                self._window_m,
             )
         else:
-            taken = ((keyframe, keyframe.action) for keyframe in self._reader)
+            taken = ((keyframe, keyframe.action) for keyframe in self._reader)  # type: ignore[union-attr]  # keyframes
         try:
             for frame, action in taken:
                 start = time.perf_counter()

@@ -107,7 +107,8 @@ def _trajectory_figure(report: Report, title: str) -> Any:
         frame = "in the frame of the first keyframe " + (
             "(no ground truth)" if not known_poses else "(truth at one pose only)"
         )
-    one = {"marker": "o"} if len(optimised) == 1 else {}  # a run of one keyframe: a point, not a line
+    # A run of one keyframe: a point, not a line.
+    one: dict[str, Any] = {"marker": "o"} if len(optimised) == 1 else {}
     ax.plot(*odometry_xy.T, "--", color="tab:gray", linewidth=1, label="odometry alone", **one)
     ax.plot(*optimised_xy.T, "-", color="tab:blue", linewidth=1.2, label="embedded map", **one)
     ax.set_aspect("equal", adjustable="datalim")
@@ -299,7 +300,7 @@ def _map_figure(
     # Odometry, drawn from the first true pose: the keyframe actions composed.
     odometry = dead_reckoning(actions, start)
     first = graph.first_keyframe
-    position = {}
+    position: dict[int, np.ndarray] = {}
     for state in graph.states:  # state ids are keyframes of the whole map, prior sessions first
         if has_truth:
             truth = true_poses if map_truth is None else map_truth
@@ -318,7 +319,8 @@ def _map_figure(
     ax.plot(
         odometry[:, 0], odometry[:, 1], "--", color="tab:gray", linewidth=1, label="odometry (dead reckoning)"
     )
-    normal, closing = [], []
+    normal: list[list[np.ndarray]] = []
+    closing: list[list[np.ndarray]] = []
     for link in graph.links:
         a, b = link.from_state, link.to_state
         if a in position and b in position and a != b:
@@ -331,8 +333,8 @@ def _map_figure(
         )
     if position:
         xy = np.array(list(position.values()))
-        visits = {s.id: len(s.keyframes) for s in graph.states}
-        revisited = np.array([visits.get(s, 1) > 1 for s in position])
+        visit_counts = {s.id: len(s.keyframes) for s in graph.states}
+        revisited = np.array([visit_counts.get(s, 1) > 1 for s in position])
         ax.plot(xy[~revisited, 0], xy[~revisited, 1], "o", color="tab:blue", markersize=5, label="place")
         if revisited.any():
             ax.plot(

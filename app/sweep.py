@@ -22,6 +22,7 @@ the same sweep gives the same rows, except the timing and worker columns.
 from __future__ import annotations
 
 import contextlib
+import functools
 import gc
 import hashlib
 import json
@@ -176,7 +177,7 @@ def render_path(results_dir: Path, config: RecordConfig) -> tuple[Path, str]:
     from aslam.recorder.world import scene_companions
 
     recorded = asdict(config)
-    files = {}
+    files: dict[str, Any] = {}
     if config.route not in PRESETS and Path(config.route).is_file():
         files["route"] = source_sha256(Path(config.route))
         recorded["route"] = Path(config.route).name
@@ -248,9 +249,9 @@ def plan_tasks(sweep: Sweep, results_dir: Path, *, hashes: HashCache | None = No
     recordings = [path for path in sweep.recordings if not full_path(path).is_relative_to(results_dir)]
     names = distinct_names(recordings)
     sources = [Source(path, hashes.sha256(path), names[path]) for path in recordings]
-    for config in sweep.renders:
-        path, identity = render_path(results_dir, config)
-        sources.append(Source(path, identity, path.name, config))
+    for render in sweep.renders:
+        path, identity = render_path(results_dir, render)
+        sources.append(Source(path, identity, path.name, render))
     tasks: list[Task] = []
     first: dict[str, int] = {}  # key -> the task that computes it
     planned: set[tuple[Path, str]] = set()
@@ -1248,7 +1249,7 @@ def write_tables(
             )
         return False
     for name, data in stale.items():
-        write_atomically(results_dir / name, lambda temporary, data=data: temporary.write_bytes(data))
+        write_atomically(results_dir / name, functools.partial(Path.write_bytes, data=data))
     return True
 
 
@@ -1322,8 +1323,8 @@ def pareto_front(results: Sequence[TaskResult], objectives: Sequence[Objective])
     for result in results:
         if not result.ok or result.summary is None:
             continue
-        values = [result.summary.get(o.key) for o in objectives]
-        if any(v is None for v in values):
+        values = [v for v in (result.summary.get(o.key) for o in objectives) if v is not None]
+        if len(values) < len(objectives):
             continue
         candidates.append(
             (result, [v if o.maximise else -v for v, o in zip(values, objectives, strict=True)])

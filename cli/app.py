@@ -14,7 +14,7 @@ import signal
 import sys
 import threading
 import warnings
-from typing import TYPE_CHECKING, Annotated, NoReturn
+from typing import TYPE_CHECKING, Annotated, NoReturn, TextIO
 
 import typer
 import typer.core
@@ -181,35 +181,36 @@ class _QuietNativeStderr:
 
     def __init__(self) -> None:
         self._saved_fd: int | None = None
-        self._saved_stderr: object = None
+        self._saved_stderr: TextIO | None = None
 
     def __enter__(self) -> _QuietNativeStderr:
-        if sys.stderr is not sys.__stderr__ or os.environ.get("ASLAM_DEBUG"):
+        stderr = sys.stderr
+        if stderr is not sys.__stderr__ or stderr is None or os.environ.get("ASLAM_DEBUG"):
             return self
         try:
-            fd = sys.stderr.fileno()
+            fd = stderr.fileno()
             saved = os.dup(fd)
             devnull = os.open(os.devnull, os.O_WRONLY)
         except (OSError, ValueError, AttributeError):
             return self
-        sys.stderr.flush()
+        stderr.flush()
         os.dup2(devnull, fd)
         os.close(devnull)
-        self._saved_fd, self._saved_stderr = saved, sys.stderr
+        self._saved_fd, self._saved_stderr = saved, stderr
         sys.stderr = io.TextIOWrapper(
             os.fdopen(saved, "wb", buffering=0, closefd=False),
-            encoding=sys.stderr.encoding,
+            encoding=stderr.encoding,
             errors="backslashreplace",
             line_buffering=True,
         )
         return self
 
     def __exit__(self, *_exc: object) -> None:
-        if self._saved_fd is None:
+        if self._saved_fd is None or self._saved_stderr is None:
             return
         with contextlib.suppress(OSError, ValueError):
             sys.stderr.flush()
-        sys.stderr = self._saved_stderr  # type: ignore[assignment]
+        sys.stderr = self._saved_stderr
         os.dup2(self._saved_fd, sys.stderr.fileno())
         os.close(self._saved_fd)
         self._saved_fd = None
@@ -236,11 +237,12 @@ class _LibraryLogsDropped:
 
 def _quiet_closed_stdout() -> None:
     """After a closed pipe: send the rest of stdout to /dev/null so the exit flush cannot fail."""
-    if sys.stdout is not sys.__stdout__:
+    stdout = sys.stdout
+    if stdout is not sys.__stdout__ or stdout is None:
         return
     try:
         devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
+        os.dup2(devnull, stdout.fileno())
         os.close(devnull)
     except (OSError, ValueError):
         pass

@@ -14,6 +14,10 @@ import io
 import os
 import signal
 import sys
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from _typeshed import ReadableBuffer
 
 # aslam parallelises by processes (the estimate's reader, a sweep's workers) and its matrices are
 # 3 × 3: OpenBLAS's own threads only spin. Started with numpy, they cost 70 ms of every command's
@@ -53,7 +57,7 @@ class _Stdout(io.FileIO):
     """Descriptor 1, whose write errors name it: ``aslam info R.mcap > /dev/full`` is ``stdout: No
     space left on device``, not a bare ``No space left on device``."""
 
-    def write(self, data: bytes) -> int | None:  # type: ignore[override]
+    def write(self, data: ReadableBuffer) -> int:
         try:
             return super().write(data)
         except OSError as err:
@@ -83,7 +87,8 @@ def _results_stdout(stream: io.TextIOWrapper) -> io.TextIOWrapper:
 if sys.stdout is None:
     sys.stdout = _ClosedStdout()
 else:  # still the process's own stdout, as aslam.cli.app tells it by ``sys.__stdout__``
-    sys.stdout = sys.__stdout__ = _results_stdout(sys.stdout)
+    # The interpreter's stdout is a TextIOWrapper (typeshed: TextIO), and __stdout__ is no Final to us.
+    sys.stdout = sys.__stdout__ = _results_stdout(sys.stdout)  # type: ignore[arg-type, misc]
 if sys.stderr is None:  # nothing can be told: messages go nowhere, the exit code still says it
     sys.stderr = open(os.devnull, "w")  # noqa: SIM115 (the process's own stderr, kept to the end)
 for _stream in (sys.stdout, sys.stderr):

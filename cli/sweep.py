@@ -125,7 +125,12 @@ def sweep(
     if scheduler_file is not None:
         scheduler = scheduler_address(scheduler_file)
     # what a run and a dry run both take, so that the dry run plans exactly what the run would do
-    options = {"workers": workers, "scheduler": scheduler, "force": force, "task_timeout": task_timeout}
+    options: dict[str, Any] = {
+        "workers": workers,
+        "scheduler": scheduler,
+        "force": force,
+        "task_timeout": task_timeout,
+    }
     if dry_run:
         _dry_run(spec, output, options, json_out, terminal)
         return
@@ -200,6 +205,7 @@ def _print_pareto(run: Any, objectives: list[Any]) -> None:
         table.add_column(("↑ " if objective.maximise else "↓ ") + objective.key, no_wrap=True)
     for result in front:
         task = run.tasks[result.index]
+        assert result.summary is not None  # the front holds successful results only
         values = [figure_text(result.summary.get(o.key)) for o in objectives]
         table.add_row(str(task.index), task.source.label, parameters_text(task), *values)
     print_table(table_console(), table)
