@@ -91,7 +91,8 @@ def _imported_top_level_names() -> set[str]:
                 names.update(alias.name.split(".")[0] for alias in node.names)
             elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
                 names.add(node.module.split(".")[0])
-    return names - set(sys.stdlib_module_names) - {"aslam", "__future__"}
+    # _typeshed: the type checkers' part of the standard library, imported under TYPE_CHECKING only.
+    return names - set(sys.stdlib_module_names) - {"aslam", "__future__", "_typeshed"}
 
 
 def _declared_distributions() -> set[str]:
