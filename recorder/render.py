@@ -5,7 +5,8 @@ renders on the CPU); when EGL's library is missing or its context cannot be crea
 tried instead (it needs ``libosmesa6``; ``make sysdeps`` installs it when EGL is missing).  The
 platform must be chosen before PyOpenGL is first imported, so :func:`select_platform` runs first.
 
-The scene is kept light for speed: all wall panels share one texture atlas and one draw call, the
+The scene is kept light for speed: all wall panels share one texture atlas and one draw call (a
+world too long for one atlas page, :data:`ATLAS_MAX_HEIGHT`, one more per page), the
 floor is one draw call per floor texture (its cells merged into rectangles), the ceiling, light
 panels and door frames one each, and a frame is one sample per pixel (:func:`import_pyrender`).  Four
 point lights (pyrender's per-pass cap per light type) follow the camera: each frame they sit at the
@@ -34,6 +35,10 @@ from aslam.recorder.world import LIGHT_SIZE_M
 
 ATLAS_WIDTH = 2048
 ATLAS_PAD = 2
+ATLAS_MAX_HEIGHT = 16_384
+"""Rows of one atlas page: the largest texture OpenGL 4.1 guarantees, and llvmpipe's limit. A long
+route's world has more wall panels than one page holds (an 845 m route without revisits: 2048 × 17,300
+rows), which OpenGL refused (``glTexImage2D``: invalid value); they go on further pages instead."""
 N_POINT_LIGHTS = 4
 AMBIENT = 0.28
 LIGHT_INTENSITY = 4.5
@@ -146,37 +151,49 @@ def import_pyrender():
 # ----------------------------------------------------------------------------- generated worlds
 
 
-def _atlas(textures: list[np.ndarray]) -> tuple[np.ndarray, list[tuple[float, float, float, float]]]:
-    """Shelf-pack equal-height textures into one image; returns it and each one's (u0, v0, u1, v1)."""
+def _atlas(
+    textures: list[np.ndarray],
+) -> tuple[list[np.ndarray], list[tuple[int, tuple[float, float, float, float]]]]:
+    """Shelf-pack equal-height textures into pages of at most ``ATLAS_MAX_HEIGHT`` rows; returns the
+    pages and each texture's (page, (u0, v0, u1, v1)). A world that fits one page gets exactly the
+    one atlas it always had."""
     th = max(t.shape[0] for t in textures)
     row_h = th + 2 * ATLAS_PAD
     places = []
-    x = y = 0
+    page = x = y = 0
     for t in textures:
         w = t.shape[1] + 2 * ATLAS_PAD
         if x + w > ATLAS_WIDTH:
             x, y = 0, y + row_h
-        places.append((x, y))
+            if y + row_h > ATLAS_MAX_HEIGHT:
+                page, y = page + 1, 0
+        places.append((page, x, y))
         x += w
-    height = y + row_h
-    atlas = np.zeros((height, ATLAS_WIDTH, 3), np.uint8)
+    heights = [0] * (page + 1)
+    for page, _x, y in places:
+        heights[page] = max(heights[page], y + row_h)
+    atlases = [np.zeros((height, ATLAS_WIDTH, 3), np.uint8) for height in heights]
     rects = []
-    for t, (x, y) in zip(textures, places, strict=True):
+    for t, (page, x, y) in zip(textures, places, strict=True):
         padded = np.pad(
             t, ((ATLAS_PAD, row_h - t.shape[0] - ATLAS_PAD), (ATLAS_PAD, ATLAS_PAD), (0, 0)), mode="edge"
         )
-        atlas[y : y + row_h, x : x + padded.shape[1]] = padded
+        atlases[page][y : y + row_h, x : x + padded.shape[1]] = padded
         x0, y0 = x + ATLAS_PAD, y + ATLAS_PAD
+        height = heights[page]
         # pyrender flips images on upload: v = 1 is the image's top row
         rects.append(
             (
-                x0 / ATLAS_WIDTH,
-                1.0 - (y0 + t.shape[0]) / height,
-                (x0 + t.shape[1]) / ATLAS_WIDTH,
-                1.0 - y0 / height,
+                page,
+                (
+                    x0 / ATLAS_WIDTH,
+                    1.0 - (y0 + t.shape[0]) / height,
+                    (x0 + t.shape[1]) / ATLAS_WIDTH,
+                    1.0 - y0 / height,
+                ),
             )
         )
-    return atlas, rects
+    return atlases, rects
 
 
 def _quads(corners: np.ndarray, normals: np.ndarray, uvs: np.ndarray):
@@ -323,20 +340,25 @@ def build_generated_scene(world, pyrender, *, light_panels: bool = True):
     lighting, see :class:`PyrenderRenderer`).
     """
     scene = pyrender.Scene(ambient_light=(AMBIENT, AMBIENT, AMBIENT), bg_color=(0, 0, 0))
-    atlas, rects = _atlas(world.wall_textures)
-    corners, normals, uvs = [], [], []
+    atlases, rects = _atlas(world.wall_textures)
+    # per atlas page: the corners, normals and texture coordinates of the panels textured from it
+    quads: list[tuple[list, list, list]] = [([], [], []) for _ in atlases]
     h = world.height_m
     for p in world.panels:
         (x0, y0), (x1, y1) = p.p0, p.p1
+        page, (u0, v0, u1, v1) = rects[p.texture]
+        corners, normals, uvs = quads[page]
         corners.append([[x0, y0, 0.0], [x1, y1, 0.0], [x1, y1, h], [x0, y0, h]])
         normals.append([p.normal[0], p.normal[1], 0.0])
-        u0, v0, u1, v1 = rects[p.texture]
         ue = u0 + (u1 - u0) * p.u1
         uvs.append([[u0, v0], [ue, v0], [ue, v1], [u0, v1]])
-    walls = _primitive(
-        pyrender, _quads(np.array(corners), np.array(normals), np.array(uvs)), _textured(pyrender, atlas)
-    )
-    primitives = [walls]
+    primitives = [
+        _primitive(
+            pyrender, _quads(np.array(corners), np.array(normals), np.array(uvs)), _textured(pyrender, atlas)
+        )
+        for atlas, (corners, normals, uvs) in zip(atlases, quads, strict=True)
+        if corners
+    ]
     for k, image in enumerate(world.floor_textures):
         mask = world.free & (world.floor_zone == k)
         if mask.any():

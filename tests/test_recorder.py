@@ -254,6 +254,34 @@ def test_render_is_not_blank_and_places_differ():
     np.testing.assert_array_equal(a, again)
 
 
+def test_a_world_whose_wall_textures_exceed_one_atlas_page_renders_its_later_panels():
+    """A route of 800 m or so without revisits (within the 2,000 m a route may drive) has more
+    wall texture than OpenGL takes in one texture: the single atlas (2048 × 17,000 rows and more)
+    failed at the first frame, ``GLError: invalid value`` (exit 70). Here the world of the paper
+    route gets a page's worth of filler textures, then red for every panel, past the first page."""
+    import dataclasses
+
+    from aslam.recorder.render import ATLAS_WIDTH, PyrenderRenderer
+
+    most_rows = 16_384  # the largest texture OpenGL 4.1 guarantees, and llvmpipe's limit
+
+    world = generate_world(routes.preset("paper").poses(), seed=0)
+    height = world.wall_textures[0].shape[0]
+    filler = np.broadcast_to(np.uint8(128), (height, ATLAS_WIDTH - 8, 3))  # one per atlas row
+    fillers = [filler] * (most_rows // height + 1)
+    red = np.zeros((height, 256, 3), np.uint8)
+    red[..., 0] = 255
+    world.wall_textures = [*world.wall_textures, *fillers, red]
+    world.panels = [dataclasses.replace(p, texture=len(world.wall_textures) - 1) for p in world.panels]
+    with PyrenderRenderer(world, SMALL) as renderer:
+        materials = [p.material for m in renderer.scene.meshes for p in m.primitives]
+        textures = [m.baseColorTexture.source for m in materials if m.baseColorTexture is not None]
+        image = renderer.render(np.array([1.0, 0.0, 0.0])).astype(int)
+    assert max(t.shape[0] for t in textures) <= most_rows
+    red_pixels = (image[..., 0] > 60) & (image[..., 0] > 3 * (image[..., 1] + image[..., 2]))
+    assert red_pixels.mean() > 0.2  # the walls on either side
+
+
 def test_the_order_lights_are_summed_in_does_not_depend_on_earlier_renderers():
     """pyrender sums the point lights in the order of a set, which follows the nodes' hashes.
 
