@@ -359,64 +359,63 @@ def iter_bag_samples(
 
 def _iter_bag_samples(path: Path, topics: BagTopics, warn: Callable[[str], None]) -> Iterator[Sample]:
     with _open_reader(path) as reader:
-        types = _topic_types(reader)
-        resolved = resolve_topics(path, types, topics)
-        counts = {topic: info.msgcount for topic, info in reader.topics.items()}
-        assembler = SampleAssembler(path)
-        assembler.expect_ground_truth = (
-            resolved.ground_truth is not None and counts[resolved.ground_truth] != 0
+        yield from _bag_samples(path, reader, topics, warn)
+
+
+def _bag_samples(path: Path, reader: Any, topics: BagTopics, warn: Callable[[str], None]) -> Iterator[Sample]:
+    """The samples of the bag ``reader`` has open, then the pairing's warnings."""
+    types = _topic_types(reader)
+    resolved = resolve_topics(path, types, topics)
+    counts = {topic: info.msgcount for topic, info in reader.topics.items()}
+    assembler = SampleAssembler(path)
+    assembler.expect_ground_truth = resolved.ground_truth is not None and counts[resolved.ground_truth] != 0
+    tf = _TfOdometry(topics.odom_frame, topics.base_frame, warn, path) if resolved.tf else None
+    last_odometry_ns: int | None = None
+    last_truth_ns: int | None = None
+    last_odometry: np.ndarray | None = None
+    last_truth: np.ndarray | None = None
+    wanted = {t for t in (resolved.image, resolved.odometry, resolved.ground_truth, resolved.tf) if t}
+    for topic, datatype, log_time, msg in _messages(path, reader, wanted):
+        if topic == resolved.image:
+            stamp_ns = _stamp(path, "image", topic, msg, log_time)
+            assembler.log_time_images += _set_header_stamp_ns(msg) is None
+            yield from assembler.add_image(stamp_ns, _lazy_image(path, topic, datatype, msg, stamp_ns))
+        elif topic == resolved.odometry:
+            stamp_ns = _stamp(path, "odometry", topic, msg, log_time)
+            if last_odometry_ns is not None and stamp_ns < last_odometry_ns:
+                raise _backwards(path, "odometry", topic, stamp_ns, last_odometry_ns)
+            last_odometry_ns = stamp_ns
+            last_odometry = _pose(path, "odometry", topic, datatype, msg, stamp_ns, last_odometry)
+            yield from assembler.add_odometry(stamp_ns, last_odometry)
+        elif topic == resolved.tf and tf is not None:
+            for stamp_ns, pose in tf.poses(msg, log_time):
+                if stamp_ns < 0:
+                    raise BagError(negative_stamp("odometry", topic, stamp_ns), path=path)
+                if last_odometry_ns is not None and stamp_ns <= last_odometry_ns:
+                    if stamp_ns == last_odometry_ns:
+                        continue  # the same transform published twice
+                    raise _backwards(path, "odometry", f"{topic} {tf.odom_frame}", stamp_ns, last_odometry_ns)
+                problem = implausible(pose, last_odometry)
+                if problem is not None:
+                    raise BagError(f"odometry pose on '{topic}' at stamp {stamp_ns} ns {problem}", path=path)
+                last_odometry_ns, last_odometry = stamp_ns, pose
+                yield from assembler.add_odometry(stamp_ns, pose)
+        else:
+            stamp_ns = _stamp(path, "ground-truth", topic, msg, log_time)
+            if last_truth_ns is not None and stamp_ns < last_truth_ns:
+                raise _backwards(path, "ground-truth", topic, stamp_ns, last_truth_ns)
+            last_truth_ns = stamp_ns
+            last_truth = _pose(path, "ground-truth", topic, datatype, msg, stamp_ns, last_truth)
+            yield from assembler.add_ground_truth(stamp_ns, last_truth)
+    if tf is not None and last_odometry_ns is None:
+        pairs = ", ".join(f"{p} → {c}" for p, c in sorted(tf.pairs_seen)) or "none"
+        raise BagError(
+            f"no transform from frame '{tf.odom_frame}'"
+            + (f" to '{tf.base_frame}'" if tf.base_frame else "")
+            + f" on '{resolved.tf}' (transforms seen: {pairs}); name the frames or an odometry topic",
+            path=path,
         )
-        tf = _TfOdometry(topics.odom_frame, topics.base_frame, warn, path) if resolved.tf else None
-        last_odometry_ns: int | None = None
-        last_truth_ns: int | None = None
-        last_odometry: np.ndarray | None = None
-        last_truth: np.ndarray | None = None
-        wanted = {t for t in (resolved.image, resolved.odometry, resolved.ground_truth, resolved.tf) if t}
-        for topic, datatype, log_time, msg in _messages(path, reader, wanted):
-            if topic == resolved.image:
-                stamp_ns = _stamp(path, "image", topic, msg, log_time)
-                assembler.log_time_images += _set_header_stamp_ns(msg) is None
-                yield from assembler.add_image(stamp_ns, _lazy_image(path, topic, datatype, msg, stamp_ns))
-            elif topic == resolved.odometry:
-                stamp_ns = _stamp(path, "odometry", topic, msg, log_time)
-                if last_odometry_ns is not None and stamp_ns < last_odometry_ns:
-                    raise _backwards(path, "odometry", topic, stamp_ns, last_odometry_ns)
-                last_odometry_ns = stamp_ns
-                last_odometry = _pose(path, "odometry", topic, datatype, msg, stamp_ns, last_odometry)
-                yield from assembler.add_odometry(stamp_ns, last_odometry)
-            elif topic == resolved.tf and tf is not None:
-                for stamp_ns, pose in tf.poses(msg, log_time):
-                    if stamp_ns < 0:
-                        raise BagError(negative_stamp("odometry", topic, stamp_ns), path=path)
-                    if last_odometry_ns is not None and stamp_ns <= last_odometry_ns:
-                        if stamp_ns == last_odometry_ns:
-                            continue  # the same transform published twice
-                        raise _backwards(
-                            path, "odometry", f"{topic} {tf.odom_frame}", stamp_ns, last_odometry_ns
-                        )
-                    problem = implausible(pose, last_odometry)
-                    if problem is not None:
-                        raise BagError(
-                            f"odometry pose on '{topic}' at stamp {stamp_ns} ns {problem}", path=path
-                        )
-                    last_odometry_ns, last_odometry = stamp_ns, pose
-                    yield from assembler.add_odometry(stamp_ns, pose)
-            else:
-                stamp_ns = _stamp(path, "ground-truth", topic, msg, log_time)
-                if last_truth_ns is not None and stamp_ns < last_truth_ns:
-                    raise _backwards(path, "ground-truth", topic, stamp_ns, last_truth_ns)
-                last_truth_ns = stamp_ns
-                last_truth = _pose(path, "ground-truth", topic, datatype, msg, stamp_ns, last_truth)
-                yield from assembler.add_ground_truth(stamp_ns, last_truth)
-        if tf is not None and last_odometry_ns is None:
-            pairs = ", ".join(f"{p} → {c}" for p, c in sorted(tf.pairs_seen)) or "none"
-            raise BagError(
-                f"no transform from frame '{tf.odom_frame}'"
-                + (f" to '{tf.base_frame}'" if tf.base_frame else "")
-                + f" on '{resolved.tf}' (transforms seen: {pairs}); name the frames or an odometry topic",
-                path=path,
-            )
-        yield from assembler.finish()
+    yield from assembler.finish()
     for line in assembler.warnings():
         warn(line)
 
@@ -496,7 +495,13 @@ def summarize_bag(path: Path, topics: BagTopics = BagTopics()) -> BagSummary:
     """Topics, types and message counts from the bag's index or metadata; reads no message."""
     path = Path(path)
     kind = check_bag_path(path)
-    with _open_reader(path) as reader, _rosbags_errors(path, "cannot read the bag's index"):
+    with _open_reader(path) as reader:
+        return _summary(path, kind, reader, topics)
+
+
+def _summary(path: Path, kind: SourceKind, reader: Any, topics: BagTopics) -> BagSummary:
+    """:func:`summarize_bag` of the bag ``reader`` has open."""
+    with _rosbags_errors(path, "cannot read the bag's index"):
         types = _topic_types(reader)
         infos = reader.topics
         bag_topics = tuple(TopicInfo(t, types[t], int(infos[t].msgcount)) for t in sorted(types))
@@ -562,9 +567,7 @@ def describe_bag(
     from aslam.data_formats.recording_info import RecordingInfo, SampleStats
 
     path = Path(path)
-    summary = summarize_bag(path, topics)
-    if summary.problem is not None:
-        raise BagError(summary.problem, path=path)
+    kind = check_bag_path(path)
     warnings: list[str] = []
 
     def warn(message: str) -> None:
@@ -573,10 +576,17 @@ def describe_bag(
             on_warning(message)
 
     stats = SampleStats()
-    for sample in iter_bag_samples(path, topics, on_warning=warn):
-        stats.add(sample)
-        if on_sample is not None:
-            on_sample(stats.samples)
+    # Opened once: a rosbag2 bag compressed by file is decompressed whole, into a temporary folder,
+    # at every open (rosbags), and a ROS 1 bag's index read in full.
+    with _open_reader(path) as reader:
+        summary = _summary(path, kind, reader, topics)
+        if summary.problem is not None:
+            raise BagError(summary.problem, path=path)
+        for sample in _bag_samples(path, reader, topics, warn):
+            stats.add(sample)
+            if on_sample is not None:
+                on_sample(stats.samples)
+        camera = _camera_intrinsics(path, reader)
     resolved = summary.resolved
     assert resolved is not None
     metadata = {
@@ -594,26 +604,23 @@ def describe_bag(
         size_bytes=sum(file.stat().st_size for file in source_files(path)),
         topics=tuple(TopicInfo(t.topic, t.datatype, t.messages) for t in summary.topics),
         **stats.fields(),
-        camera=read_bag_camera_intrinsics(path),
+        camera=camera,
         metadata=metadata,
         truncated=False,
         warnings=tuple(warnings),
     )
 
 
-def read_bag_camera_intrinsics(path: Path) -> CameraIntrinsics | None:
+def _camera_intrinsics(path: Path, reader: Any) -> CameraIntrinsics | None:
     """The intrinsics of the first message of the bag's only CameraInfo topic, or None."""
-    path = Path(path)
-    check_bag_path(path)
-    with _open_reader(path) as reader:
-        infos = [t for t, datatype in _topic_types(reader).items() if datatype == ros_msgs.CAMERA_INFO]
-        if len(infos) != 1:
-            return None
-        for _topic, _datatype, _log_time, msg in _messages(path, reader, {infos[0]}):
-            k = msg.k if hasattr(msg, "k") else msg.K  # ROS 1 spells it K
-            fx = float(k[0])
-            if msg.width > 0 and msg.height > 0 and math.isfinite(fx) and fx > 0:
-                with suppress(ValueError):  # a field of view that rounds to 180°: none
-                    return CameraIntrinsics.from_camera_info(int(msg.width), int(msg.height), fx)
-            return None
+    infos = [t for t, datatype in _topic_types(reader).items() if datatype == ros_msgs.CAMERA_INFO]
+    if len(infos) != 1:
+        return None
+    for _topic, _datatype, _log_time, msg in _messages(path, reader, {infos[0]}):
+        k = msg.k if hasattr(msg, "k") else msg.K  # ROS 1 spells it K
+        fx = float(k[0])
+        if msg.width > 0 and msg.height > 0 and math.isfinite(fx) and fx > 0:
+            with suppress(ValueError):  # a field of view that rounds to 180°: none
+                return CameraIntrinsics.from_camera_info(int(msg.width), int(msg.height), fx)
+        return None
     return None
