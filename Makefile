@@ -91,11 +91,17 @@ demo: sysdeps $(VENV)/.installed
 	$(BIN)/aslam report $(DEMO)/estimate.mcap --force --graph $(DEMO)/graph.json --plots $(DEMO)/plots --json $(DEMO)/summary.json
 
 # mypy finds the package by its folder's name, `aslam`, and a clone may be called anything: it runs
-# from a folder in the venv holding a link named aslam to this one. Its cache is kept there too
-# (about 30 s the first time, under a second after).
-MYPY_ROOT := $(abspath $(VENV))/mypy
-MYPY := mkdir -p $(MYPY_ROOT) && ln -sfn $(CURDIR) $(MYPY_ROOT)/aslam && cd $(MYPY_ROOT) \
-	&& $(abspath $(BIN))/mypy --config-file $(CURDIR)/pyproject.toml --cache-dir $(MYPY_ROOT)/cache -p aslam
+# in a folder of the venv holding a link named aslam to the clone, its cache beside it (about 25 s
+# the first time, under a second after). It is given pyproject's subpackages by name and
+# __main__: `-p aslam` walked every folder of the clone, and a venv in the clone named as a package
+# may be (VENV=venv312) led it back through the link, for ever. Paths reach the shell quoted (a
+# clone in "My Projects"), and mypy runs as the venv's `python -m mypy`, which a moved venv still
+# runs (its scripts' first lines name the old place).
+MYPY_PACKAGES := $(filter-out aslam,$(shell sed -n 's/^packages = \[\(.*\)\]$$/\1/p' pyproject.toml | tr -d '",'))
+MYPY = clone="$$(pwd)" && venv="$$(cd '$(VENV)' && pwd)" && mkdir -p "$$venv/mypy" \
+	&& ln -sfn "$$clone" "$$venv/mypy/aslam" && cd "$$venv/mypy" \
+	&& "$$venv/bin/python" -m mypy --config-file "$$clone/pyproject.toml" --cache-dir cache \
+	-m aslam.__main__ $(MYPY_PACKAGES:%=-p %)
 
 test: sysdeps $(VENV)/.dev-installed
 	@$(PIN_PYOPENGL)

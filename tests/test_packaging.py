@@ -15,6 +15,7 @@ import os
 import shutil
 import subprocess
 import sys
+import sysconfig
 import tomllib
 from pathlib import Path
 
@@ -209,6 +210,44 @@ def test_a_python_given_to_a_venv_of_another_version_is_refused(tmp_path):
     assert _make(ROOT, "check-python", f"VENV={venv}", path=path).returncode == 0
     (venv / "pyvenv.cfg").write_text(f"home = /usr/bin\nversion = {have}.1\n")
     assert _make(ROOT, "check-python", f"PYTHON={sys.executable}", f"VENV={venv}").returncode == 0
+
+
+def test_make_lint_type_checks_a_clone_in_a_folder_with_a_space_and_a_venv_inside_it(tmp_path):
+    """mypy ran as ``-p aslam`` from a link in the venv to the clone, the clone's path unquoted: a
+    clone under "my projects" made ``ln`` fail (and ``mkdir -p`` make a folder of each word), and a
+    venv in the clone named as a package may be (``VENV=venv312``, as the README suggests) led mypy
+    back through the link for ever. A skeleton of the package (pyproject's subpackages, one type
+    error) with such a venv, lent this one's packages: mypy names that error, then passes."""
+    clone = tmp_path / "my projects" / "clone"
+    clone.mkdir(parents=True)
+    for name in ("Makefile", "pyproject.toml", "__main__.py"):
+        shutil.copy(ROOT / name, clone)
+    for package in SETUPTOOLS["packages"][1:]:
+        folder = clone / package.removeprefix("aslam.")
+        folder.mkdir()
+        (folder / "__init__.py").write_text("")
+    (clone / "cli" / "entry.py").write_text("def run() -> None:\n    pass\n")  # what __main__ runs
+    (clone / "core" / "__init__.py").write_text('steps: int = "three"\n')
+    venv = clone / "venv312"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
+    purelib = Path(sysconfig.get_paths()["purelib"])
+    for lent in venv.glob("lib/python*/site-packages"):
+        (lent / "lent.pth").write_text(f"{purelib}\n")
+    (venv / "bin" / "ruff").symlink_to(Path(sys.executable).with_name("ruff"))
+    for sentinel in (".installed", ".dev-installed"):
+        (venv / sentinel).touch()
+
+    failed = _make(clone, "lint", f"PYTHON={sys.executable}", "VENV=venv312")
+    assert failed.returncode == 2, failed.stderr
+    assert 'aslam/core/__init__.py:1: error: Incompatible types in assignment (expression has type "str"' in (
+        failed.stdout
+    )
+    assert "Found 1 error in 1 file (checked 7 source files)" in failed.stdout
+    assert [path.name for path in tmp_path.iterdir()] == ["my projects"]
+    (clone / "core" / "__init__.py").write_text("steps: int = 3\n")
+    passed = _make(clone, "lint", f"PYTHON={sys.executable}", "VENV=venv312")
+    assert passed.returncode == 0, passed.stdout + passed.stderr
+    assert "Success: no issues found in 7 source files" in passed.stdout
 
 
 def test_python_dash_m_aslam_is_the_console_script(capsys):
