@@ -264,13 +264,13 @@ class EstimateMetadata:
             "format_version": FORMAT_VERSION,
             "tool_version": self.tool_version,
             "config": _dumps(self.config),
-            "recording_path": self.recording.path,
+            "recording_path": files.utf8_file_name(self.recording.path),
             "recording_size_bytes": str(self.recording.size_bytes),
             "recording_sha256": self.recording.sha256,
             "topics": _dumps(self.topics),
         }
         if self.prior_map is not None:
-            record["map_path"] = self.prior_map.path
+            record["map_path"] = files.utf8_file_name(self.prior_map.path)
             record["map_sha256"] = self.prior_map.sha256
             record["map_keyframes"] = str(self.prior_map.keyframes)
             if self.prior_map.graph_sha256 is not None:

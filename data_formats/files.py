@@ -333,12 +333,20 @@ def utf8_text(text: str) -> str:
     return text.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
 
 
+def utf8_file_name(name: Path | str) -> str:
+    """A file name as a UTF-8 file stores it to be found again (an estimate's recording and map):
+    its bytes read as UTF-8, a byte that is not UTF-8 U+FFFD, as :func:`utf8_text`. Under a Latin-1
+    locale Python spells the file ``café`` as ``cafÃ©``, which :func:`utf8_text` stores as those two
+    letters, a name no file has under any locale."""
+    return os.fsencode(name).decode("utf-8", "replace")
+
+
 def file_name_from_utf8(text: str) -> Path:
     """The file a name read from a UTF-8 file names (an estimate's recording and map, a sweep
-    file's paths): the inverse of :func:`utf8_text`, the name's UTF-8 bytes as this process's file
-    system calls take them. Under a locale that is not UTF-8 (``LC_ALL=C`` with ``PYTHONUTF8=0``, a
-    Latin-1 locale) Python spells the file ``café`` as ``caf\\udcc3\\udca9`` or ``cafÃ©``, and
-    ``café`` itself named no file."""
+    file's paths): the inverse of :func:`utf8_file_name`, the name's UTF-8 bytes as this process's
+    file system calls take them. Under a locale that is not UTF-8 (``LC_ALL=C`` with
+    ``PYTHONUTF8=0``, a Latin-1 locale) Python spells the file ``café`` as ``caf\\udcc3\\udca9`` or
+    ``cafÃ©``, and ``café`` itself named no file."""
     return Path(os.fsdecode(text.encode("utf-8", "surrogateescape")))
 
 

@@ -66,6 +66,50 @@ def test_a_non_ascii_name_read_from_a_file_is_found_under_a_c_locale(recording: 
     assert plan["tasks"] == 1 and plan["cannot_write"] is None
 
 
+def _latin_1_locale(folder: Path) -> dict[str, str]:
+    """The environment of a Latin-1 locale (made here by localedef: few machines have one)."""
+    made = folder / "locales"
+    made.mkdir()
+    try:
+        done = subprocess.run(
+            ["localedef", "-i", "en_US", "-f", "ISO-8859-1", str(made / "en_US.ISO-8859-1")],
+            capture_output=True,
+            timeout=60,
+        )
+    except FileNotFoundError:
+        pytest.skip("no localedef to make a Latin-1 locale")
+    if done.returncode != 0:
+        pytest.skip(f"localedef made no Latin-1 locale: {done.stderr.decode(errors='replace')}")
+    return {"LOCPATH": str(made), "LC_ALL": "en_US.ISO-8859-1", "LANG": "", "PYTHONUTF8": "0"}
+
+
+def test_an_estimate_made_under_a_latin_1_locale_names_its_recording_for_every_locale(
+    recording: Path, tmp_path: Path
+):
+    """Under a Latin-1 locale Python spells the file 'café.mcap' (UTF-8 bytes c3 a9) 'cafÃ©.mcap',
+    and the estimate stored those two letters as UTF-8: a name no file has. Since names read back
+    are taken as their UTF-8 bytes, report lost that recording even under the locale that made the
+    estimate (no ground truth), where it had found it. The name is stored as its bytes: 'café'."""
+    from aslam.data_formats.estimate import read_estimate
+
+    latin_1 = _latin_1_locale(tmp_path)
+    named = tmp_path / "café.mcap"
+    named.write_bytes(recording.read_bytes())
+    estimate = tmp_path / "e.mcap"
+
+    def aslam(locale: dict[str, str], *args: str) -> bytes:
+        done = subprocess.run(
+            [str(ASLAM), *args], capture_output=True, env={**os.environ, **locale}, timeout=120
+        )
+        assert done.returncode == 0, done.stderr
+        return done.stdout
+
+    aslam(latin_1, "estimate", str(named), "-o", str(estimate), "-q")
+    assert read_estimate(estimate).metadata.recording.path == str(named)
+    for locale in (latin_1, C_LOCALE, {}):
+        assert json.loads(aslam(locale, "report", str(estimate), "--json", "-", "-q"))["ground_truth"] is True
+
+
 def _on_a_terminal(argv: list[str], columns: int) -> str:
     """What ``argv`` shows on a terminal ``columns`` wide (a pseudo-terminal as stdout and stderr)."""
     import pty
