@@ -325,12 +325,14 @@ def check_input_file(path: Path, *, error: type[InputError], what: str) -> int:
     return st.st_size
 
 
-def utf8_text(text: str) -> str:
-    """``text`` as a UTF-8 file holds it (MCAP metadata, a Parquet or CSV column): a byte of a file
-    name in it that is not UTF-8 (``$'\\xff.mcap'``; Python holds it as a surrogate, ``\\udcff``,
-    which no UTF-8 writer takes) becomes U+FFFD, so the file is written. ``report`` then finds no
-    recording at that name and says so (``--recording`` names it)."""
-    return text.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+def utf8_text(text: str, *, undecodable: str = "replace") -> str:
+    """``text`` as a UTF-8 file holds it (MCAP metadata, a Parquet or CSV column, a JSON document):
+    the bytes of a file name that Python holds as surrogates (a C locale without UTF-8 mode spells
+    ``café`` ``caf\\udcc3\\udca9``) read as UTF-8. A byte that is not UTF-8 (``$'\\xff.mcap'``,
+    ``\\udcff`` to Python, which no UTF-8 writer takes) becomes U+FFFD, so the file is written;
+    ``report`` then finds no recording at that name and says so (``--recording`` names it).
+    ``undecodable="surrogateescape"`` keeps it ``\\udcff``, for JSON, which can spell it."""
+    return text.encode("utf-8", "surrogateescape").decode("utf-8", undecodable)
 
 
 def utf8_file_name(name: Path | str) -> str:

@@ -3,13 +3,16 @@
 
 No negative zero: ``-0.0`` (a heading of −0.0, a KITTI ``y_m = −t_x`` of 0) is a sign no measured
 value has, and it makes two runs that agree differ in their bytes and in a diff. File names as
-their bytes read as UTF-8, whatever the locale (:func:`_utf8_name`).
+their bytes read as UTF-8 under a UTF-8 or C locale (:func:`_utf8_name`); under a Latin-1 locale
+Python has read them as Latin-1 text, which no string here can be told from, and they stay so.
 """
 
 from __future__ import annotations
 
 import json
 from typing import Any
+
+from aslam.data_formats.files import utf8_text
 
 
 def json_text(document: Any, *, indent: int | None = None) -> str:
@@ -32,13 +35,13 @@ def _normalised(value: Any) -> Any:
 
 
 def _utf8_name(text: str) -> str:
-    """``text`` with the bytes of a file name Python could not decode read as UTF-8. Under a locale
-    that is not UTF-8 (``LC_ALL=C`` with ``PYTHONUTF8=0``) Python holds each byte of ``café`` above
-    127 as a surrogate, and the document said ``"caf\\udcc3\\udca9"`` where a UTF-8 locale's says
-    ``"caf\\u00e9"``; now both say the latter. A byte that is not UTF-8 stays ``\\udcff``."""
+    """``text`` with the bytes of a file name Python could not decode read as UTF-8
+    (:func:`~aslam.data_formats.files.utf8_text`), a byte that is not UTF-8 kept as ``\\udcff``:
+    under a C locale without UTF-8 mode the document said ``"caf\\udcc3\\udca9"`` where a UTF-8
+    locale's says ``"caf\\u00e9"``; now both say the latter."""
     if text.isascii():
         return text
     try:
-        return text.encode("utf-8", "surrogateescape").decode("utf-8", "surrogateescape")
+        return utf8_text(text, undecodable="surrogateescape")
     except UnicodeEncodeError:  # a surrogate no file name has: the text as it is
         return text

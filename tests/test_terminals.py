@@ -189,7 +189,7 @@ def test_config_sweep_and_route_files_from_a_windows_editor_are_read(
     )
 
 
-def test_json_documents_name_a_file_the_same_under_any_locale(recording: Path, tmp_path: Path):
+def test_json_documents_name_a_file_the_same_under_a_utf8_and_a_c_locale(recording: Path, tmp_path: Path):
     """Under a C locale without UTF-8 mode a name's bytes above 127 reached the JSON documents as
     surrogates, ``"caf\\udcc3\\udca9\\udcc3\\udc97.mcap"`` where a UTF-8 locale wrote
     ``"caf\\u00e9\\u00d7.mcap"``: the same command gave other bytes, and a JSON reader other than
