@@ -6,6 +6,7 @@ corrupt one is garbage bytes under a .mcap name.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import json
 import os
@@ -13,6 +14,7 @@ import shutil
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import psutil
@@ -1136,6 +1138,29 @@ def _scheduler(tmp_path: Path) -> tuple[subprocess.Popen, str]:
     return process, json.loads(scheduler_file.read_text())["address"]
 
 
+@contextlib.contextmanager
+def _dask_worker(address: str, *, pythonpath: Path | None = None) -> Iterator[None]:
+    """A real `dask worker` process of one worker joined to ``address`` while the block runs, its
+    aslam imported from ``pythonpath`` where one is given (another checkout's)."""
+    dask = Path(sys.executable).with_name("dask")
+    env = (
+        None
+        if pythonpath is None
+        else {**os.environ, "PYTHONPATH": str(pythonpath), "PYTHONDONTWRITEBYTECODE": "1"}
+    )
+    worker = subprocess.Popen(
+        [str(dask), "worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard"],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        yield
+    finally:
+        worker.terminate()
+        worker.wait(timeout=30)
+
+
 def test_a_cluster_that_cannot_run_the_tasks_is_one_line_not_a_wait_for_ever(
     recordings, tmp_path, capsys, monkeypatch
 ):
@@ -1156,13 +1181,7 @@ def test_a_cluster_that_cannot_run_the_tasks_is_one_line_not_a_wait_for_ever(
         assert code == 2, err
         assert f"the Dask cluster at {address} has no workers (waited 1 s)" in err
         assert not results.exists()
-        dask = Path(sys.executable).with_name("dask")
-        worker = subprocess.Popen(
-            [str(dask), "worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard"],
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-        try:
+        with _dask_worker(address):
             with Client(
                 address, timeout=30
             ) as client:  # the worker has joined (1 s is the sweep's patience here)
@@ -1171,9 +1190,6 @@ def test_a_cluster_that_cannot_run_the_tasks_is_one_line_not_a_wait_for_ever(
             assert main(["sweep", str(sweep_file), "-o", str(results), "--scheduler", address, "-q"]) == 2
             err = capsys.readouterr().err
             assert "runs aslam" in err and "this is aslam 0.0.0-another" in err and err.count("\n") == 1
-        finally:
-            worker.terminate()
-            worker.wait(timeout=30)
     finally:
         process.terminate()
         process.wait(timeout=30)
@@ -1199,21 +1215,11 @@ def test_a_worker_running_other_code_of_the_same_version_is_refused(recordings, 
     edited = _copy_of_this_aslam(tmp_path / "edited", edit="# a release\n")
     process, address = _scheduler(tmp_path)
     try:
-        dask = Path(sys.executable).with_name("dask")
-        worker = subprocess.Popen(
-            [str(dask), "worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard"],
-            env={**os.environ, "PYTHONPATH": str(edited), "PYTHONDONTWRITEBYTECODE": "1"},
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-        try:
+        with _dask_worker(address, pythonpath=edited):
             results = tmp_path / "results"
             code = main(
                 ["sweep", str(_write_sweep(recordings)), "-o", str(results), "--scheduler", address, "-q"]
             )
-        finally:
-            worker.terminate()
-            worker.wait(timeout=30)
     finally:
         process.terminate()
         process.wait(timeout=30)
