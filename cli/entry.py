@@ -105,9 +105,10 @@ def run() -> None:
     would add is unloading modules, whose native destructors (GTSAM's, OpenCV's) take 0.1 s, a
     tenth of an estimate's run. The exit functions libraries registered still run (well under a
     millisecond) where the command ran to its end: matplotlib's removes the cache folder it made in
-    TMPDIR when HOME is read-only, which every `report --plots` left behind. Not after a signal:
-    there Dask's would close a cluster that is being torn down (a sweep's SIGTERM took 1–2 s to
-    exit instead of 0.6–0.8).
+    TMPDIR when HOME is read-only, which every `report --plots` left behind. atexit runs them in
+    public only from the teardown skipped here; ``atexit._run_exitfuncs``, private but in every
+    CPython 3, runs the same list. Not after a signal: there Dask's would close a cluster that is
+    being torn down, and a sweep's SIGTERM took about a second longer to exit.
     """
     from aslam.cli.app import EXIT_CLOSED_PIPE, EXIT_HUNG_UP, EXIT_INTERRUPTED, EXIT_TERMINATED, main
 
