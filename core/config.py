@@ -326,7 +326,7 @@ class EstimatorConfig:
             value = getattr(self, name)
             if not bounds.holds(value):
                 problems.append(f"{name} must be {bounds.describe()}, got {value!r}")
-        for name, choices in CHOICES.items():
+        for name, choices in _choices().items():
             value = getattr(self, name)
             if value not in choices:
                 problems.append(f"{name} must be {' or '.join(map(repr, choices))}, got {value!r}")
@@ -382,14 +382,23 @@ class EstimatorConfig:
         return MotionNoise(fraction=self.odometry_noise, drift_rad_per_m=math.radians(self.drift_deg_per_m))
 
 
-#: Accepted values of every numeric parameter (shown in the option help and docs/usage.md).
 CHOICES: dict[str, tuple[str, ...]] = {
-    "observation_model": ("histogram", "thumbnail"),
     "keyframe_adaptive": ("on", "off"),
     "new_state_reference": ("online", "fixed"),
     "candidate_search": ("graph", "path"),
 }
-"""The text parameters and the values each may take."""
+"""The text parameters and the values each may take, but for ``observation_model``: its values are
+the names in ``aslam.core.observation.OBSERVATION_MODELS``, where each model is registered."""
+
+
+def _choices() -> dict[str, tuple[str, ...]]:
+    """``CHOICES`` with the registered observation models (imported on use: that module imports this one)."""
+    from aslam.core.observation import OBSERVATION_MODELS
+
+    return {"observation_model": tuple(OBSERVATION_MODELS), **CHOICES}
+
+
+#: Accepted values of every numeric parameter (shown in the option help and docs/usage.md).
 RANGES: dict[str, Bounds] = {
     "step_m": Bounds(1e-3, 100),
     "turn_deg": Bounds(1e-3, 360),

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
@@ -257,19 +258,40 @@ def random_projection(length: int) -> np.ndarray:
     return projection
 
 
+@dataclass(frozen=True)
+class ObservationModelChoice:
+    """One value of ``EstimatorConfig.observation_model``: its model, made from a configuration, and
+    the parameters that change the vectors ``describe`` makes (the others only weigh distances)."""
+
+    make: Callable[[EstimatorConfig], ObservationModel]
+    descriptor_parameters: tuple[str, ...] = ()
+
+
+OBSERVATION_MODELS: dict[str, ObservationModelChoice] = {
+    "histogram": ObservationModelChoice(
+        lambda config: HistogramModel(
+            config.histogram, config.beta, config.chi2_floor, config.new_state_chi2
+        ),
+        ("histogram_bins", "cells_x", "cells_y"),
+    ),
+    "thumbnail": ObservationModelChoice(lambda config: ThumbnailModel(beta=config.thumbnail_beta)),
+}
+"""Every observation model by its name: the one place a model is registered (the names
+``EstimatorConfig`` accepts, the model it makes, what a prior map's views must share)."""
+
+
 def descriptor_key(config: EstimatorConfig) -> str:
     """What decides the vector ``describe`` makes under ``config``, as the ``aslam estimate`` options
     that set it: views stored by one run can be compared by another only when these are equal (a
     prior map, ``estimate --map``)."""
-    if config.observation_model == "thumbnail":
-        return "--observation-model thumbnail"
-    h = config.histogram
-    cells = f"--cells-x {h.cells_x} --cells-y {h.cells_y}"
-    return f"--observation-model histogram --histogram-bins {h.bins} {cells}"
+    name = config.observation_model
+    options = [
+        f"--{parameter.replace('_', '-')} {getattr(config, parameter)}"
+        for parameter in OBSERVATION_MODELS[name].descriptor_parameters
+    ]
+    return " ".join([f"--observation-model {name}", *options])
 
 
 def observation_model(config: EstimatorConfig) -> ObservationModel:
     """The model ``config.observation_model`` names, with the configuration's parameters."""
-    if config.observation_model == "thumbnail":
-        return ThumbnailModel(beta=config.thumbnail_beta)
-    return HistogramModel(config.histogram, config.beta, config.chi2_floor, config.new_state_chi2)
+    return OBSERVATION_MODELS[config.observation_model].make(config)

@@ -8,12 +8,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from aslam.core.config import EstimatorConfig
+from aslam.core.errors import ConfigError
 from aslam.core.observation import (
     INDEX_FREQUENCIES,
     INDEX_PROJECTION,
+    OBSERVATION_MODELS,
     HistogramModel,
     ObservationModel,
+    ObservationModelChoice,
     ThumbnailModel,
+    descriptor_key,
     observation_model,
     random_projection,
 )
@@ -46,6 +50,23 @@ def test_config_chooses_the_model():
     assert isinstance(observation_model(EstimatorConfig()), ThumbnailModel)
     paper = observation_model(EstimatorConfig.paper_faithful())
     assert isinstance(paper, HistogramModel) and paper.histogram.cells_x == 1
+
+
+def test_a_model_registered_once_is_a_config_value_a_model_and_a_descriptor_of_its_own(monkeypatch):
+    """A model is one entry of OBSERVATION_MODELS. Until 2026-12-05 it was three edits (config's
+    CHOICES, and the if-chains of observation_model() and descriptor_key()), and the two chains fell
+    through to the histogram: a third model left out of them ran as the histogram under its own
+    name, or took the histogram's descriptor key, so a map of histogram views was taken for its own."""
+    coarse = ObservationModelChoice(lambda config: ThumbnailModel(width_px=8, height_px=6))
+    monkeypatch.setitem(OBSERVATION_MODELS, "coarse", coarse)
+    config = EstimatorConfig(observation_model="coarse")
+    assert observation_model(config) == ThumbnailModel(width_px=8, height_px=6)
+    assert descriptor_key(config) == "--observation-model coarse"
+    assert descriptor_key(EstimatorConfig(observation_model="histogram", cells_x=3)) == (
+        "--observation-model histogram --histogram-bins 16 --cells-x 3 --cells-y 1"
+    )
+    with pytest.raises(ConfigError, match="must be 'histogram' or 'thumbnail' or 'coarse', got 'fine'"):
+        EstimatorConfig(observation_model="fine")
 
 
 @settings(max_examples=20, deadline=None)

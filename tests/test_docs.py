@@ -95,3 +95,19 @@ def test_architecture_names_every_module_and_data_file():
     section = text[text.index("\n## Modules\n") : text.index("\n## From Python\n")]
     rows = set(re.findall(r"^\| `([^`]+)` \|", section, re.M))
     assert rows == files
+
+
+def test_every_observation_model_is_described_in_the_option_help_and_estimator_md():
+    """A model registered in OBSERVATION_MODELS and not described was accepted by
+    ``--observation-model`` while ``--help`` and usage.md's table named only the others."""
+    from aslam.core.config import EstimatorConfig
+    from aslam.core.observation import OBSERVATION_MODELS
+
+    help_text = next(text for name, _, _, text in EstimatorConfig.parameters() if name == "observation_model")
+    estimator_md = (DOCS / "estimator.md").read_text()
+    undescribed = [
+        name
+        for name in OBSERVATION_MODELS
+        if f"'{name}'" not in help_text or not re.search(rf"^### `{re.escape(name)}`", estimator_md, re.M)
+    ]
+    assert undescribed == []

@@ -361,6 +361,36 @@ def test_a_map_that_cannot_be_used_is_one_line_and_exit_2(sessions, tmp_path, ca
     assert not out.exists()
 
 
+def test_a_map_of_another_registered_model_is_refused_naming_both(sessions, tmp_path, capsys, monkeypatch):
+    """A model added to OBSERVATION_MODELS has a descriptor key of its own: a histogram map is refused
+    with exit 2 (a key that fell through to the histogram's took the map, then failed on the views'
+    lengths: internal error, exit 70)."""
+    from aslam.core.observation import OBSERVATION_MODELS, ObservationModelChoice, ThumbnailModel
+
+    coarse = ObservationModelChoice(lambda config: ThumbnailModel(width_px=8, height_px=6))
+    monkeypatch.setitem(OBSERVATION_MODELS, "coarse", coarse)
+    the_map = tmp_path / "histogram.est.mcap"
+    args = ["estimate", str(sessions["first"]), "-o", str(the_map), "-q", "--observation-model", "histogram"]
+    assert main(args) == 0
+    out = tmp_path / "out.est.mcap"
+    capsys.readouterr()
+    args = [
+        "estimate",
+        str(sessions["second"]),
+        "--map",
+        str(the_map),
+        "-o",
+        str(out),
+        "--observation-model",
+        "coarse",
+    ]
+    code = main(args)
+    line = one_error_line(capsys.readouterr().err)
+    assert code == 2 and not out.exists()
+    assert "made with --observation-model histogram --histogram-bins 16 --cells-x 2 --cells-y 1" in line
+    assert "this run's would be made with --observation-model coarse: give this run the map's options" in line
+
+
 def test_two_maps_are_one_line_and_exit_2_not_the_last_in_silence(sessions, tmp_path, capsys):
     """A run starts in one map; a second --map was taken and the first dropped without a word."""
     out = tmp_path / "out.est.mcap"
