@@ -111,3 +111,24 @@ def test_every_observation_model_is_described_in_the_option_help_and_estimator_m
         if f"'{name}'" not in help_text or not re.search(rf"^### `{re.escape(name)}`", estimator_md, re.M)
     ]
     assert undescribed == []
+
+
+def test_every_route_preset_is_in_the_route_help_and_recorder_md():
+    """A preset is one entry of ``recorder.routes.PRESETS``; ``record --route``'s help and
+    recorder.md's table of presets, written by hand, name each one."""
+    import typer
+
+    from aslam.cli.app import _register_commands, app
+    from aslam.recorder.routes import PRESETS
+
+    _register_commands()
+    record = typer.main.get_command(app).commands["record"]
+    route_help = next(parameter for parameter in record.params if parameter.name == "route").help or ""
+    recorder_md = (DOCS / "recorder.md").read_text()
+    undescribed = [
+        name
+        for name in PRESETS
+        if not re.search(rf"\b{re.escape(name)}\b", route_help)
+        or not re.search(rf"^\| `{re.escape(name)}` \|", recorder_md, re.M)
+    ]
+    assert undescribed == []

@@ -71,8 +71,8 @@ def test_paper_preset_is_a_30_m_rectangle_from_a_corner_that_closes():
     assert xy.min(axis=0) == pytest.approx([0, 0]) and xy.max(axis=0) == pytest.approx([10, 5])
 
 
-@pytest.mark.parametrize("name", ["figure8", "grid"])
-def test_other_presets_close(name):
+@pytest.mark.parametrize("name", routes.PRESETS)
+def test_every_preset_closes(name):
     route = routes.preset(name)
     assert route.is_closed
     assert len(route.repeated(2).actions) == 2 * len(route.actions)
@@ -162,7 +162,7 @@ def test_noise_is_deterministic_per_seed():
 # ------------------------------------------------------------------------------------------- world
 
 
-@pytest.mark.parametrize("name", ["paper", "figure8", "grid"])
+@pytest.mark.parametrize("name", routes.PRESETS)
 def test_every_pose_of_the_route_is_in_free_space(name):
     commanded = routes.preset(name).repeated(2).poses()
     world = generate_world(commanded, seed=0)
