@@ -199,6 +199,18 @@ COUNT_KEYS = frozenset(
     }
 )  # fmt: skip
 BOOLEAN_KEYS = frozenset({"ground_truth"})
+#: Figures better small besides the errors and delays: a step's cost and what could not be scored.
+LOWER_IS_BETTER = frozenset(
+    {"timing.slam_ms_per_keyframe", "trajectory.closures_outvoted", "loop_closure.unjudged_claims"}
+)
+
+
+def lower_is_better(key: str) -> bool:
+    """Errors (revisit errors, APE and RPE), delays, a step's cost, outvoted and unjudged claims are
+    better small; every other figure (precision, recall, speed, counts) large: ``--pareto``'s
+    direction."""
+    trajectory_error = key.startswith("trajectory.") and key.split(".")[1].endswith(("_m", "_deg"))
+    return key.startswith("error.") or trajectory_error or "delay" in key or key in LOWER_IS_BETTER
 
 
 def summary_keys() -> set[str]:

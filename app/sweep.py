@@ -1271,27 +1271,14 @@ class Objective:
     maximise: bool
 
 
-#: Figures better small besides the errors and delays: a step's cost and what could not be scored.
-LOWER_IS_BETTER = frozenset(
-    {"timing.slam_ms_per_keyframe", "trajectory.closures_outvoted", "loop_closure.unjudged_claims"}
-)
-
-
-def lower_is_better(key: str) -> bool:
-    """Errors (revisit errors, APE and RPE), delays, a step's cost, outvoted and unjudged claims are
-    better small; every other figure (precision, recall, speed, counts) large."""
-    trajectory_error = key.startswith("trajectory.") and key.split(".")[1].endswith(("_m", "_deg"))
-    return key.startswith("error.") or trajectory_error or "delay" in key or key in LOWER_IS_BETTER
-
-
-#: Where a tail shared by several summary keys resolves to (``precision`` → loop_closure.precision).
 def resolve_objectives(text: str) -> list[Objective]:
     """``precision,recall,-hypotheses.max`` → objectives; a name is a summary key or its tail
     (:func:`aslam.app.score.summary_key`).
 
-    ``+NAME``/``-NAME`` force maximising/minimising; otherwise :func:`lower_is_better` decides.
+    ``+NAME``/``-NAME`` force maximising/minimising; otherwise
+    :func:`aslam.app.score.lower_is_better` decides.
     """
-    from aslam.app.score import summary_key, summary_keys
+    from aslam.app.score import lower_is_better, summary_key, summary_keys
 
     known = summary_keys()
     objectives = []
