@@ -44,6 +44,7 @@ from aslam.data_formats.format_names import StampUnit
 from aslam.data_formats.images import ImageFormat, LazyImage, sniffed_format
 from aslam.data_formats.kitti_stamps import KittiStampsUnusable, kitti_stamp_file, read_kitti_stamps
 from aslam.data_formats.pose_files import (
+    LAYOUTS,
     SPACING_SAMPLE,
     PoseFileError,
     PoseFormat,
@@ -221,7 +222,7 @@ def _check_pose_file(
     if rows == 0:
         raise PoseFileError("has no pose lines", path=path)
     _judge_spacing(stamps, path, PoseFileError, warnings, "")
-    return PoseSource(path, fmt, rows, fmt is not PoseFormat.KITTI, last_line, first, unit)
+    return PoseSource(path, fmt, rows, LAYOUTS[fmt].stamped, last_line, first, unit)
 
 
 def _frame_numbers(images: list[Path]) -> bool:

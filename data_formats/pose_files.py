@@ -19,7 +19,7 @@ must be reported with its file and line number, and the rows are streamed.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from decimal import Decimal, InvalidOperation
 from pathlib import Path
@@ -35,9 +35,6 @@ from aslam.data_formats.pose_limits import implausible
 
 class PoseFileError(InputError):
     """A pose file that cannot be read; the message is ``PATH: line N: problem`` (exit 2)."""
-
-
-_FIELDS = {PoseFormat.TUM: 8, PoseFormat.KITTI: 12, PoseFormat.CSV: 4}
 
 
 class PoseRow(NamedTuple):
@@ -77,21 +74,19 @@ def _is_number(text: str) -> bool:
 
 
 def detect_format(path: Path) -> PoseFormat:
-    """The format of ``path`` from its first pose line (a CSV header line is skipped)."""
+    """The format of ``path`` from its first pose line (a header line of comma-separated names is skipped)."""
     path = Path(path)
     for number, text in _lines(path):
         fields = _split(text)
         if "," in text and not all(_is_number(f) for f in fields):
             continue  # a CSV header such as "t,x,y,yaw"
-        if "," in text and len(fields) == 4:
-            return PoseFormat.CSV
-        if "," not in text and len(fields) == 8:
-            return PoseFormat.TUM
-        if "," not in text and len(fields) == 12:
-            return PoseFormat.KITTI
+        for fmt, layout in LAYOUTS.items():
+            if layout.comma_separated == ("," in text) and layout.fields == len(fields):
+                return fmt
+        shapes = [layout.shape for layout in LAYOUTS.values()]
         raise PoseFileError(
-            f"line {number}: cannot tell the format from {len(fields)} fields; expected 8 numbers (TUM "
-            "'t x y z qx qy qz qw'), 12 (KITTI 3×4 rows) or 4 comma-separated (CSV 't,x,y,yaw')",
+            f"line {number}: cannot tell the format from {len(fields)} fields; expected "
+            f"{', '.join(shapes[:-1])} or {shapes[-1]}",
             path=path,
         )
     raise PoseFileError("has no pose lines", path=path)
@@ -191,16 +186,46 @@ def _stamp_ns(text: str, path: Path, number: int, unit: StampUnit | None) -> int
         raise PoseFileError(f"line {number}: {err}", path=path) from err
 
 
-def _planar(fmt: PoseFormat, values: list[float]) -> np.ndarray:
-    if fmt is PoseFormat.CSV:
-        _t, x, y, yaw = values
-        return np.array([x, y, math.remainder(yaw, 2 * math.pi)])
-    if fmt is PoseFormat.TUM:
-        _t, x, y, _z, qx, qy, qz, qw = values
-        return np.array([x, y, ros_msgs.yaw_of_quaternion(qx, qy, qz, qw)])
+def _csv_pose(values: list[float]) -> np.ndarray:
+    _t, x, y, yaw = values
+    return np.array([x, y, math.remainder(yaw, 2 * math.pi)])
+
+
+def _tum_pose(values: list[float]) -> np.ndarray:
+    _t, x, y, _z, qx, qy, qz, qw = values
+    if math.isclose(qx * qx + qy * qy + qz * qz + qw * qw, 0.0):
+        raise ValueError("the quaternion is zero")
+    return np.array([x, y, ros_msgs.yaw_of_quaternion(qx, qy, qz, qw)])
+
+
+def _kitti_pose(values: list[float]) -> np.ndarray:
     m = np.array(values).reshape(3, 4)
     # Camera axes (x right, y down, z forward) → ground plane (x forward, y left).
     return np.array([m[2, 3], -m[0, 3], math.atan2(-m[0, 2], m[2, 2])])
+
+
+@dataclass(frozen=True)
+class PoseLayout:
+    """How a pose-file format writes one pose per line."""
+
+    fields: int
+    comma_separated: bool
+    """Fields split at commas, a first line of names allowed (a header); else at whitespace."""
+    stamped: bool
+    """The first field is the stamp; an unstamped file has one line per image."""
+    planar: Callable[[list[float]], np.ndarray]
+    """The line's numbers → ``(x_m, y_m, yaw_rad)``; ValueError says why a line holds no pose."""
+    shape: str
+    """The line as the error of a file whose format cannot be told names it."""
+
+
+LAYOUTS: dict[PoseFormat, PoseLayout] = {
+    PoseFormat.TUM: PoseLayout(8, False, True, _tum_pose, "8 numbers (TUM 't x y z qx qy qz qw')"),
+    PoseFormat.KITTI: PoseLayout(12, False, False, _kitti_pose, "12 (KITTI 3×4 rows)"),
+    PoseFormat.CSV: PoseLayout(4, True, True, _csv_pose, "4 comma-separated (CSV 't,x,y,yaw')"),
+}
+"""Every pose-file format, the one place it is described (detection, splitting, stamps, the pose);
+its name is a ``PoseFormat`` (``aslam import --format``)."""
 
 
 def iter_poses(
@@ -217,19 +242,20 @@ def iter_poses(
 
 
 def _iter_poses(path: Path, fmt: PoseFormat, unit: StampUnit | None) -> Iterator[PoseRow]:
-    expected = _FIELDS[fmt]
+    layout = LAYOUTS[fmt]
     previous: int | None = None
     previous_pose: np.ndarray | None = None
     first = True
     for number, text in _lines(path):
-        fields = _split(text) if fmt is PoseFormat.CSV else text.split()
-        if first and fmt is PoseFormat.CSV and not all(_is_number(f) for f in fields):
+        fields = _split(text) if layout.comma_separated else text.split()
+        if first and layout.comma_separated and not all(_is_number(f) for f in fields):
             first = False
             continue  # the header line
         first = False
-        if len(fields) != expected:
+        if len(fields) != layout.fields:
             raise PoseFileError(
-                f"line {number}: {len(fields)} fields, a {fmt.value.upper()} line has {expected}", path=path
+                f"line {number}: {len(fields)} fields, a {fmt.value.upper()} line has {layout.fields}",
+                path=path,
             )
         try:
             values = [float(f) for f in fields]
@@ -239,16 +265,17 @@ def _iter_poses(path: Path, fmt: PoseFormat, unit: StampUnit | None) -> Iterator
         if not all(math.isfinite(v) for v in values):
             raise PoseFileError(f"line {number}: not finite (NaN or infinite)", path=path)
         stamp = None
-        if fmt is not PoseFormat.KITTI:
+        if layout.stamped:
             stamp = _stamp_ns(fields[0], path, number, unit)
             if previous is not None and stamp < previous:
                 raise PoseFileError(
                     f"line {number}: stamp {fields[0]} {unit or 's'} is before the previous line's", path=path
                 )
             previous = stamp
-        if fmt is PoseFormat.TUM and math.isclose(sum(v * v for v in values[4:]), 0.0):
-            raise PoseFileError(f"line {number}: the quaternion is zero", path=path)
-        pose = _planar(fmt, values)
+        try:
+            pose = layout.planar(values)
+        except ValueError as err:
+            raise PoseFileError(f"line {number}: {err}", path=path) from err
         problem = implausible(pose, previous_pose)  # as a recording's reader would refuse it
         if problem is not None:
             raise PoseFileError(f"line {number}: the pose {problem}", path=path)

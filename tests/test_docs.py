@@ -132,3 +132,20 @@ def test_every_route_preset_is_in_the_route_help_and_recorder_md():
         or not re.search(rf"^\| `{re.escape(name)}` \|", recorder_md, re.M)
     ]
     assert undescribed == []
+
+
+def test_every_pose_file_format_is_in_usage_md_and_real_data_md():
+    """A format is one ``PoseFormat`` and its ``pose_files.LAYOUTS`` entry; ``import --format``'s row in
+    usage.md and real-data.md's table of pose files, written by hand, name each one."""
+    from aslam.data_formats.format_names import PoseFormat
+
+    usage_row = re.search(r"^\| `--format ([^`]*)` \|", (DOCS / "usage.md").read_text(), re.M)
+    assert usage_row is not None
+    real_data = (DOCS / "real-data.md").read_text()
+    undescribed = [
+        fmt.value
+        for fmt in PoseFormat
+        if fmt.value not in usage_row[1].split("\\|")
+        or not re.search(rf"^  \| {fmt.value.upper()} \|", real_data, re.M)
+    ]
+    assert undescribed == []

@@ -19,6 +19,7 @@ from aslam.app.importer import import_image_folder
 from aslam.core.errors import InputError
 from aslam.data_formats.image_folder import START_STAMP_NS, SYNTHETIC_STEP_M, open_image_folder
 from aslam.data_formats.pose_files import (
+    LAYOUTS,
     NANOSECOND_STAMP_MIN,
     PoseFileError,
     PoseFormat,
@@ -394,8 +395,10 @@ def test_default_stamps_without_anything(tmp_path):
     assert {s.image.encoding for s in samples} == {"jpeg"}
 
 
-@pytest.mark.parametrize("fmt", ["tum", "kitti", "csv"])
+@pytest.mark.parametrize("fmt", PoseFormat)
 def test_one_pose_per_image_in_each_format(tmp_path, fmt):
+    """Every format ``--format`` offers (a line of each written here) is detected and read."""
+    assert fmt in LAYOUTS  # a PoseFormat without its layout was a KeyError, exit 70, on `--format`
     n = 6
     write_images(tmp_path / "imgs", n)
     stamps = [100.0 + 0.5 * i for i in range(n)]
@@ -406,6 +409,7 @@ def test_one_pose_per_image_in_each_format(tmp_path, fmt):
     }[fmt]
     truth = tmp_path / "truth.txt"
     truth.write_text("\n".join(line(i) for i in range(n)) + "\n")
+    assert detect_format(truth) == fmt
     folder = open_image_folder(tmp_path / "imgs", ground_truth=truth, rate_hz=2.0)
     samples = list(folder.samples())
     assert len(samples) == n
