@@ -24,7 +24,12 @@ from aslam.app.score import Report
 from aslam.core.metrics import Evaluation
 from aslam.core.se2 import dead_reckoning
 from aslam.data_formats.estimate import EstimateGraph
-from aslam.data_formats.files import make_output_folder, write_atomically
+from aslam.data_formats.files import (
+    check_output_folder,
+    check_output_path,
+    make_output_folder,
+    write_atomically,
+)
 from aslam.data_formats.graph_json import is_loop_closure_link
 
 DPI = 120
@@ -40,15 +45,23 @@ def _save(fig: Any, path: Path) -> None:
     write_atomically(path, write)
 
 
-def write_plots(folder: Path, report: Report, on_warning: Callable[[str], None] | None = None) -> list[Path]:
-    """Write the figures into ``folder`` (created if missing); returns their paths. ``on_warning``
-    hears of a figure left out (the trajectory of an estimate without keyframes).
+def write_plots(
+    folder: Path, report: Report, *, force: bool = False, on_warning: Callable[[str], None] | None = None
+) -> list[Path]:
+    """Write the figures into ``folder`` (created if missing); returns their paths. Every figure's
+    path is checked before any is drawn: one that exists is refused unless ``force``, as
+    ``export_trajectories`` refuses its files. ``on_warning`` hears of a figure left out (the
+    trajectory of an estimate without keyframes).
 
     Drawn with matplotlib's default style, not the settings of a matplotlibrc (the user's, or one in
     the current folder, which matplotlib also reads): the same report gives the same bytes anywhere.
     """
     import matplotlib.style
 
+    check_output_folder(folder, what="plots folder")
+    if folder.is_dir():
+        for name in PLOT_NAMES:
+            check_output_path(folder / name, force=force)
     title = report.estimate_path.name
     make_output_folder(folder)
     paths = [folder / name for name in PLOT_NAMES[:4]]

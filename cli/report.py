@@ -153,7 +153,7 @@ def report(
     if plots is not None:
         from aslam.app.plots import write_plots
 
-        written += write_plots(plots, result, on_warning=terminal.warning)
+        written += write_plots(plots, result, force=force, on_warning=terminal.warning)
     if json_out is not None:
         written += _write_json(json_out, result.summary, indent=2)
     for path in written:

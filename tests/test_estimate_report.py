@@ -19,6 +19,7 @@ from mcap.reader import make_reader
 from aslam.app.gates import parse_condition
 from aslam.app.plots import PLOT_NAMES
 from aslam.cli.app import main
+from aslam.core.errors import InputError
 from aslam.core.estimator import Estimator, MapLink, MapState
 from aslam.data_formats.estimate import (
     ESTIMATE_METADATA,
@@ -577,6 +578,26 @@ def test_plots_leave_a_notebooks_matplotlib_as_it_was(estimate_file: Path, tmp_p
         matplotlib.use(before)
     assert [path.name for path in written] == list(PLOT_NAMES)
     assert all(path.read_bytes().startswith(b"\x89PNG") for path in written)
+
+
+def test_plots_from_python_refuse_an_existing_figure_before_drawing_any(estimate_file: Path, tmp_path: Path):
+    """``write_plots`` replaced every figure of a folder without a word, while ``export_trajectories``
+    and the other ``aslam.app`` functions refuse an existing output unless ``force``
+    (architecture.md, "From Python")."""
+    from aslam.app.plots import write_plots
+    from aslam.app.score import score
+
+    report = score(estimate_file)
+    folder = tmp_path / "plots"
+    folder.mkdir()
+    (folder / "pr.png").write_bytes(b"mine")
+    with pytest.raises(InputError, match=r"pr\.png: already exists; refusing to overwrite it"):
+        write_plots(folder, report)
+    assert [path.name for path in folder.iterdir()] == ["pr.png"]  # nothing drawn before the refusal
+    assert (folder / "pr.png").read_bytes() == b"mine"
+    written = write_plots(folder, report, force=True)
+    assert [path.name for path in written] == list(PLOT_NAMES)
+    assert (folder / "pr.png").read_bytes().startswith(b"\x89PNG")
 
 
 def test_report_trajectory_files_score_the_same_with_evo_ape(estimate_file: Path, tmp_path: Path, capsys):
