@@ -1,17 +1,17 @@
 """The streaming estimate pipeline behind :func:`aslam.app.estimate.estimate` and the benchmarks.
 
-The floor of an estimate is reading the recording, decoding the keyframe images and computing
-their histograms. The pipeline keeps the SLAM step off that critical path:
+The floor of an estimate is reading the recording, decoding the keyframe images and describing
+them (the observation model's ``describe``). The pipeline keeps the SLAM step off that critical path:
 
 * a producer iterates the samples (MCAP read, CDR decode) and runs the keyframe test, which
   needs odometry only, so non-keyframe images are never decoded — except on a dense stream
   (``keyframe_window_m`` > 0), where every frame a few centimetres from the last is described
   and the keyframes are taken next to the map (:func:`keyframes_taken`);
-* those images go to a small thread pool that decodes them and computes the histogram
+* those images go to a small thread pool that decodes and describes them
   (OpenCV and numpy release the GIL);
 * the futures wait in a bounded FIFO, so memory stays bounded and order is kept;
 * where the platform can fork, the producer runs in a child process and sends the keyframes or
-  frames (stamp, pose or action, histogram: a few hundred bytes each) through a pipe, so the SLAM step, which
+  frames (stamp, pose or action, view: a few hundred bytes each) through a pipe, so the SLAM step, which
   holds the GIL, runs on the other core instead of stalling the decoders.
 """
 
@@ -46,14 +46,14 @@ class Frame(NamedTuple):
 
     stamp_ns: int
     odometry_pose: np.ndarray
-    histogram: np.ndarray
+    view: np.ndarray
 
 
 class Keyframe(NamedTuple):
     stamp_ns: int
     action: np.ndarray
     """Odometry since the previous keyframe."""
-    histogram: np.ndarray
+    view: np.ndarray
 
 
 @dataclass
@@ -160,8 +160,8 @@ def keyframes_taken(
         taken = frame
         if len(options) > 1:
             actions = [se2.between(previous.odometry_pose, o.odometry_pose) for o in options]
-            histograms = [o.histogram for o in options]
-            taken = options[estimator.choose_keyframe(actions, histograms, sparse=sparse)]
+            views = [o.view for o in options]
+            taken = options[estimator.choose_keyframe(actions, views, sparse=sparse)]
         if taken is not frame:
             keyframer.anchor(taken.odometry_pose)
         later = [f for f in (*before, frame, *after) if f.stamp_ns > taken.stamp_ns]
@@ -171,7 +171,7 @@ def keyframes_taken(
         previous = taken
 
 
-def _histogram(image: LazyImage, model: ObservationModel) -> np.ndarray:
+def _describe(image: LazyImage, model: ObservationModel) -> np.ndarray:
     return model.describe(image.decode_gray())
 
 
@@ -181,19 +181,19 @@ def _described(
     workers: int,
     depth: int,
 ) -> Iterator[tuple[Sample, Any, np.ndarray]]:
-    """``(sample, tag, histogram)`` for each ``(sample, tag)``, in order, computed ``workers`` at a
+    """``(sample, tag, view)`` for each ``(sample, tag)``, in order, computed ``workers`` at a
     time with at most ``depth`` waiting. Stopping early (an exception, KeyboardInterrupt, the
     consumer closing the generator) cancels the queued work and joins the pool. ``workers=0``
-    computes each histogram in the calling thread: a sweep runs one task per core, and a second
+    describes each image in the calling thread: a sweep runs one task per core, and a second
     thread per task there only adds hand-offs."""
     pending: deque[tuple[Sample, Any, Future[np.ndarray]]] = deque()
-    pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="aslam-histogram") if workers else None
+    pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="aslam-describe") if workers else None
     try:
         for sample, tag in items:
             if pool is not None:
-                future = pool.submit(_histogram, sample.image, model)
+                future = pool.submit(_describe, sample.image, model)
             else:
-                future = _computed(_histogram, sample.image, model)
+                future = _computed(_describe, sample.image, model)
             pending.append((sample, tag, future))
             while pending and (len(pending) >= depth or pending[0][2].done()):
                 first, first_tag, done = pending.popleft()
@@ -208,16 +208,16 @@ def _described(
             pool.shutdown(wait=True, cancel_futures=True)
 
 
-def keyframe_histograms(
+def keyframe_views(
     samples: Iterable[Sample],
     keyframer: Keyframer,
-    histogram: ObservationModel,
+    model: ObservationModel,
     *,
     counts: PipelineCounts | None = None,
     workers: int = DEFAULT_WORKERS,
     depth: int = DEFAULT_DEPTH,
 ) -> Iterator[Keyframe]:
-    """The keyframes of ``samples`` with their histograms, in order (only keyframes are decoded).
+    """The keyframes of ``samples`` with their views, in order (only keyframes are decoded).
 
     ``keyframer`` decides from each sample's odometry pose.
     """
@@ -229,23 +229,23 @@ def keyframe_histograms(
             yield sample
 
     keyframes = keyframer.keyframes(counted(), lambda sample: sample.odometry_pose)
-    for sample, action, vector in _described(keyframes, histogram, workers, depth):
+    for sample, action, vector in _described(keyframes, model, workers, depth):
         yield Keyframe(sample.stamp_ns, action, vector)
 
 
-def frame_histograms(
+def frame_views(
     samples: Iterable[Sample],
-    histogram: ObservationModel,
+    model: ObservationModel,
     window_m: float,
     *,
     counts: PipelineCounts | None = None,
     workers: int = DEFAULT_WORKERS,
     depth: int = DEFAULT_DEPTH,
 ) -> Iterator[Frame]:
-    """Every frame of a dense stream worth describing (:func:`dense_samples`), with its histogram."""
+    """Every frame of a dense stream worth describing (:func:`dense_samples`), with its view."""
     counts = counts if counts is not None else PipelineCounts()
     items = ((sample, None) for sample in dense_samples(samples, window_m, counts))
-    for sample, _, vector in _described(items, histogram, workers, depth):
+    for sample, _, vector in _described(items, model, workers, depth):
         yield Frame(sample.stamp_ns, np.asarray(sample.odometry_pose, dtype=float), vector)
 
 
@@ -380,7 +380,7 @@ class EstimateSteps:
         try:
             for frame, action in taken:
                 start = time.perf_counter()
-                step = estimator.add_keyframe(frame.stamp_ns, action, frame.histogram)
+                step = estimator.add_keyframe(frame.stamp_ns, action, frame.view)
                 counts.slam_s += time.perf_counter() - start
                 counts.keyframes += 1
                 yield step
@@ -416,10 +416,10 @@ def run_estimate(
 
     def produce(reader_counts: PipelineCounts) -> Iterator[Keyframe] | Iterator[Frame]:
         if window_m > 0:
-            return frame_histograms(
+            return frame_views(
                 samples, describe, window_m, counts=reader_counts, workers=workers, depth=depth
             )
-        return keyframe_histograms(
+        return keyframe_views(
             samples, estimator.keyframer, describe, counts=reader_counts, workers=workers, depth=depth
         )
 

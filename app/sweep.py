@@ -351,7 +351,7 @@ def run_task(task: Task, rendered: Rendered | None = None) -> TaskResult:
     """Estimate and score one task, in this process; every failure becomes the result's error.
 
     The pipeline runs in this thread (``reader_process=False``, ``workers=0``): one task per core
-    is the sweep's parallelism, and a reader process or a histogram thread per task would only add
+    is the sweep's parallelism, and a reader process or a describing thread per task would only add
     hand-offs between two busy cores (a Dask worker, daemonic, reads in its own process either way:
     :func:`aslam.app.pipeline.can_fork`).
     """

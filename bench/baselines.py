@@ -10,7 +10,7 @@
   one recording (:func:`tune_threshold`) and then used unchanged everywhere.
 
 The keyframes are those of the estimator's own keyframe test (same ``Keyframer``), read with the
-same pipeline as ``aslam estimate`` (:func:`aslam.app.pipeline.keyframe_histograms`), and the
+same pipeline as ``aslam estimate`` (:func:`aslam.app.pipeline.keyframe_views`), and the
 ground truth is matched to keyframe stamps as ``aslam report`` does (``truth_at_stamps``).
 """
 
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aslam.app.pipeline import keyframe_histograms
+from aslam.app.pipeline import keyframe_views
 from aslam.app.score import truth_at_stamps
 from aslam.core import se2
 from aslam.core.config import EstimatorConfig
@@ -59,11 +59,11 @@ def read_keyframes(
     model = model if model is not None else HistogramModel(config.histogram)
     keyframer = make_keyframer(config)
     stamps, actions, histograms = [], [], []
-    with closing(keyframe_histograms(Recording(recording).samples(), keyframer, model)) as keyframes:
+    with closing(keyframe_views(Recording(recording).samples(), keyframer, model)) as keyframes:
         for keyframe in keyframes:
             stamps.append(keyframe.stamp_ns)
             actions.append(np.asarray(keyframe.action, float))
-            histograms.append(keyframe.histogram)
+            histograms.append(keyframe.view)
     with closing(Recording(recording).ground_truth()) as truth:
         true_poses = truth_at_stamps(stamps, truth)
     return Keyframes(stamps, np.array(actions).reshape(-1, 3), np.array(histograms), true_poses)

@@ -202,7 +202,7 @@ _FIXED: dict[str, tuple[Any, Any]] = {
         False,
     ),
     "workers": (
-        Annotated[int, typer.Option(help="Histogram threads (0: decode in the main thread).")],
+        Annotated[int, typer.Option(help="Threads decoding and describing images (0: in the main thread).")],
         2,
     ),
     "quiet": (QuietOption, False),

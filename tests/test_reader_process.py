@@ -79,14 +79,14 @@ def test_close_after_some_steps_stops_the_reader(long):
     closed_unfinished(steps)
 
 
-def histogram_threads() -> list[str]:
-    return [t.name for t in threading.enumerate() if t.name.startswith("aslam-histogram")]
+def describing_threads() -> list[str]:
+    return [t.name for t in threading.enumerate() if t.name.startswith("aslam-describe")]
 
 
 @pytest.mark.parametrize("reader_process", [True, False])
 def test_leaving_the_loop_of_steps_early_stops_the_reader(long, reader_process):
     """A notebook's ``for step in steps: ... break`` (or ``iter(steps).close()``) never calls
-    ``steps.close()``: the reader (a child blocked on its full pipe, or the histogram threads in
+    ``steps.close()``: the reader (a child blocked on its full pipe, or the describing threads in
     this process) must stop when the loop is left, not when ``steps`` is collected."""
     steps = run_estimate(
         Recording(long).samples(), Estimator(EstimatorConfig()), reader_process=reader_process
@@ -95,7 +95,7 @@ def test_leaving_the_loop_of_steps_early_stops_the_reader(long, reader_process):
         if step.keyframe == 2:
             break
     assert readers() == []
-    assert histogram_threads() == []
+    assert describing_threads() == []
     del steps
 
 
