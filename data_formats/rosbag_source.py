@@ -29,7 +29,6 @@ from aslam.data_formats import ros_msgs
 from aslam.data_formats.camera import CameraIntrinsics
 from aslam.data_formats.errors import BagError
 from aslam.data_formats.files import check_input_file, source_files
-from aslam.data_formats.image_folder import holds_frames
 from aslam.data_formats.mcap_file import McapFile
 from aslam.data_formats.pose_limits import implausible
 from aslam.data_formats.pose_sync import Sample, SampleAssembler
@@ -79,6 +78,10 @@ def classify(
     if path.is_dir():
         if (path / "metadata.yaml").is_file():
             return SourceKind.ROSBAG2, None
+        # Imported here: the image folder's reader (pose files, KITTI stamps, decimal) is no part of
+        # an estimate's start-up from a recording (about 5 ms before the reader process starts).
+        from aslam.data_formats.image_folder import holds_frames
+
         if holds_frames(path):
             return SourceKind.IMAGE_FOLDER, None
         raise BagError("is a folder with neither a rosbag2 metadata.yaml nor png/jpg images", path=path)
