@@ -234,6 +234,24 @@ def _stamp(path: Path, what: str, topic: str, msg: Any, log_time: int) -> int:
     return stamp_ns
 
 
+def _next_pose(
+    path: Path,
+    kind: str,
+    topic: str,
+    datatype: str,
+    msg: Any,
+    log_time: int,
+    last_ns: int | None,
+    last_pose: np.ndarray | None,
+) -> tuple[int, np.ndarray]:
+    """The stamp and planar pose of one odometry or ground-truth message, refused when its stamp goes
+    back (``last_ns``, ``last_pose``: the topic's message before)."""
+    stamp_ns = _stamp(path, kind, topic, msg, log_time)
+    if last_ns is not None and stamp_ns < last_ns:
+        raise _backwards(path, kind, topic, stamp_ns, last_ns)
+    return stamp_ns, _pose(path, kind, topic, datatype, msg, stamp_ns, last_pose)
+
+
 def _backwards(path: Path, what: str, topic: str, stamp_ns: int, previous_ns: int) -> BagError:
     return BagError(backwards(what, topic, stamp_ns, previous_ns), path=path)
 
@@ -384,12 +402,10 @@ def _bag_samples(path: Path, reader: Any, topics: BagTopics, warn: Callable[[str
             assembler.log_time_images += _set_header_stamp_ns(msg) is None
             yield from assembler.add_image(stamp_ns, _lazy_image(path, topic, datatype, msg, stamp_ns))
         elif topic == resolved.odometry:
-            stamp_ns = _stamp(path, "odometry", topic, msg, log_time)
-            if last_odometry_ns is not None and stamp_ns < last_odometry_ns:
-                raise _backwards(path, "odometry", topic, stamp_ns, last_odometry_ns)
-            last_odometry_ns = stamp_ns
-            last_odometry = _pose(path, "odometry", topic, datatype, msg, stamp_ns, last_odometry)
-            yield from assembler.add_odometry(stamp_ns, last_odometry)
+            last_odometry_ns, last_odometry = _next_pose(
+                path, "odometry", topic, datatype, msg, log_time, last_odometry_ns, last_odometry
+            )
+            yield from assembler.add_odometry(last_odometry_ns, last_odometry)
         elif topic == resolved.tf and tf is not None:
             for stamp_ns, pose in tf.poses(msg, log_time):
                 if stamp_ns < 0:
@@ -404,12 +420,10 @@ def _bag_samples(path: Path, reader: Any, topics: BagTopics, warn: Callable[[str
                 last_odometry_ns, last_odometry = stamp_ns, pose
                 yield from assembler.add_odometry(stamp_ns, pose)
         else:
-            stamp_ns = _stamp(path, "ground-truth", topic, msg, log_time)
-            if last_truth_ns is not None and stamp_ns < last_truth_ns:
-                raise _backwards(path, "ground-truth", topic, stamp_ns, last_truth_ns)
-            last_truth_ns = stamp_ns
-            last_truth = _pose(path, "ground-truth", topic, datatype, msg, stamp_ns, last_truth)
-            yield from assembler.add_ground_truth(stamp_ns, last_truth)
+            last_truth_ns, last_truth = _next_pose(
+                path, "ground-truth", topic, datatype, msg, log_time, last_truth_ns, last_truth
+            )
+            yield from assembler.add_ground_truth(last_truth_ns, last_truth)
     if tf is not None and last_odometry_ns is None:
         pairs = ", ".join(f"{p} → {c}" for p, c in sorted(tf.pairs_seen)) or "none"
         raise BagError(
