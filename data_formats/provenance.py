@@ -14,6 +14,8 @@ VERSION = "0.1.0"
 #: The subpackages whose code decides a render's bytes and an estimate's and a score's figures (the
 #: CLI's texts decide none).
 RESULT_PACKAGES = ("app", "core", "data_formats", "recorder")
+#: A module's source, or its bytecode where an install ships that alone (``__pycache__`` is not read).
+MODULE_SUFFIXES = (".py", ".pyc")
 
 
 def tool_version() -> str:
@@ -30,11 +32,16 @@ def code_version() -> str:
 
 @functools.cache
 def _source_sha256() -> str:
-    """SHA-256 of every ``.py`` file of ``RESULT_PACKAGES``, by name and bytes (a few ms, once)."""
+    """SHA-256 of every module file of ``RESULT_PACKAGES``, by name and bytes (a few ms, once): the
+    ``.py`` sources, and the ``.pyc`` files of an install without them (``compileall -b``, the
+    sources removed), which had no ``.py`` to hash and so shared one version whatever their code.
+    Such an install's version changes at each compilation (the bytecode holds the source's time and
+    path): a sweep folder's results are computed again, never taken from other code."""
     root = Path(__file__).resolve().parent.parent
     digest = hashlib.sha256()
     for package in RESULT_PACKAGES:
-        for source in sorted((root / package).glob("*.py")):
+        modules = (path for path in (root / package).iterdir() if path.suffix in MODULE_SUFFIXES)
+        for source in sorted(modules):
             data = source.read_bytes()
             digest.update(f"{package}/{source.name}\0{len(data)}\0".encode())
             digest.update(data)

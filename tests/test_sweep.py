@@ -7,6 +7,7 @@ corrupt one is garbage bytes under a .mcap name.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import itertools
 import json
 import os
@@ -585,6 +586,34 @@ def test_results_of_other_code_under_the_same_version_are_never_reused(recording
     assert all(new[0] != old[0] for new, old in zip(edited, here, strict=True))
     assert edited[2][1] != here[2][1]  # the render too: another recorder may render other bytes
     assert [path for _, path in edited[:2]] == [path for _, path in here[:2]]
+
+
+def _sourceless(pythonpath: Path) -> Path:
+    """The copy at ``pythonpath`` as an install that ships bytecode alone: ``compileall -b`` puts
+    each module's .pyc beside it, then the .py files go."""
+    subprocess.run([sys.executable, "-m", "compileall", "-q", "-b", str(pythonpath)], check=True)
+    for source in pythonpath.rglob("*.py"):
+        source.unlink()
+    return pythonpath
+
+
+def _code_version_of(pythonpath: Path) -> str:
+    script = "from aslam.data_formats.provenance import code_version\nprint(code_version())\n"
+    env = {**os.environ, "PYTHONPATH": str(pythonpath), "PYTHONDONTWRITEBYTECODE": "1"}
+    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, check=True)
+    return done.stdout.strip()
+
+
+def test_an_install_of_bytecode_alone_has_a_code_version_of_its_own_code(tmp_path):
+    """An install without sources (``compileall -b``, the .py removed) hashed no file at all: every
+    such install was 0.1.0+src.e3b0c44298fc, the SHA-256 of nothing, so an upgraded one took a sweep
+    folder's old results for its own and a cluster worker of other code passed the check."""
+    old = _sourceless(_copy_of_this_aslam(tmp_path / "old"))
+    new = _sourceless(_copy_of_this_aslam(tmp_path / "new", edit="# a release\n"))
+    assert not list(old.rglob("*.py"))
+    versions = {_code_version_of(old), _code_version_of(new)}
+    assert len(versions) == 2, versions
+    assert not any(version.endswith(hashlib.sha256(b"").hexdigest()[:12]) for version in versions)
 
 
 def test_sweep_file_problems_are_one_line_exit_2_naming_the_file(tmp_path, capsys):
