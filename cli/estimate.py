@@ -98,27 +98,34 @@ def _one_map(maps: list[Path] | None) -> Path | None:
     return maps[0]
 
 
+def progress_columns() -> tuple[Any, ...]:
+    """The progress line's columns: "estimate ━━━━━━━━ 51234/100000 images · 20345 kf · 3 hyp ·
+    230 kf/s 0:03:40", 75 columns. Where the line is wider than the window, the bar gives way
+    before any figure: rich shrank the widest column it may wrap first, the image count's, so at
+    a million images (1000000/1000000, 50 hypotheses) an 80-column terminal read "1000000/1000…"."""
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn
+    from rich.table import Column
+
+    return (
+        TextColumn("estimate"),
+        BarColumn(bar_width=8),
+        MofNCompleteColumn(table_column=Column(no_wrap=True)),
+        TextColumn("images · {task.fields[keyframes]} kf · {task.fields[hypotheses]} hyp"),
+        TextColumn("· {task.fields[rate]:.0f} kf/s"),
+        TimeElapsedColumn(table_column=Column(no_wrap=True)),
+    )
+
+
 def _progress_bar(terminal: Terminal) -> tuple[AbstractContextManager[Any], Callable[..., None] | None]:
     """The live bar and its update callback; none in logs, pipes or with --quiet, where rich's
     progress module is not even imported (20 ms of the start-up, before the reader starts)."""
     if not terminal.shows_progress:
         return contextlib.nullcontext(), None
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.progress import Progress
 
     from aslam.app.estimate import EstimateProgress
 
-    # Short enough for an 80-column terminal at a million images (rich cut "115/181 images" to
-    # "115…" and the elapsed time to "0:0…" there): "estimate ━━━━━━━━ 51234/100000 images ·
-    # 20345 kf · 3 hyp · 230 kf/s 0:03:40" is 75 columns.
-    progress = Progress(
-        TextColumn("estimate"),
-        BarColumn(bar_width=8),
-        MofNCompleteColumn(),
-        TextColumn("images · {task.fields[keyframes]} kf · {task.fields[hypotheses]} hyp"),
-        TextColumn("· {task.fields[rate]:.0f} kf/s"),
-        TimeElapsedColumn(),
-        console=terminal.console,
-    )
+    progress = Progress(*progress_columns(), console=terminal.console)
     task = progress.add_task("estimate", total=None, keyframes=0, hypotheses=0, rate=0.0)
 
     def on_progress(p: EstimateProgress) -> None:

@@ -157,6 +157,26 @@ def test_the_estimate_progress_line_fits_an_80_column_terminal(recording: Path, 
     assert re.search(r" \d+/\d+ images · \d+ kf · \d+ hyp · \d+ kf/s \d+:\d\d:\d\d", progress[-1])
 
 
+@pytest.mark.parametrize("images", [181, 100_000, 1_000_000, 10_000_000])
+def test_the_estimate_progress_line_keeps_its_figures_at_millions_of_images(images: int):
+    """The line fitted 80 columns at 100,000 images; at a million, every image a keyframe and 50
+    hypotheses (the default bound), rich shrank the image count first: "1000000/1000… images"."""
+    import io
+
+    from rich.console import Console
+    from rich.progress import Progress
+
+    from aslam.cli.estimate import progress_columns
+
+    console = Console(width=80, file=io.StringIO(), force_terminal=True, color_system=None)
+    progress = Progress(*progress_columns(), console=console)
+    progress.add_task("estimate", total=images, completed=images, keyframes=images, hypotheses=50, rate=1234)
+    console.print(progress.get_renderable())
+    line = console.file.getvalue().rstrip("\n")
+    assert "…" not in line
+    assert f" {images}/{images} images · {images} kf · 50 hyp · 1234 kf/s 0:00:00" in line
+
+
 WINDOWS_TEXT = {"bom": "\ufeff{}", "crlf": "{}", "bom+crlf": "\ufeff{}"}
 """How a Windows editor saves a file: a UTF-8 byte-order mark first, CRLF line ends, or both."""
 
