@@ -36,11 +36,19 @@ def _source_sha256() -> str:
     ``.py`` sources, and the ``.pyc`` files of an install without them (``compileall -b``, the
     sources removed), which had no ``.py`` to hash and so shared one version whatever their code.
     Such an install's version changes at each compilation (the bytecode holds the source's time and
-    path): a sweep folder's results are computed again, never taken from other code."""
+    path): a sweep folder's results are computed again, never taken from other code.
+
+    Only a name Python imports counts: Emacs's lock of a file being edited, ``.#estimator.py``, a
+    link to nothing, stopped every sweep ("No such file or directory", exit 2), and macOS's
+    ``._estimator.py`` beside a module copied from its disks changed the version."""
     root = Path(__file__).resolve().parent.parent
     digest = hashlib.sha256()
     for package in RESULT_PACKAGES:
-        modules = (path for path in (root / package).iterdir() if path.suffix in MODULE_SUFFIXES)
+        modules = (
+            path
+            for path in (root / package).iterdir()
+            if path.suffix in MODULE_SUFFIXES and path.stem.isidentifier()
+        )
         for source in sorted(modules):
             data = source.read_bytes()
             digest.update(f"{package}/{source.name}\0{len(data)}\0".encode())

@@ -616,6 +616,18 @@ def test_an_install_of_bytecode_alone_has_a_code_version_of_its_own_code(tmp_pat
     assert not any(version.endswith(hashlib.sha256(b"").hexdigest()[:12]) for version in versions)
 
 
+def test_the_code_version_reads_modules_alone_not_an_editors_lock_beside_them(tmp_path):
+    """Emacs locks a file being edited with a link to nothing, ``.#estimator.py``: the code version
+    read it as a module and every sweep stopped ("No such file or directory", exit 2) until the
+    file was saved; macOS's ``._estimator.py`` (its metadata beside a file copied from its disks)
+    made the same code another version."""
+    plain = _copy_of_this_aslam(tmp_path / "plain")
+    edited = _copy_of_this_aslam(tmp_path / "edited")
+    (edited / "aslam" / "core" / ".#estimator.py").symlink_to("someone@host.1234:1733400000")
+    (edited / "aslam" / "recorder" / "._render.py").write_bytes(b"\x00\x05\x16\x07 AppleDouble")
+    assert _code_version_of(edited) == _code_version_of(plain)
+
+
 def test_sweep_file_problems_are_one_line_exit_2_naming_the_file(tmp_path, capsys):
     bad = tmp_path / "bad.toml"
     bad.write_text(
