@@ -49,6 +49,11 @@ def sessions(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     return out
 
 
+def _estimate(recording: Path, output: Path, *options: str) -> None:
+    """``aslam estimate RECORDING -o OUTPUT -q OPTIONS…``, which must succeed."""
+    assert main(["estimate", str(recording), "-o", str(output), "-q", *options]) == 0
+
+
 def report_json(estimate: Path, *extra: str, capsys: pytest.CaptureFixture[str]) -> dict:
     capsys.readouterr()
     assert main(["report", str(estimate), "--json", "-", "-q", *extra]) == 0
@@ -194,15 +199,7 @@ def mixed(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
         assert main(["estimate", str(files[name]), "-o", str(files[f"{name}.est"]), "-q"]) == 0
     for run, the_map in (("bag", "recording"), ("recording", "bag")):
         files[f"{run} in {the_map}"] = out = folder / f"{run}_in_{the_map}.est.mcap"
-        args = [
-            "estimate",
-            str(files[f"second {run}"]),
-            "--map",
-            str(files[f"{the_map}.est"]),
-            "-o",
-            str(out),
-        ]
-        assert main([*args, "-q"]) == 0
+        _estimate(files[f"second {run}"], out, "--map", str(files[f"{the_map}.est"]))
     return files
 
 
@@ -234,16 +231,7 @@ def test_a_truth_topic_no_session_has_is_an_error(mixed, chain, words, tmp_path,
     run = "second bag" if chain == "bag in recording" else "second recording"
     if chain == "recording in bag":  # its map estimated with its truth topic: no warning about it
         the_map = tmp_path / "bag.est.mcap"
-        args = [
-            "estimate",
-            str(mixed["bag"]),
-            "-o",
-            str(the_map),
-            "-q",
-            "--ground-truth-topic",
-            "/ground_truth",
-        ]
-        assert main(args) == 0
+        _estimate(mixed["bag"], the_map, "--ground-truth-topic", "/ground_truth")
         estimate = tmp_path / "run.est.mcap"
         assert main(["estimate", str(mixed[run]), "--map", str(the_map), "-o", str(estimate), "-q"]) == 0
     capsys.readouterr()
@@ -342,16 +330,7 @@ def test_a_map_that_cannot_be_used_is_one_line_and_exit_2(sessions, tmp_path, ca
             writer.finish(estimator.result(), metadata, None, None, views)
     else:
         the_map = tmp_path / "histogram.est.mcap"
-        args = [
-            "estimate",
-            str(sessions["first"]),
-            "-o",
-            str(the_map),
-            "-q",
-            "--observation-model",
-            "histogram",
-        ]
-        assert main(args) == 0
+        _estimate(sessions["first"], the_map, "--observation-model", "histogram")
     out = tmp_path / "out.est.mcap"
     capsys.readouterr()
     code = main(["estimate", str(sessions["second"]), "--map", str(the_map), "-o", str(out)])
@@ -370,8 +349,7 @@ def test_a_map_of_another_registered_model_is_refused_naming_both(sessions, tmp_
     coarse = ObservationModelChoice(lambda config: ThumbnailModel(width_px=8, height_px=6))
     monkeypatch.setitem(OBSERVATION_MODELS, "coarse", coarse)
     the_map = tmp_path / "histogram.est.mcap"
-    args = ["estimate", str(sessions["first"]), "-o", str(the_map), "-q", "--observation-model", "histogram"]
-    assert main(args) == 0
+    _estimate(sessions["first"], the_map, "--observation-model", "histogram")
     out = tmp_path / "out.est.mcap"
     capsys.readouterr()
     args = [
