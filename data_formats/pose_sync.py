@@ -127,6 +127,7 @@ class SampleAssembler:
     # images whose header stamp was unset, stamped with their log time by the reader
     log_time_images: int = 0
     yielded: int = 0
+    first_image_ns: int | None = None
     last_image_ns: int | None = None
     _pending: deque[_Pending] = field(default_factory=deque)
 
@@ -144,6 +145,8 @@ class SampleAssembler:
                     path=self.path,
                 )
             return
+        if self.first_image_ns is None:
+            self.first_image_ns = stamp_ns
         self.last_image_ns = stamp_ns
         item = _Pending(stamp_ns, image)
         self._resolve(item)
@@ -226,6 +229,35 @@ class SampleAssembler:
                 self.counts.after_last += 1
                 continue
             yield self._sample(item)
+
+    def unpaired(self, images: str, odometry: str) -> str | None:
+        """Why no image was paired, where the images and the odometry never meet: no odometry
+        message at all, or every image stamped before the first or after the last one (two clocks: a
+        camera's never set counts from 1970, a driver's own from its start, a stamp in the wrong unit
+        is far off). The reader refuses with it: an estimate of nothing would hide the cause behind a
+        warning. None when an image was paired, none was read, or images were lost otherwise (late,
+        in gaps: the warnings say so). ``images`` and ``odometry`` name the two streams."""
+        c = self.counts
+        if self.yielded or self.first_image_ns is None or self.last_image_ns is None or c.late or c.gap:
+            return None
+        first, last = self.odometry.first_ns, self.odometry.last_ns
+        if first is None or last is None:
+            return (
+                f"{self.images} image(s) on {images} and no odometry message on {odometry} to pair them with"
+            )
+        a, b = self.first_image_ns, self.last_image_ns
+        off_s, side = ((first - b) / 1e9, "before") if b < first else ((a - last) / 1e9, "after")
+        unset = (
+            f" ({self.log_time_images} image(s) had no header stamp and took their log time)"
+            if self.log_time_images
+            else ""
+        )
+        return (
+            f"no image on {images} is stamped within the odometry on {odometry}: the images from {a} to "
+            f"{b} ns{unset}, the odometry from {first} to {last} ns, {off_s:,.3f} s {side} it: the two "
+            "clocks differ (a clock never set counts from 1970, a driver's own from its start; or stamps "
+            "in another unit)"
+        )
 
     def warnings(self) -> list[str]:
         c, first, last = self.counts, self.odometry.first_ns, self.odometry.last_ns

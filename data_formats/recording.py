@@ -368,6 +368,9 @@ class Recording:
                 f"{path}: truncated at byte {cut.at_byte} of {cut.size}; read {assembler.yielded} images, "
                 "the rest is lost"
             )
+        problem = assembler.unpaired(f"'{topics.image}'", f"'{topics.odometry}'")
+        if problem is not None:
+            raise RecordingError(problem, path=path)
         for line in assembler.warnings():
             warn(line)
 

@@ -433,6 +433,12 @@ def _bag_samples(path: Path, reader: Any, topics: BagTopics, warn: Callable[[str
             path=path,
         )
     yield from assembler.finish()
+    odometry = (
+        f"'{resolved.odometry}'" if tf is None else f"'{resolved.tf}' ({tf.odom_frame} → {tf.base_frame})"
+    )
+    problem = assembler.unpaired(f"'{resolved.image}'", odometry)
+    if problem is not None:
+        raise BagError(problem, path=path)
     for line in assembler.warnings():
         warn(line)
 

@@ -668,9 +668,9 @@ def test_report_of_one_keyframe_writes_a_trajectory_of_one_pose(tmp_path: Path, 
 
 
 def test_report_of_no_keyframes_writes_the_rest_and_says_what_it_left_out(tmp_path: Path, capsys):
-    """An estimate of no keyframes (every image before the odometry) is an empty result, not bad
-    input: no trajectory files and no trajectory figure, each with a warning, the rest written,
-    exit 0 (it was exit 2, the summary and graph unwritten)."""
+    """An estimate of no keyframes (every image logged too late for the odometry kept, 30 s after
+    its stamp) is an empty result, not bad input: no trajectory files and no trajectory figure, each
+    with a warning, the rest written, exit 0 (it was exit 2, the summary and graph unwritten)."""
     from conftest import FRAME_NS, T0_NS, ForeignRecording, random_frames
 
     from aslam.data_formats.images import encode_image
@@ -678,10 +678,12 @@ def test_report_of_no_keyframes_writes_the_rest_and_says_what_it_left_out(tmp_pa
     png = encode_image(random_frames(1)[0][1]).data
     recording = tmp_path / "late.mcap"
     with ForeignRecording(recording) as rec:
+        for k in range(300):
+            rec.odometry("/odom", T0_NS + k * FRAME_NS, 0.01 * k, 0.0, 0.0)
         for k in range(3):
-            rec.compressed_image("/camera/image/compressed", T0_NS + k * FRAME_NS, png, "png")
-        for k in range(3):
-            rec.odometry("/odom", T0_NS + (10 + k) * FRAME_NS, float(k), 0.0, 0.0)
+            rec.compressed_image(
+                "/camera/image/compressed", T0_NS + k * FRAME_NS, png, "png", T0_NS + 300 * FRAME_NS
+            )
     estimate = tmp_path / "late.est.mcap"
     assert main(["estimate", str(recording), "-o", str(estimate), "-q"]) == 0
     run, plots = tmp_path / "run.tum", tmp_path / "plots"

@@ -119,6 +119,16 @@ def odometry_stamps_backwards(path: Path) -> None:
             rec.odometry("/odom", T0_NS + stamp_k * FRAME_NS, float(k), 0.0, 0.0, log_time=log)
 
 
+def images_stamped_from_1970(path: Path) -> None:
+    """A camera whose clock was never set (its stamps count from 1970), the odometry's right."""
+    with ForeignRecording(path) as rec:
+        for k in range(4):
+            rec.compressed_image(
+                "/camera/image/compressed", (k + 1) * FRAME_NS, PNG, "png", log_time=T0_NS + k
+            )
+            rec.odometry("/odom", T0_NS + k * FRAME_NS, float(k), 0.0, 0.0)
+
+
 def undecodable_cdr(path: Path) -> None:
     with path.open("wb") as f:
         writer = McapWriter(f)
@@ -159,6 +169,14 @@ BAD_FILES = {
         ["not finite", f"stamp {T0_NS + 2 * FRAME_NS} ns"],
     ),
     "odometry stamps backwards": (odometry_stamps_backwards, ["odometry stamps go backwards"]),
+    "images on another clock": (  # was exit 0: an estimate of nothing, the images dropped with a warning
+        images_stamped_from_1970,
+        [
+            "no image on '/camera/image/compressed' is stamped within the odometry on '/odom'",
+            f"the images from {FRAME_NS} to {4 * FRAME_NS} ns",
+            f"the odometry from {T0_NS} to {T0_NS + 3 * FRAME_NS} ns",
+        ],
+    ),
     "undecodable CDR": (undecodable_cdr, ["undecodable CDR message on '/camera/image/compressed'"]),
     "wrong image type": (wrong_image_type, ["has type 'nav_msgs/msg/Odometry'"]),
 }

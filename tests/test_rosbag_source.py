@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import shutil
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -277,16 +278,25 @@ def write_rosbag2(
     return path
 
 
-def write_rosbag1(path: Path, options: Options = Options()) -> Path:
+def write_rosbag1(
+    path: Path,
+    options: Options = Options(),
+    *,
+    edit: Callable[[list[tuple[int, str, str, Any]]], None] | None = None,
+) -> Path:
+    """A ROS 1 bag of ``bag_messages``, changed in place by ``edit`` (its rows, in log-time order)."""
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     ts = get_typestore(Stores.ROS1_NOETIC)
     # rosbags' Noetic store has no tf2_msgs; the definition is ROS's own.
     ts.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage"))
+    rows = bag_messages(ts, options)
+    if edit is not None:
+        edit(rows)
     with Writer(path) as writer:
         connections: dict[str, Any] = {}
-        for log, topic, msgtype, msg in bag_messages(ts, options):
+        for log, topic, msgtype, msg in rows:
             if topic not in connections:
                 connections[topic] = writer.add_connection(topic, msgtype, typestore=ts)
             writer.write(connections[topic], log, ts.serialize_ros1(msg, msgtype))
@@ -787,27 +797,103 @@ def test_unset_header_stamps_fall_back_to_the_log_time(tmp_path):
     assert [s.stamp_ns for s in samples] == [stamp + IMAGE_LATENCY_NS for stamp in image_stamps()]
 
 
-def test_unset_image_stamps_on_another_clock_than_the_odometry_say_so(tmp_path):
+def _unset_image_stamps_logged_on(rows: list[tuple[int, str, str, Any]], clock_ns: int) -> None:
+    """Images with unset stamps, logged on another clock (``clock_ns`` later) than the odometry's."""
+    for k, (log, topic, msgtype, msg) in enumerate(rows):
+        if topic == IMAGE_TOPIC:
+            msg.header.stamp.sec, msg.header.stamp.nanosec = 0, 0
+            rows[k] = (log + clock_ns, topic, msgtype, msg)
+    rows.sort(key=lambda row: row[0])
+
+
+def test_unset_image_stamps_on_another_clock_than_the_odometry_are_refused(tmp_path):
     """Images with unset stamps logged on the wall clock, odometry stamped in a simulator's time:
-    every image falls after the odometry, and the warning says which clock they took."""
+    no image falls within the odometry. Refused (it was an estimate of nothing, exit 0, behind a
+    warning), the error saying which clock the images took."""
     from rosbags.typesys import Stores, get_typestore
 
     rows = bag_messages(get_typestore(Stores.ROS2_HUMBLE))
-    wall = 1_700_000_000_000_000_000
-    moved = []
-    for log, topic, msgtype, msg in rows:
-        if topic == IMAGE_TOPIC:
-            msg.header.stamp.sec, msg.header.stamp.nanosec = 0, 0
-            log += wall
-        moved.append((log, topic, msgtype, msg))
-    path = write_rosbag2(tmp_path / "bag", messages=sorted(moved, key=lambda row: row[0]))
+    _unset_image_stamps_logged_on(rows, 1_700_000_000_000_000_000)
+    path = write_rosbag2(tmp_path / "bag", messages=rows)
+    with pytest.raises(
+        BagError, match=rf"\({N_IMAGES} image\(s\) had no header stamp and took their log time\)"
+    ):
+        list(iter_bag_samples(path))
+
+
+def test_unset_image_stamps_partly_outside_the_odometry_say_which_clock_they_took(tmp_path):
+    """Logged 0.3 s late on the odometry's clock, the last images fall after the last odometry
+    message: they are dropped, and the warning says the images took their log time."""
+    from rosbags.typesys import Stores, get_typestore
+
+    rows = bag_messages(get_typestore(Stores.ROS2_HUMBLE))
+    _unset_image_stamps_logged_on(rows, 300_000_000)
+    path = write_rosbag2(tmp_path / "bag", messages=rows)
     warnings: list[str] = []
-    assert list(iter_bag_samples(path, on_warning=warnings.append)) == []
+    samples = list(iter_bag_samples(path, on_warning=warnings.append))
+    assert 0 < len(samples) < N_IMAGES
     assert any("stamped after the last odometry message" in w for w in warnings)
     assert warnings[-1] == (
         f"{path}: {N_IMAGES} image(s) had no header stamp and took their log time, which may be another "
         "clock than the odometry's (a simulator's, say)"
     )
+
+
+def _stamped_from_1970(rows: list[tuple[int, str, str, Any]]) -> None:
+    """A camera whose clock was never set: its stamps count from 1970 (here, 100 s from its start)."""
+    for _log, topic, _type, msg in rows:
+        if topic == IMAGE_TOPIC:
+            msg.header.stamp.sec -= T0_NS // 1_000_000_000 - 100
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+def test_images_on_another_clock_than_the_odometry_are_refused_naming_both(tmp_path, ros):
+    """Every image stamped outside the odometry (a camera clock never set, a driver's own clock, a
+    stamp in nanoseconds taken for microseconds) is one error naming the topics and the stamps; it
+    was an estimate of no keyframe, exit 0, with a warning that 12 images were dropped."""
+    if ros == 1:
+        path = write_rosbag1(tmp_path / "driver.bag", edit=_stamped_from_1970)
+    else:
+        from rosbags.typesys import Stores, get_typestore
+
+        rows = bag_messages(get_typestore(Stores.ROS2_HUMBLE))
+        _stamped_from_1970(rows)
+        path = write_rosbag2(tmp_path / "bag", messages=rows)
+    first, last = (stamp - T0_NS + 100_000_000_000 for stamp in (image_stamps()[0], image_stamps()[-1]))
+    with pytest.raises(BagError) as caught:
+        list(iter_bag_samples(path))
+    assert str(caught.value) == (
+        f"{path}: no image on '{IMAGE_TOPIC}' is stamped within the odometry on '/odom': the images from "
+        f"{first} to {last} ns, the odometry from {odometry_stamps()[0]} to {odometry_stamps()[-1]} ns, "
+        f"{(odometry_stamps()[0] - last) / 1e9:,.3f} s before it: the two clocks differ (a clock never set "
+        "counts from 1970, a driver's own from its start; or stamps in another unit)"
+    )
+
+
+def test_images_on_another_clock_than_the_tf_odometry_are_refused(tmp_path):
+    path = write_rosbag1(tmp_path / "driver.bag", Options(odometry="tf"), edit=_stamped_from_1970)
+    with pytest.raises(BagError, match=r"within the odometry on '/tf' \(odom → base_footprint\): the images"):
+        list(iter_bag_samples(path))
+
+
+def test_an_odometry_topic_without_messages_is_refused(tmp_path):
+    """rosbag2 lists a topic it subscribed to even when nothing was published on it."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    path = tmp_path / "bag"
+    with Writer(path, version=9) as writer:
+        writer.add_connection("/odom", "nav_msgs/msg/Odometry", typestore=ts)
+        images = writer.add_connection(IMAGE_TOPIC, "sensor_msgs/msg/Image", typestore=ts)
+        for i, stamp in enumerate(image_stamps()):
+            msg = raw_image_msg(ts, stamp, bgr_image(i))
+            writer.write(images, stamp, ts.serialize_cdr(msg, "sensor_msgs/msg/Image"))
+    with pytest.raises(
+        BagError,
+        match=rf"^{path}: {N_IMAGES} image\(s\) on '{IMAGE_TOPIC}' and no odometry message on '/odom'",
+    ):
+        list(iter_bag_samples(path))
 
 
 def test_ground_truth_stream(bags):
