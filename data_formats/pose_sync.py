@@ -130,6 +130,10 @@ class SampleAssembler:
     first_image_ns: int | None = None
     last_image_ns: int | None = None
     _pending: deque[_Pending] = field(default_factory=deque)
+    # Images let go past max_pending while odometry had stopped: in a gap if odometry comes back past
+    # the last of them, else after the last odometry message (known only then, or at the end).
+    _let_go_waiting: int = 0
+    _let_go_last_ns: int = 0
 
     def add_image(self, stamp_ns: int, image: LazyImage) -> Iterator[Sample]:
         self.images += 1
@@ -156,6 +160,9 @@ class SampleAssembler:
 
     def add_odometry(self, stamp_ns: int, pose: np.ndarray) -> Iterator[Sample]:
         self.odometry.add(stamp_ns, pose)
+        if self._let_go_waiting and stamp_ns >= self._let_go_last_ns:
+            self.counts.gap += self._let_go_waiting
+            self._let_go_waiting = 0
         for item in self._pending:
             if item.odometry is None and not item.dropped:
                 self._resolve(item)
@@ -201,7 +208,8 @@ class SampleAssembler:
                     if self.odometry.last_ns is None:
                         self.counts.before_first += 1
                     else:
-                        self.counts.gap += 1
+                        self._let_go_waiting += 1
+                        self._let_go_last_ns = head.stamp_ns
                     pending.popleft()
                     continue
                 head.ground_truth_done = True
@@ -221,6 +229,8 @@ class SampleAssembler:
         return Sample(item.stamp_ns, item.image, item.odometry, item.ground_truth)
 
     def finish(self) -> Iterator[Sample]:
+        self.counts.after_last += self._let_go_waiting
+        self._let_go_waiting = 0
         while self._pending:
             item = self._pending.popleft()
             if item.dropped:
