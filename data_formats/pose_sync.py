@@ -33,6 +33,10 @@ POSE_HISTORY_MAX = 65_536
 # Images stamped before an image logged earlier are dropped one by one (frames logged swapped);
 # once at least this many are, and more than a quarter of the images so far, the stamps are refused.
 OUT_OF_ORDER_MIN = 3
+# Images interpolated between two odometry messages further apart than this are counted and said
+# (a dropout, a driver stopped): across it the pose is a straight line, whatever the robot did. Twice
+# the period of a 1 Hz odometry, so that slow odometry is not a gap.
+ODOMETRY_GAP_WARNED_NS = 2_000_000_000
 # Ground truth is interpolated between two messages at most this far apart; inside a longer gap
 # (a motion-capture dropout) it is unknown. Odometry is interpolated across any gap: the run needs it.
 TRUTH_MAX_GAP_NS = 1_000_000_000
@@ -90,6 +94,13 @@ class PoseTrack:
             return _GAP
         return se2.interpolate(self._poses[j], self._poses[j + 1], (stamp_ns - t0) / (t1 - t0))
 
+    def span_around(self, stamp_ns: int) -> tuple[int, int]:
+        """The stamps of the two poses a ``lookup`` of ``stamp_ns`` found interpolated between (both
+        the pose's own when one is at it)."""
+        stamps = self._stamps
+        j = bisect_right(stamps, stamp_ns) - 1
+        return (stamps[j], stamps[j]) if stamps[j] == stamp_ns else (stamps[j], stamps[j + 1])
+
 
 @dataclass(eq=False)
 class _Pending:
@@ -109,6 +120,8 @@ class _Counts:
     gap: int = 0
     after_last: int = 0
     no_ground_truth: int = 0
+    in_odometry_gap: int = 0  # paired across a gap of more than ODOMETRY_GAP_WARNED_NS
+    longest_odometry_gap: tuple[int, int] = (0, 0)  # (from, to) ns: the longest of those gaps
 
 
 @dataclass
@@ -187,6 +200,7 @@ class SampleAssembler:
                 return
             if not isinstance(found, str):
                 item.odometry = found
+                self._count_gap(item.stamp_ns)
         if self.expect_ground_truth and not item.ground_truth_done:
             found = self.ground_truth.lookup(item.stamp_ns, TRUTH_MAX_GAP_NS)
             if found is _BEFORE or found is _LATE or found is _GAP:
@@ -194,6 +208,14 @@ class SampleAssembler:
             elif not isinstance(found, str):
                 item.ground_truth = found
                 item.ground_truth_done = True
+
+    def _count_gap(self, stamp_ns: int) -> None:
+        before, after = self.odometry.span_around(stamp_ns)
+        if after - before > ODOMETRY_GAP_WARNED_NS:
+            c = self.counts
+            c.in_odometry_gap += 1
+            if after - before > c.longest_odometry_gap[1] - c.longest_odometry_gap[0]:
+                c.longest_odometry_gap = (before, after)
 
     def _drain(self) -> Iterator[Sample]:
         pending = self._pending
@@ -296,6 +318,13 @@ class SampleAssembler:
             out.append(
                 f"{self.path}: {self.log_time_images} image(s) had no header stamp and took their log time,"
                 " which may be another clock than the odometry's (a simulator's, say)"
+            )
+        if c.in_odometry_gap:
+            before, after = c.longest_odometry_gap
+            out.append(
+                f"{self.path}: {c.in_odometry_gap} image(s) between odometry messages more than "
+                f"{ODOMETRY_GAP_WARNED_NS / 1e9:g} s apart, their poses a straight line across the gap "
+                f"(the longest {(after - before) / 1e9:.3f} s, from {before} to {after} ns)"
             )
         if c.no_ground_truth:
             out.append(

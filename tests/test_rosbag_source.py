@@ -929,19 +929,26 @@ def test_a_focal_length_too_short_for_a_field_of_view_is_no_camera(tmp_path):
     assert describe_bag(_damaged(tmp_path, "/camera/color/camera_info", tiny)).camera is None
 
 
-def _camera_at_60_hz(tmp_path: Path, seconds: float, odometry_at: Callable[[int], bool]) -> Path:
-    """Raw images at 60 Hz for ``seconds`` and odometry at 50 Hz where ``odometry_at(stamp)``."""
+def _camera_bag(
+    tmp_path: Path, seconds: float, camera_hz: int, odometry_at: Callable[[int], bool], odometry_hz: int = 50
+) -> Path:
+    """Raw images at ``camera_hz`` for ``seconds``, odometry at ``odometry_hz`` (from 7 ms before the
+    first image to after the last) where ``odometry_at(stamp)``."""
     from rosbags.typesys import Stores, get_typestore
 
     ts = get_typestore(Stores.ROS2_HUMBLE)
     frame = np.zeros((HEIGHT, WIDTH, 3), np.uint8)
     rows = [
         (stamp + IMAGE_LATENCY_NS, IMAGE_TOPIC, "sensor_msgs/msg/Image", raw_image_msg(ts, stamp, frame))
-        for stamp in (T0_NS + i * 1_000_000_000 // 60 for i in range(round(seconds * 60)))
+        for stamp in (T0_NS + i * 1_000_000_000 // camera_hz for i in range(round(seconds * camera_hz)))
     ]
     rows += [
         (stamp + 1_000_000, "/odom", "nav_msgs/msg/Odometry", odometry_msg(ts, stamp, odometry_pose(stamp)))
-        for stamp in range(T0_NS - 7_000_000, T0_NS + int(seconds * 1e9) + 20_000_000, 20_000_000)
+        for stamp in range(
+            T0_NS - 7_000_000,
+            T0_NS + int(seconds * 1e9) + 1_000_000_000 // odometry_hz,
+            1_000_000_000 // odometry_hz,
+        )
         if odometry_at(stamp)
     ]
     return write_rosbag2(tmp_path / "bag", messages=sorted(rows, key=lambda row: row[0]))
@@ -951,7 +958,7 @@ def test_images_at_60_hz_after_odometry_that_ended_early_are_counted_after_it(tm
     """Odometry stops 11 s before a 60 Hz camera: 660 images wait for it, more than the 512 held.
     Every one is after the last odometry message; the first 148 let go were said to be "in odometry
     gaps" (a gap the odometry never closed)."""
-    path = _camera_at_60_hz(tmp_path, 14.0, lambda stamp: stamp < T0_NS + 3_000_000_000)
+    path = _camera_bag(tmp_path, 14.0, 60, lambda stamp: stamp < T0_NS + 3_000_000_000)
     warnings: list[str] = []
     assert len(list(iter_bag_samples(path, on_warning=warnings.append))) == 180
     last = T0_NS + 2_993_000_000
@@ -965,7 +972,30 @@ def test_images_at_60_hz_in_a_long_odometry_gap_are_counted_in_it(tmp_path):
     wait for it (the one at 12 s is logged after): the 88 beyond the 512 held are let go, counted as
     in a gap once the odometry comes back (as before the images after the last odometry message
     were told apart)."""
-    path = _camera_at_60_hz(tmp_path, 14.0, lambda stamp: not T0_NS + 2e9 < stamp < T0_NS + 12e9)
+    path = _camera_bag(tmp_path, 14.0, 60, lambda stamp: not T0_NS + 2e9 < stamp < T0_NS + 12e9)
     warnings: list[str] = []
     assert len(list(iter_bag_samples(path, on_warning=warnings.append))) == 840 - 88
-    assert warnings == [f"{path}: dropped 88 image(s) in odometry gaps longer than 512 images"]
+    assert warnings == [
+        f"{path}: dropped 88 image(s) in odometry gaps longer than 512 images",
+        f"{path}: 513 image(s) between odometry messages more than 2 s apart, their poses a straight line "
+        f"across the gap (the longest 10.020 s, from {T0_NS + 1_993_000_000} to {T0_NS + 12_013_000_000} ns)",
+    ]
+
+
+def test_images_paired_across_a_gap_in_the_odometry_are_said(tmp_path):
+    """Odometry silent for 3 s (a dropout): the 31 images in it are paired with a straight line
+    across it, and a warning says so (nothing was said)."""
+    path = _camera_bag(tmp_path, 8.0, 10, lambda stamp: not T0_NS + 2e9 < stamp < T0_NS + 5e9)
+    warnings: list[str] = []
+    assert len(list(iter_bag_samples(path, on_warning=warnings.append))) == 80
+    assert warnings == [
+        f"{path}: 31 image(s) between odometry messages more than 2 s apart, their poses a straight line "
+        f"across the gap (the longest 3.020 s, from {T0_NS + 1_993_000_000} to {T0_NS + 5_013_000_000} ns)"
+    ]
+
+
+def test_odometry_at_1_hz_is_no_gap(tmp_path):
+    path = _camera_bag(tmp_path, 5.0, 10, lambda stamp: True, odometry_hz=1)
+    warnings: list[str] = []
+    assert len(list(iter_bag_samples(path, on_warning=warnings.append))) == 50
+    assert warnings == []
