@@ -115,6 +115,7 @@ class _Pending:
 @dataclass
 class _Counts:
     before_first: int = 0
+    repeated: int = 0
     out_of_order: int = 0
     late: int = 0
     gap: int = 0
@@ -150,6 +151,11 @@ class SampleAssembler:
 
     def add_image(self, stamp_ns: int, image: LazyImage) -> Iterator[Sample]:
         self.images += 1
+        if stamp_ns == self.last_image_ns:
+            # A frame logged twice (a driver or a recorder repeating it): one camera has one view at
+            # an instant, and a copy would be paired, counted and estimated as another frame.
+            self.counts.repeated += 1
+            return
         if self.last_image_ns is not None and stamp_ns < self.last_image_ns:
             # A driver's threads may log two frames swapped: the later-logged, earlier-stamped one
             # is let go (and counted) rather than the whole recording refused. A clock that jumps
@@ -299,6 +305,7 @@ class SampleAssembler:
                 "image(s) stamped before the first odometry message"
                 + (f" (at {first} ns)" if first is not None else ""),
             ),
+            (c.repeated, "image(s) stamped the same as the image before (a frame logged twice)"),
             (c.out_of_order, "image(s) stamped before an image logged earlier (out of order)"),
             (
                 c.late,

@@ -67,7 +67,8 @@ def test_every_image_gets_the_poses_at_its_stamp_or_is_counted_dropped(odometry,
     """Each image in stamp order is a sample with the odometry at its stamp (a message's own pose at
     its stamp, interpolated between two otherwise) and the truth likewise, unknown outside the truth
     or across a gap of more than ``TRUTH_MAX_GAP_NS``; or it is dropped before the first or after
-    the last odometry message. Every image is counted once: a sample or a reason."""
+    the last odometry message, or as a repeat of the image before (the same stamp). Every image is
+    counted once: a sample or a reason."""
     known = [s for s, _ in odometry + truth]
     span = (min(known, default=0) - GAP, max(known, default=0) + GAP)
     anywhere = st.integers(*span)
@@ -94,8 +95,9 @@ def test_every_image_gets_the_poses_at_its_stamp_or_is_counted_dropped(odometry,
             samples += assembler.add_image(stamp, LazyImage(b"", "png", path=PATH))
     samples += assembler.finish()
 
+    unique = sorted(set(stamps))
     expected = []
-    for stamp in stamps:
+    for stamp in unique:
         odometry_pose = expected_pose(odometry, stamp, None)
         if odometry_pose is not None:
             expected.append(
@@ -109,8 +111,10 @@ def test_every_image_gets_the_poses_at_its_stamp_or_is_counted_dropped(odometry,
             assert np.array_equal(sample.ground_truth_pose, truth_pose)
     counts = assembler.counts
     first, last = (odometry[0][0], odometry[-1][0]) if odometry else (None, None)
-    assert counts.before_first == sum(first is not None and s < first for s in stamps)
-    assert counts.after_last == sum(first is None or s > last for s in stamps)
+    assert counts.before_first == sum(first is not None and s < first for s in unique)
+    assert counts.after_last == sum(first is None or s > last for s in unique)
+    assert counts.repeated == len(stamps) - len(unique)
     assert counts.out_of_order == counts.late == counts.gap == 0
-    assert len(samples) + counts.before_first + counts.after_last == len(stamps) == assembler.images
+    assert len(samples) + counts.before_first + counts.after_last + counts.repeated == len(stamps)
+    assert len(stamps) == assembler.images
     assert counts.no_ground_truth == sum(s.ground_truth_pose is None for s in samples) * expect_truth

@@ -229,6 +229,26 @@ def test_raw_images_with_odometry_at_three_times_the_camera_rate(tmp_path, encod
             assert np.array_equal(sample.image.decode_gray(), cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY))
 
 
+def test_a_frame_logged_twice_is_read_once(tmp_path):
+    """The same stamp twice on the image topic (a driver or recorder repeating a frame): the repeat
+    is dropped and counted; it was a second sample, counted and estimated as another frame."""
+    path = tmp_path / "twice.mcap"
+    frames = random_frames(3)
+    with ForeignRecording(path) as rec:
+        for k, (_stamp, pixels, _odometry, _truth) in enumerate(frames):
+            t = T0_NS + k * FRAME_NS
+            rec.odometry("/odom", t, float(k), 0.0, 0.0)
+            rec.compressed_image("/camera/image/compressed", t, encode_image(pixels).data, "png")
+            if k == 1:
+                rec.compressed_image("/camera/image/compressed", t, encode_image(pixels).data, "png", t + 1)
+    warnings: list[str] = []
+    samples = list(Recording(path, on_warning=warnings.append).samples())
+    assert [s.stamp_ns for s in samples] == [T0_NS, T0_NS + FRAME_NS, T0_NS + 2 * FRAME_NS]
+    assert warnings == [
+        f"{path}: dropped 1 image(s) stamped the same as the image before (a frame logged twice)"
+    ]
+
+
 def test_images_outside_the_odometry_are_dropped_with_one_warning_each(tmp_path):
     path = tmp_path / "edges.mcap"
     png = encode_image(random_frames(1)[0][1]).data

@@ -744,6 +744,30 @@ def test_two_frames_logged_swapped_lose_the_late_one_not_the_bag(tmp_path):
     assert warnings == [f"{path}: dropped 1 image(s) stamped before an image logged earlier (out of order)"]
 
 
+def _every_frame_twice(rows: list[tuple[int, str, str, Any]]) -> None:
+    rows += [(log + 1_000, topic, kind, msg) for log, topic, kind, msg in rows if topic == IMAGE_TOPIC]
+    rows.sort(key=lambda row: row[0])
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+def test_every_frame_logged_twice_is_read_once(tmp_path, ros):
+    """A frame repeated at its stamp (a camera topic recorded twice over) is one image: the copies
+    are dropped and counted, not paired, counted and estimated as frames of their own (24 samples)."""
+    if ros == 1:
+        path = write_rosbag1(tmp_path / "driver.bag", edit=_every_frame_twice)
+    else:
+        from rosbags.typesys import Stores, get_typestore
+
+        rows = bag_messages(get_typestore(Stores.ROS2_HUMBLE))
+        _every_frame_twice(rows)
+        path = write_rosbag2(tmp_path / "bag", messages=rows)
+    warnings: list[str] = []
+    assert_driver_samples(list(iter_bag_samples(path, WITH_TRUTH, on_warning=warnings.append)))
+    assert warnings == [
+        f"{path}: dropped {N_IMAGES} image(s) stamped the same as the image before (a frame logged twice)"
+    ]
+
+
 def test_a_camera_clock_that_jumps_ahead_is_refused_not_run_on_what_is_left(tmp_path):
     """One frame stamped an hour ahead would put every later frame "out of order": the bag is
     refused, naming the jump, instead of running on the few frames before it."""
