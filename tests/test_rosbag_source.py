@@ -1023,3 +1023,26 @@ def test_odometry_at_1_hz_is_no_gap(tmp_path):
     warnings: list[str] = []
     assert len(list(iter_bag_samples(path, on_warning=warnings.append))) == 50
     assert warnings == []
+
+
+def test_a_ros1_bag_whose_drivers_restarted_reads_as_one(tmp_path):
+    """Each topic in two connections (the drivers restarted halfway: new caller ids): rosbags merges
+    them by log time, and the samples are those of the bag written in one go."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    rows = bag_messages(ts, Options(ground_truth=False))
+    restart = image_stamps()[N_IMAGES // 2]
+    path = tmp_path / "restarted.bag"
+    with Writer(path) as writer:
+        connections: dict[tuple[str, bool], Any] = {}
+        for log, topic, msgtype, msg in rows:
+            key = (topic, log > restart)
+            if key not in connections:
+                callerid = f"/driver_{'after' if key[1] else 'before'}"
+                connections[key] = writer.add_connection(topic, msgtype, typestore=ts, callerid=callerid)
+            writer.write(connections[key], log, ts.serialize_ros1(msg, msgtype))
+    warnings: list[str] = []
+    assert_driver_samples(list(iter_bag_samples(path, on_warning=warnings.append)), ground_truth=False)
+    assert warnings == []
