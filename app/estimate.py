@@ -21,8 +21,8 @@ from aslam.core.errors import InputError
 from aslam.core.estimator import Estimator
 from aslam.core.mapgraph import GrowableArray
 from aslam.data_formats.errors import EstimateError
-from aslam.data_formats.files import check_output_path, full_path, source_files, source_sha256
-from aslam.data_formats.sources import TopicChoice, open_input
+from aslam.data_formats.files import check_output_path, full_path, source_files
+from aslam.data_formats.sources import Input, TopicChoice, open_input
 
 if TYPE_CHECKING:
     from aslam.core.mapgraph import PriorMap
@@ -68,16 +68,15 @@ class EstimateSummary:
 
 
 class FileHasher:
-    """SHA-256 of a recording's files (one file, or a bag folder's files in name order), computed in
-    a background thread while the estimate runs.
+    """SHA-256 of the input being read (:meth:`RecordingInput.sha256`, :meth:`BagInput.sha256`),
+    computed in a background thread while the estimate runs.
 
     A second, sequential read (mostly from the page cache); hashlib releases the GIL on large
     buffers, so it costs the pipeline little. ``result()`` joins.
     """
 
-    def __init__(self, path: Path) -> None:
-        self.path = path
-        self.files = source_files(path)
+    def __init__(self, source: Input) -> None:
+        self._source = source
         self._digest: str | None = None
         self._error: InputError | None = None
         self._stop = threading.Event()
@@ -86,7 +85,7 @@ class FileHasher:
 
     def _run(self) -> None:
         try:
-            self._digest = source_sha256(self.path, self._stop)
+            self._digest = self._source.sha256(self._stop)
         except InputError as err:
             self._error = err
 
@@ -169,7 +168,7 @@ def estimate(
         )
         from aslam.data_formats.provenance import tool_version
 
-        hasher = FileHasher(recording)
+        hasher = FileHasher(source)
         with EstimateWriter(output, tool_version=tool_version(), force=force) as writer:
             if total is None or total >= 2:  # a metric view needs 2 keyframes: its imports, meanwhile
                 preload()
@@ -189,7 +188,7 @@ def estimate(
             metadata = EstimateMetadata(
                 tool_version=tool_version(),
                 config=asdict(config),
-                recording=RecordingIdentity(str(recording), _size_bytes(hasher.files), hasher.result()),
+                recording=RecordingIdentity(str(recording), source.size_bytes(), hasher.result()),
                 topics=source.stored_topics(),
                 prior_map=map_identity,
             )
@@ -238,17 +237,25 @@ def load_prior_map(path: Path, config: EstimatorConfig) -> tuple[PriorMap, MapId
     from aslam.app.metric_view import estimator_config
     from aslam.core.estimator import prior_map
     from aslam.core.observation import descriptor_key
-    from aslam.data_formats.estimate import MapIdentity, map_digest, read_estimate, read_place_views
+    from aslam.data_formats.estimate import (
+        MapIdentity,
+        map_digest,
+        open_estimate,
+        read_estimate,
+        read_place_views,
+    )
 
     if not path.exists():
         raise InputError("no such map (an estimate file from `aslam estimate`)", path=path)
-    info = read_estimate(path)
+    # opened once: the graph, the views and the digest are one file's, if it is replaced meanwhile
+    source = open_estimate(path)
+    info = read_estimate(source)
     if not info.graph.states:  # no views are stored for no places: not a map made before views were
         raise EstimateError(
             "the map is empty (its run had no keyframes): nothing to start in; estimate without --map",
             path=path,
         )
-    views = read_place_views(path)
+    views = read_place_views(source)
     try:
         made_with = estimator_config(info.metadata.config)
     except ValueError as err:
@@ -265,9 +272,5 @@ def load_prior_map(path: Path, config: EstimatorConfig) -> tuple[PriorMap, MapId
         raise EstimateError(f"not a usable map: {err}", path=path) from err
     if not np.array_equal(start.states, views.states):
         raise EstimateError("the stored views are not those of the map's places", path=path)
-    identity = MapIdentity(str(path), source_sha256(path), info.graph.keyframes, map_digest(info.graph))
+    identity = MapIdentity(str(path), source.sha256(), info.graph.keyframes, map_digest(info.graph))
     return start, identity
-
-
-def _size_bytes(files: list[Path]) -> int:
-    return sum(file.stat().st_size for file in files)

@@ -29,9 +29,10 @@ from aslam.core.errors import InputError
 from aslam.core.mapgraph import GrowableArray
 from aslam.core.metrics import AssignmentScore, Evaluation, evaluate, score_assignment
 from aslam.data_formats.errors import EstimateError, RecordingError
-from aslam.data_formats.estimate import EstimateFile, iter_keyframes, map_digest, read_estimate
-from aslam.data_formats.files import file_name_from_utf8, full_path, source_files, source_sha256
+from aslam.data_formats.estimate import EstimateFile, iter_keyframes, map_digest, open_estimate, read_estimate
+from aslam.data_formats.files import file_name_from_utf8, full_path, source_files
 from aslam.data_formats.graph_json import build_graph_json
+from aslam.data_formats.mcap_file import McapFile
 from aslam.data_formats.pose_sync import TRUTH_MAX_GAP_NS
 from aslam.data_formats.recording import world_identity
 from aslam.data_formats.sources import RecordingInput, TopicChoice, open_input
@@ -304,13 +305,16 @@ def score(
     stage = on_stage or (lambda _text: None)
     estimate = Path(estimate)
     stage("reading the estimate")
-    info = read_estimate(estimate)
+    # Opened once: every pass below reads this file, even if another process replaces it meanwhile
+    # (read by name each time, a rewrite between passes mixed two estimates in one report).
+    source = open_estimate(estimate)
+    info = read_estimate(source)
     # Two passes over the keyframes: the stamps and actions first (the truth is read at the stamps),
     # then the hypotheses, scored as they stream, never all held (a second read of the keyframes
     # costs 20 µs each; holding every keyframe's hypotheses cost 0.5 KiB each at 1.8 of them).
     stamps: list[int] = []
     moves = GrowableArray((3,), np.float64)
-    with closing(iter_keyframes(estimate)) as keyframes:
+    with closing(iter_keyframes(source)) as keyframes:
         for keyframe in keyframes:
             stamps.append(keyframe.stamp_ns)
             moves.append(np.asarray(keyframe.action, dtype=float))
@@ -341,7 +345,7 @@ def score(
         )
     worlds = None if truth_by_index or not sessions else _worlds([*sessions, run], warn)
     stage("scoring the claims")
-    with closing(iter_keyframes(estimate)) as keyframes:
+    with closing(iter_keyframes(source)) as keyframes:
         evaluation = evaluate(
             ((keyframe.index, keyframe.hypotheses) for keyframe in keyframes),
             true_poses,
@@ -490,9 +494,9 @@ def _map_truth(
     found = _find_map(info, path, warn)
     if found is None:
         return unscored
-    prior_path, prior_info = found
+    prior_path, prior_source, prior_info = found
     try:
-        with closing(iter_keyframes(prior_path)) as keyframes:
+        with closing(iter_keyframes(prior_source)) as keyframes:
             stamps = [keyframe.stamp_ns for keyframe in keyframes]
     except InputError as err:
         warn(f"{err}; {_MAP_LOST}")
@@ -559,9 +563,10 @@ def _world_of(recording: Path) -> str | None:
 
 def _find_map(
     info: EstimateFile, path: Path, warn: Callable[[str], None]
-) -> tuple[Path, EstimateFile] | None:
-    """The prior map the estimate ``info`` (file ``path``) was made in, read; None with a warning
-    when it is missing, unreadable, or another map now (estimated again since: another graph).
+) -> tuple[Path, McapFile, EstimateFile] | None:
+    """The prior map the estimate ``info`` (file ``path``) was made in: its path, the file opened
+    (read again for its keyframes: the same file) and what it holds; None with a warning when it is
+    missing, unreadable, or another map now (estimated again since: another graph).
 
     Looked for where the estimate names it, else by its name beside ``path`` (a folder of sessions
     moved or copied elsewhere). A file whose bytes changed but whose map is the same keyframe for
@@ -577,8 +582,9 @@ def _find_map(
     problems = []
     for candidate in candidates:
         try:
-            candidate_info = read_estimate(candidate)
-            same = source_sha256(candidate) == prior.sha256
+            candidate_source = open_estimate(candidate)
+            candidate_info = read_estimate(candidate_source)
+            same = candidate_source.sha256() == prior.sha256
             if not same and prior.graph_sha256 is not None:
                 same = map_digest(candidate_info.graph) == prior.graph_sha256
             elif not same:  # an estimate written before the map's digest was stored
@@ -587,7 +593,7 @@ def _find_map(
             problems.append(str(err))
             continue
         if same:
-            return candidate, candidate_info
+            return candidate, candidate_source, candidate_info
         problems.append(f"map {candidate} is not the map {path} was estimated in (estimated again since?)")
     warn(f"{problems[0]}; {_MAP_LOST}")
     return None

@@ -9,7 +9,9 @@
 Every channel has a JSON Schema, so Foxglove and ``mcap cat --json`` can read the file without
 this package. ``EstimateWriter`` writes under a temporary name and renames when complete;
 ``iter_keyframes`` streams the keyframes back and ``read_estimate`` returns the rest as the core's
-own types (``MapState``, ``MapLink``, ``Hypothesis``, ``TreeStats``).
+own types (``MapState``, ``MapLink``, ``Hypothesis``, ``TreeStats``). Each takes a path or a file
+``open_estimate`` opened: a reader that reads a file in several passes opens it once, so every
+pass reads the same file even when another process replaces it meanwhile (``estimate --force``).
 """
 
 from __future__ import annotations
@@ -560,8 +562,12 @@ class EstimateWriter:
 # --- reading -------------------------------------------------------------------------------------
 
 
-def _open(path: Path) -> McapFile:
-    """The estimate file, checked: a complete MCAP file with the estimate metadata."""
+EstimateSource = Path | McapFile
+"""An estimate file by its path, or opened by :func:`open_estimate`."""
+
+
+def open_estimate(path: Path) -> McapFile:
+    """The estimate file, opened and checked: a complete MCAP file with the estimate metadata."""
     source = McapFile(Path(path), error=EstimateError, what="an estimate file", require_complete=True)
     if source.metadata(ESTIMATE_METADATA) is None:
         raise EstimateError(
@@ -569,6 +575,10 @@ def _open(path: Path) -> McapFile:
             path=source.path,
         )
     return source
+
+
+def _open(estimate: EstimateSource) -> McapFile:
+    return estimate if isinstance(estimate, McapFile) else open_estimate(estimate)
 
 
 def _messages(source: McapFile, topic: str) -> Generator[dict[str, Any], None, None]:
@@ -594,9 +604,9 @@ def _action(raw: Mapping[str, Any]) -> tuple[float, float, float]:
     return (float(raw["x_m"]), float(raw["y_m"]), float(raw["yaw_rad"]))
 
 
-def iter_keyframes(path: Path) -> Generator[EstimateKeyframe, None, None]:
+def iter_keyframes(estimate: EstimateSource) -> Generator[EstimateKeyframe, None, None]:
     """The keyframes of an estimate file in order, streamed (one chunk in memory at a time)."""
-    return _iter_keyframes(_open(path))  # fails early, naming the file, on anything but an estimate
+    return _iter_keyframes(_open(estimate))  # fails early, naming the file, on anything but an estimate
 
 
 def _iter_keyframes(source: McapFile) -> Generator[EstimateKeyframe, None, None]:
@@ -680,9 +690,9 @@ def map_digest(graph: EstimateGraph) -> str:
     return hashlib.sha256(json.dumps(document, separators=(",", ":")).encode()).hexdigest()
 
 
-def read_estimate(path: Path) -> EstimateFile:
+def read_estimate(estimate: EstimateSource) -> EstimateFile:
     """The metadata, the timing (None if omitted) and the final graph of an estimate file."""
-    source = _open(path)
+    source = _open(estimate)
     metadata = EstimateMetadata.from_record(source.metadata(ESTIMATE_METADATA) or {}, source.path)
     timing_record = source.metadata(TIMING_METADATA)
     timing = None if timing_record is None else Timing.from_record(timing_record, source.path)
@@ -693,9 +703,9 @@ def read_estimate(path: Path) -> EstimateFile:
     return EstimateFile(metadata, timing, _graph(graph, source.path))
 
 
-def read_place_views(path: Path) -> PlaceViews:
+def read_place_views(estimate: EstimateSource) -> PlaceViews:
     """The stored views of an estimate's places, checked against its graph's places."""
-    source = _open(path)
+    source = _open(estimate)
     states: list[int] = []
     blocks: list[np.ndarray] = []
     model = None

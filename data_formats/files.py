@@ -665,19 +665,32 @@ def _write_stdout(text: str) -> None:
         raise InputError(err.strerror or str(err), path="stdout") from err
 
 
-def check_mcap_input(path: Path, *, error: type[InputError], what: str) -> int:
-    """The size of ``path`` after checking it is a readable, non-empty file that starts like MCAP."""
-    size = check_input_file(path, error=error, what=what)
+def open_mcap_input(path: Path, *, error: type[InputError], what: str) -> tuple[int, int]:
+    """``(descriptor, size)`` of ``path`` opened for reading, after checking it is a readable,
+    non-empty regular file that starts like MCAP. The size is the opened file's: another process
+    replacing ``path`` by a rename meanwhile (``estimate --force`` rewriting an estimate that
+    ``report`` reads) changes nothing the caller reads through the descriptor."""
+    check_input_file(path, error=error, what=what)
     try:
-        with Path(path).open("rb") as f:
-            head = f.read(len(MCAP_MAGIC))
+        # O_NONBLOCK: a FIFO put under the name since the check is refused below, never waited on
+        descriptor = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
     except OSError as err:
         raise error(f"cannot read: {err.strerror or err}", path=path) from err
-    if size == 0:
-        raise error(f"empty file (0 bytes), not {what}", path=path)
-    if head != MCAP_MAGIC:
-        raise error("not an MCAP file (bad magic bytes at the start)", path=path)
-    return size
+    try:
+        st = os.fstat(descriptor)
+        if not stat.S_ISREG(st.st_mode):
+            raise error(f"is not a regular file (a FIFO, socket or device), not {what}", path=path)
+        if st.st_size == 0:
+            raise error(f"empty file (0 bytes), not {what}", path=path)
+        if os.pread(descriptor, len(MCAP_MAGIC), 0) != MCAP_MAGIC:
+            raise error("not an MCAP file (bad magic bytes at the start)", path=path)
+    except OSError as err:
+        os.close(descriptor)
+        raise error(f"cannot read: {err.strerror or err}", path=path) from err
+    except BaseException:
+        os.close(descriptor)
+        raise
+    return descriptor, st.st_size
 
 
 def source_files(path: Path) -> list[Path]:

@@ -1,7 +1,10 @@
 """One reader object per MCAP file we do not trust: indexed when we can, linear up to damage.
 
-``McapFile`` checks the path and reads the summary once; recordings, ``aslam info``, image counts
-and estimate files are all served from it.
+``McapFile`` checks the path, opens it once and reads the summary once; recordings, ``aslam info``,
+image counts and estimate files are all served from it. Every later read goes through that one
+descriptor, by offset (``pread``): what one ``McapFile`` serves is one file's bytes even when another
+process replaces the name meanwhile (``estimate --force`` rewriting the estimate ``report`` reads,
+``record --force`` the recording ``estimate`` reads), never one file's summary applied to another's.
 
 An intact file (trailing magic, a footer, a summary with chunk indexes) is read through
 ``mcap.reader.SeekingReader`` in log-time order: it seeks from chunk to chunk, holding only the
@@ -14,10 +17,15 @@ error type (``RecordingError``, ``EstimateError``) naming the file; nothing else
 
 from __future__ import annotations
 
+import hashlib
+import io
+import os
+import threading
+import weakref
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 from mcap.exceptions import EndOfFile, RecordLengthLimitExceeded
 from mcap.reader import SeekingReader
@@ -28,7 +36,7 @@ from mcap.summary import Summary
 from aslam.core.errors import InputError
 from aslam.data_formats.errors import RecordingError
 from aslam.data_formats.files import MCAP_MAGIC as MAGIC
-from aslam.data_formats.files import check_mcap_input
+from aslam.data_formats.files import open_mcap_input
 
 _FOOTER_RECORD_SIZE = 1 + 8 + 8 + 8 + 4  # opcode, length, summary_start, summary_offset_start, crc
 
@@ -64,6 +72,38 @@ class _BoundedFile:
         return self._pos
 
 
+class _Pinned(io.RawIOBase):
+    """A descriptor read at a position of its own: by offset (``os.pread``), so the readers of one
+    ``McapFile`` never move each other, nor a forked child's. Closing it leaves the descriptor open."""
+
+    def __init__(self, descriptor: int, size: int) -> None:
+        super().__init__()
+        self._descriptor = descriptor
+        self._size = size
+        self._pos = 0
+
+    def readable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def readinto(self, buffer: Any) -> int:
+        view = memoryview(buffer).cast("B")
+        data = os.pread(self._descriptor, min(len(view), max(0, self._size - self._pos)), self._pos)
+        view[: len(data)] = data
+        self._pos += len(data)
+        return len(data)
+
+    def seek(self, offset: int, whence: int = os.SEEK_SET) -> int:
+        base = {os.SEEK_SET: 0, os.SEEK_CUR: self._pos, os.SEEK_END: self._size}[whence]
+        self._pos = max(0, base + offset)
+        return self._pos
+
+    def tell(self) -> int:
+        return self._pos
+
+
 @dataclass(frozen=True)
 class Truncation:
     """Where a linear read stopped: the intact data ends at ``at_byte`` of a ``size``-byte file."""
@@ -78,7 +118,8 @@ class McapFile:
     The path is checked and the summary read once, here. ``channels`` maps topic → schema name.
     With a usable summary it is complete from the start (``complete_channels`` is True); on a
     linear read it grows as channel records are met. ``truncation`` is set once a linear read has
-    stopped at damage. No file handle is kept between calls, so the object may cross a fork.
+    stopped at damage. The file is opened once, here, and read by offset: every read is of the file
+    that was at ``path`` then, and the object may cross a fork (the child reads the same file).
 
     ``error`` is the exception type raised for this kind of file, ``what`` names the kind in
     messages; ``require_complete`` refuses a file without its trailing magic (a file written by
@@ -96,7 +137,8 @@ class McapFile:
     ) -> None:
         self.path = Path(path)
         self._error_type = error
-        self.size = check_mcap_input(self.path, error=error, what=what)
+        self._descriptor, self.size = open_mcap_input(self.path, error=error, what=what)
+        weakref.finalize(self, os.close, self._descriptor)
         self._warn = on_warning or (lambda _message: None)
         if require_complete and not self._ends_intact():
             raise error("incomplete MCAP file (no trailing magic); was it cut short?", path=self.path)
@@ -123,6 +165,25 @@ class McapFile:
         detail = f": {type(err).__name__}: {err}" if err is not None else ""
         return self._error_type(f"{problem}{detail}", path=self.path)
 
+    def _open(self) -> io.BufferedReader:
+        """A buffered reader of the opened file, from its start."""
+        return io.BufferedReader(_Pinned(self._descriptor, self.size))
+
+    def sha256(self, stop: threading.Event | None = None) -> str:
+        """SHA-256 of the opened file's bytes (the file read, whatever is at its name now). ``stop``
+        set: return early (the digest is then meaningless)."""
+        sha = hashlib.sha256()
+        try:
+            with self._open() as f:
+                while not (stop is not None and stop.is_set()):
+                    block = f.read(4 * 1024 * 1024)
+                    if not block:
+                        break
+                    sha.update(block)
+        except OSError as err:
+            raise self._error("cannot read", err) from err
+        return sha.hexdigest()
+
     def message_count(self, topic: str) -> int | None:
         """Messages on ``topic`` from the summary's statistics, or None when the file has none."""
         if self.message_counts is None:
@@ -135,7 +196,7 @@ class McapFile:
         if self.size < 2 * len(MAGIC):
             return False
         try:
-            with self.path.open("rb") as f:
+            with self._open() as f:
                 f.seek(self.size - len(MAGIC))
                 return f.read(len(MAGIC)) == MAGIC
         except OSError as err:
@@ -146,7 +207,7 @@ class McapFile:
         if self.size < 2 * len(MAGIC) + _FOOTER_RECORD_SIZE or not self._ends_intact():
             return None  # cut short or still being written: read linearly
         try:
-            with self.path.open("rb") as f:
+            with self._open() as f:
                 reader = SeekingReader(f, record_size_limit=self.size)
                 summary = reader.get_summary()
         except OSError as err:
@@ -190,7 +251,7 @@ class McapFile:
         return counts
 
     def _indexed_messages(self, wanted: set[str] | None) -> Iterator[tuple[Schema | None, Channel, Message]]:
-        with self.path.open("rb") as f:
+        with self._open() as f:
             reader = SeekingReader(f, record_size_limit=self.size)
             topics = None if wanted is None else sorted(wanted)
             iterator = reader.iter_messages(topics=topics, log_time_order=True)
@@ -246,7 +307,7 @@ class McapFile:
                 return None
             return schemas.get(channel.schema_id), channel, message
 
-        with self.path.open("rb") as f:
+        with self._open() as f:
             for record in self._linear_records(f):
                 if isinstance(record, Schema):
                     schemas[record.id] = record
@@ -283,13 +344,13 @@ class McapFile:
             if self._summary is not None:
                 if not any(index.name == name for index in self._summary.metadata_indexes):
                     return None
-                with self.path.open("rb") as f:
+                with self._open() as f:
                     reader = SeekingReader(f, record_size_limit=self.size)
                     for record in reader.iter_metadata():
                         if record.name == name:
                             return dict(record.metadata)
                 return None
-            with self.path.open("rb") as f:
+            with self._open() as f:
                 for linear in self._linear_records(f):
                     if isinstance(linear, Metadata) and linear.name == name:
                         return dict(linear.metadata)

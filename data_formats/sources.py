@@ -12,12 +12,14 @@ turns it into a recording, so that stamps, poses and the odometry flag are fixed
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable, Generator, Iterator
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
+from aslam.data_formats.files import source_files, source_sha256
 from aslam.data_formats.pose_sync import Sample
 from aslam.data_formats.recording import Recording, RecordingTopics
 from aslam.data_formats.recording_info import RecordingInfo, describe_recording
@@ -106,6 +108,14 @@ class RecordingInput:
         """False for an image folder imported without odometry (equal steps assumed, ``aslam import``)."""
         return self.recording.metadata().get("odometry_known") != "false"
 
+    def sha256(self, stop: threading.Event | None = None) -> str:
+        """SHA-256 of the recording read: the file opened, whatever is at its name now (``record
+        --force`` replacing it mid-run gave an estimate the identity of a file it never read)."""
+        return self.recording.file.sha256(stop)
+
+    def size_bytes(self) -> int:
+        return self.recording.file.size
+
     def describe(self, on_sample: Callable[[int], None] | None = None) -> RecordingInfo:
         """Read it all (``aslam info``); ``on_sample(n)`` after each sample."""
         info = describe_recording(self.recording, self.topics, warn=self._warnings, on_sample=on_sample)
@@ -148,6 +158,13 @@ class BagInput:
 
     odometry_known = True
     """A bag's odometry is measured (an ``Odometry`` topic or ``/tf``)."""
+
+    def sha256(self, stop: threading.Event | None = None) -> str:
+        """SHA-256 of the bag's files in name order, read by name (as the bag readers open them)."""
+        return source_sha256(self.path, stop)
+
+    def size_bytes(self) -> int:
+        return sum(file.stat().st_size for file in source_files(self.path))
 
     def describe(self, on_sample: Callable[[int], None] | None = None) -> RecordingInfo:
         """Read it all (``aslam info``); ``on_sample(n)`` after each sample."""

@@ -1,0 +1,129 @@
+"""Commands run at once on shared files (docs/reliability.md, "Running commands at once").
+
+Another process is put at a chosen point of a command by wrapping one of its steps: the step
+first does what the other process would (replace a file by a rename, as ``--force`` does), then
+runs as it would. Every engine is the real one; nothing waits on a clock.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+from conftest import square_route, write_square_recording
+
+import aslam.app.estimate as estimate_module
+import aslam.app.score as score_module
+import aslam.data_formats.estimate as estimate_format
+from aslam.cli.app import main
+from aslam.data_formats.estimate import read_estimate
+
+ONE_LAP = 16
+"""Keyframes of one lap of the square route (its first 16 poses): another estimate's length."""
+
+
+@pytest.fixture(scope="module")
+def two_recordings(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """The square route twice round, and once round drawn with another seed: two recordings of
+    other lengths and other bytes."""
+    folder = tmp_path_factory.mktemp("recordings")
+    long, short = folder / "long.mcap", folder / "short.mcap"
+    write_square_recording(long)
+    write_square_recording(short, square_route()[:ONE_LAP], seed=8)
+    return long, short
+
+
+@pytest.fixture(scope="module")
+def two_estimates(
+    two_recordings: tuple[Path, Path], tmp_path_factory: pytest.TempPathFactory
+) -> tuple[Path, Path]:
+    folder = tmp_path_factory.mktemp("estimates")
+    outputs = folder / "long.est.mcap", folder / "short.est.mcap"
+    for recording, output in zip(two_recordings, outputs, strict=True):
+        assert main(["estimate", str(recording), "-o", str(output), "-q", "--no-timing"]) == 0
+    return outputs
+
+
+def replaced_first(path: Path, by: Path, step: Callable[..., Any]) -> Callable[..., Any]:
+    """``step``, but its first call replaces ``path`` by a copy of ``by`` first, atomically, as
+    another command writing ``path`` with ``--force`` does."""
+    done = False
+
+    def wrapped(*args: Any, **kwargs: Any) -> Any:
+        nonlocal done
+        if not done:
+            done = True
+            copy = path.with_name(".other-writer")
+            shutil.copyfile(by, copy)
+            os.replace(copy, path)
+        return step(*args, **kwargs)
+
+    return wrapped
+
+
+def test_a_report_reads_one_estimate_when_another_process_replaces_it_meanwhile(
+    two_estimates: tuple[Path, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    """``report E`` while ``estimate R2 -o E --force`` runs: the estimate was opened by name for
+    each of its passes, so the graph of one file met the keyframes of the other (and, in the same
+    reader, one file's summary was applied to the other's bytes): 1 report in 25 succeeded, the
+    others ended with ``incomplete MCAP file (no trailing magic)`` for a complete file, a wrong
+    map error, or exit 70 (``35 steps, 55 counted``). Now the report is of the file it opened."""
+    ours, theirs = two_estimates
+    estimate = tmp_path / "E.mcap"
+    shutil.copyfile(ours, estimate)
+    alone, meanwhile = tmp_path / "alone.json", tmp_path / "meanwhile.json"
+    assert main(["report", str(estimate), "-q", "--json", str(alone)]) == 0
+    monkeypatch.setattr(
+        score_module, "_session_truth", replaced_first(estimate, theirs, score_module._session_truth)
+    )
+    assert main(["report", str(estimate), "-q", "--json", str(meanwhile)]) == 0
+    assert estimate.read_bytes() == theirs.read_bytes()  # it was replaced mid-report
+    assert json.loads(meanwhile.read_text()) == json.loads(alone.read_text())
+
+
+def test_an_estimate_is_of_the_recording_it_opened_when_another_process_replaces_it(
+    two_recordings: tuple[Path, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    """``estimate R`` while ``record -o R --force`` (or ``import``) writes another recording there:
+    the reader opened R by name for each read, and the recording's SHA-256 was read by name at
+    the end, so an estimate recorded the size of one file, the digest of another and the keyframes
+    of a third (9 of 11 estimates did so in a loop), or failed on a summary of the other file.
+    Now the estimate reads, and names, the file it opened: the same bytes as with no one else."""
+    ours, theirs = two_recordings
+    recording = tmp_path / "R.mcap"
+    shutil.copyfile(ours, recording)
+    alone, meanwhile = tmp_path / "alone.mcap", tmp_path / "meanwhile.mcap"
+    assert main(["estimate", str(recording), "-o", str(alone), "-q", "--no-timing"]) == 0
+    monkeypatch.setattr(
+        estimate_module, "run_estimate", replaced_first(recording, theirs, estimate_module.run_estimate)
+    )
+    assert main(["estimate", str(recording), "-o", str(meanwhile), "-q", "--no-timing"]) == 0
+    assert recording.read_bytes() == theirs.read_bytes()
+    assert meanwhile.read_bytes() == alone.read_bytes()
+
+
+def test_a_run_in_a_map_reads_one_map_when_another_process_replaces_it(
+    two_recordings: tuple[Path, Path], two_estimates: tuple[Path, Path], tmp_path: Path, monkeypatch
+):
+    """``estimate R --map M`` while M is estimated again with ``--force``: the map's graph, its
+    stored views and its digest were read by name one after the other, so a run could start in one
+    map's places with another's views and name a third file's digest as its map. Now one file."""
+    ours, theirs = two_estimates
+    the_map = tmp_path / "M.est.mcap"
+    shutil.copyfile(ours, the_map)
+    alone, meanwhile = tmp_path / "alone.mcap", tmp_path / "meanwhile.mcap"
+    run = ["estimate", str(two_recordings[1]), "--map", str(the_map), "-q", "--no-timing", "-o"]
+    assert main([*run, str(alone)]) == 0
+    monkeypatch.setattr(
+        estimate_format, "read_place_views", replaced_first(the_map, theirs, estimate_format.read_place_views)
+    )
+    assert main([*run, str(meanwhile)]) == 0
+    assert the_map.read_bytes() == theirs.read_bytes()
+    assert meanwhile.read_bytes() == alone.read_bytes()
+    assert read_estimate(meanwhile).metadata.prior_map is not None
