@@ -47,7 +47,8 @@ _STREAM_PATHS = ("/dev/stdout", "/dev/stderr", "/dev/fd/", "/proc/self/fd/")
 
 NAME_MAX_BYTES = 255
 """The longest file name most file systems take (ext4, XFS, btrfs, APFS, tmpfs)."""
-_PARTIAL_EXTRA_BYTES = 1 + len(PARTIAL_MARK) + 10  # the dot, the mark, a process id
+_PARTIAL_EXTRA_BYTES = 1 + len(PARTIAL_MARK) + 10  # the dot, the mark, a process id (7 digits), -NN
+_NAME_ATTEMPTS = 99
 
 
 def partial_name(path: Path) -> Path:
@@ -68,12 +69,23 @@ def _partial_prefix(path: Path) -> str:
 
 
 def _temporary(target: Path) -> Path:
-    """:func:`partial_name` of ``target``, registered with the running command before it exists."""
-    partial = partial_name(target)
-    files = current()
-    if files is not None:
-        files.temporaries.append(partial)
-    return partial
+    """A temporary name of ``target`` no other writer holds: :func:`partial_name`, created empty
+    and exclusively (``O_EXCL``), then registered with the running command. A process id is unique
+    on one machine only: two containers or hosts sharing a folder run processes of the same id,
+    which opened one temporary file, each writing over the other's bytes and renaming it while
+    the other still wrote (a torn output, exit 0). A name that is taken gets ``-2``, ``-3``, …"""
+    first = partial_name(target)
+    for attempt in range(1, _NAME_ATTEMPTS + 1):
+        partial = first if attempt == 1 else first.with_name(f"{first.name}-{attempt}")
+        try:
+            os.close(os.open(partial, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+        except FileExistsError:
+            continue
+        files = current()
+        if files is not None:
+            files.temporaries.append(partial)
+        return partial
+    raise FileExistsError(errno.EEXIST, f"its {_NAME_ATTEMPTS} temporary names are taken", str(first))
 
 
 def real_path(path: Path | str) -> Path:
@@ -115,8 +127,9 @@ class CommandFiles:
     outputs: dict[Path, Path] = field(default_factory=dict)
     staged: list[_Staged] = field(default_factory=list)
     temporaries: list[Path] = field(default_factory=list)
-    """Every temporary name handed out, registered before the file is created: whatever an
-    interrupt skips, the end of the command removes."""
+    """Every temporary file made, registered as it is created (before would leave a moment in which
+    another writer's file of the same name counts as this command's): whatever an interrupt skips,
+    the end of the command removes."""
     folders: list[Path] = field(default_factory=list)
     """Folders the command created for its outputs, deepest first: a failed command removes them."""
     results: list[Callable[[], None]] = field(default_factory=list)
@@ -485,7 +498,7 @@ def remove_stale_partials(folder: Path) -> list[Path]:
 
 def _writer_gone(partial: Path) -> bool:
     """Whether the process a temporary file is named after (``.NAME.partial-PID``) has ended."""
-    pid_text = partial.name.rpartition(PARTIAL_MARK)[2]
+    pid_text = partial.name.rpartition(PARTIAL_MARK)[2].partition("-")[0]  # -2, -3: a name taken
     return pid_text.isdigit() and not _process_alive(int(pid_text))
 
 
@@ -522,21 +535,20 @@ class AtomicFile:
         check_output_path(self.path, force=force, error=error)
         self._replace = _forced(force)
         self.direct = is_stream_output(self.path)
-        if self.direct:
-            self.target = self.path
-            self.partial_path = self.path
-        else:
+        self.target = self.partial_path = self.path
+        if not self.direct:
             self.target = real_path(self.path)
             _claim_output(self.path, self.target, error)
             _warn_stale(self.target)
-            self.partial_path = _temporary(self.target)
         try:
-            self.file: IO[bytes] = open(self.partial_path, "wb")  # noqa: SIM115 (closed by commit/abort)
-        except OSError as err:
-            raise error(f"cannot write: {err.strerror or err}", path=self.path) from err
-        except BaseException:  # an interrupt between creating the file and holding it
             if not self.direct:
+                self.partial_path = _temporary(self.target)
+            self.file: IO[bytes] = open(self.partial_path, "wb")  # noqa: SIM115 (closed by commit/abort)
+        except BaseException as err:  # an interrupt between creating the file and holding it too
+            if self.partial_path != self.path:
                 _discard(self.partial_path)
+            if isinstance(err, OSError):
+                raise error(f"cannot write: {err.strerror or err}", path=self.path) from err
             raise
         self.closed = False
 
@@ -614,15 +626,18 @@ def write_atomically(
     target = real_path(path)
     _claim_output(path, target, error)
     _warn_stale(target)
-    temporary = _temporary(target)
+    temporary: Path | None = None
     try:
+        temporary = _temporary(target)
         write(temporary)
         _finish_output(temporary, target, path, error, replace=_forced(force))
     except OSError as err:
-        _discard(temporary)
+        if temporary is not None:
+            _discard(temporary)
         raise error(f"cannot write: {err.strerror or err}", path=path) from err
     except BaseException:
-        _discard(temporary)
+        if temporary is not None:
+            _discard(temporary)
         raise
 
 

@@ -22,6 +22,7 @@ import aslam.app.score as score_module
 import aslam.data_formats.estimate as estimate_format
 from aslam.cli.app import main
 from aslam.data_formats.estimate import read_estimate
+from aslam.data_formats.files import partial_name
 
 ONE_LAP = 16
 """Keyframes of one lap of the square route (its first 16 poses): another estimate's length."""
@@ -127,3 +128,30 @@ def test_a_run_in_a_map_reads_one_map_when_another_process_replaces_it(
     assert the_map.read_bytes() == theirs.read_bytes()
     assert meanwhile.read_bytes() == alone.read_bytes()
     assert read_estimate(meanwhile).metadata.prior_map is not None
+
+
+@pytest.mark.parametrize("command", ["estimate", "report"])
+def test_a_temporary_name_another_writer_holds_is_never_written_into(
+    two_recordings: tuple[Path, Path], two_estimates: tuple[Path, Path], tmp_path: Path, command: str
+):
+    """The temporary name holds the process id, which is unique on one machine only: two
+    ``estimate -o E --force`` in two containers (``unshare -pf``: both pid 1) sharing a folder
+    opened one ``.E.mcap.partial-1``, and E was left torn (``corrupt MCAP data``) while both exited
+    0 or the other said ``cannot write: No such file or directory``. Here the other writer's file
+    is there before this process's (the same id: this process's own); it is left alone and
+    the output is whole."""
+    output = tmp_path / ("E.mcap" if command == "estimate" else "graph.json")
+    theirs = partial_name(output)
+    assert str(os.getpid()) in theirs.name
+    theirs.write_bytes(b"another writer's bytes, still being written")
+    if command == "estimate":
+        argv = ["estimate", str(two_recordings[0]), "--no-timing", "-o", str(output)]
+    else:
+        argv = ["report", str(two_estimates[0]), "--graph", str(output)]
+    assert main([*argv, "-q", "--force"]) == 0
+    assert theirs.read_bytes() == b"another writer's bytes, still being written"
+    if command == "estimate":
+        assert output.read_bytes() == two_estimates[0].read_bytes()
+    else:
+        assert json.loads(output.read_text())["keyframes"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([output.name, theirs.name])
