@@ -41,7 +41,10 @@ from aslam.app.sweep_file import ScoreOptions, Sweep, estimator_config
 from aslam.core.config import EstimatorConfig
 from aslam.core.errors import AslamError, InputError, one_line
 from aslam.data_formats.files import (
+    LOCK_FILE,
+    check_folder_free,
     check_output_folder,
+    folder_lock,
     full_path,
     remove_stale_partials,
     source_sha256,
@@ -764,36 +767,48 @@ def run_sweep(
     _check_options(workers, scheduler, task_timeout)
     results_dir = full_path(results_dir)
     check_output_folder(results_dir, what="results folder")
-    created = not results_dir.exists()
-    if created:
+    created = False
+    if not results_dir.exists():
         try:
-            (results_dir / TASKS_FOLDER).mkdir(parents=True)
+            results_dir.parent.mkdir(parents=True, exist_ok=True)
+            with contextlib.suppress(FileExistsError):  # another sweep made it this moment
+                results_dir.mkdir()
+                created = True
+            (results_dir / TASKS_FOLDER).mkdir(exist_ok=True)
         except OSError as err:
             raise InputError(f"cannot create: {err.strerror or err}", path=results_dir) from err
-    try:
-        return _run_in(
-            sweep,
-            results_dir,
-            workers,
-            scheduler,
-            force,
-            task_timeout,
-            extra_figures,
-            client,
-            on_plan,
-            on_result,
-            on_warning,
-        )
-    except BaseException:
-        # A sweep that made its folder and then failed before any work was kept (a scheduler out of
-        # reach, a bad recording, an early interrupt) leaves nothing; renders or results stay, to resume.
-        kept = {entry.name for entry in results_dir.iterdir()} - {HASHES_FILE, TASKS_FOLDER}
-        if created and not kept and not any((results_dir / TASKS_FOLDER).iterdir()):
-            shutil.rmtree(results_dir, ignore_errors=True)
-        raise
+    # One sweep at a time in a folder (a second ran every task again beside the first): refused
+    # here, before its recordings are hashed; the folder is held once there are tasks to run.
+    if write_problem(results_dir) is None:
+        check_folder_free(results_dir, holder=_ANOTHER_SWEEP, what=_RESULTS_FOLDER)
+    with contextlib.ExitStack() as hold:
+        try:
+            return _run_in(
+                hold,
+                sweep,
+                results_dir,
+                workers,
+                scheduler,
+                force,
+                task_timeout,
+                extra_figures,
+                client,
+                on_plan,
+                on_result,
+                on_warning,
+            )
+        except BaseException:
+            # A sweep that made its folder and then failed before any work was kept (a scheduler out
+            # of reach, a bad recording, an early interrupt) leaves nothing; renders or results stay,
+            # to resume. Done while the folder is held: no other sweep has begun in it meanwhile.
+            kept = {entry.name for entry in results_dir.iterdir()} - {HASHES_FILE, TASKS_FOLDER, LOCK_FILE}
+            if created and not kept and not any((results_dir / TASKS_FOLDER).iterdir()):
+                shutil.rmtree(results_dir, ignore_errors=True)
+            raise
 
 
 def _run_in(
+    hold: contextlib.ExitStack,
     sweep: Sweep,
     results_dir: Path,
     workers: int | None,
@@ -809,6 +824,8 @@ def _run_in(
     hashes = HashCache(results_dir / HASHES_FILE, use=not force)
     plan = plan_sweep(sweep, results_dir, force=force, hashes=hashes, on_warning=on_warning)
     plan.check_writable()
+    if plan.to_run and plan.cannot_write is None:  # until the caller's ``hold`` ends
+        hold.enter_context(folder_lock(results_dir, holder=_ANOTHER_SWEEP, what=_RESULTS_FOLDER))
     if plan.cannot_write is None:
         # What an interrupted run's workers were writing when they were killed (renders, estimates).
         for folder in (
@@ -864,6 +881,10 @@ def _run_in(
         results_dir / RESULTS_CSV,
         written,
     )
+
+
+_ANOTHER_SWEEP = "another sweep"
+_RESULTS_FOLDER = "results folder"
 
 
 def _compute(

@@ -25,10 +25,12 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import fcntl
 import functools
 import glob
 import hashlib
 import os
+import socket
 import stat
 import sys
 import threading
@@ -276,6 +278,60 @@ def command_files(*, on_warning: Callable[[str], None] | None = None) -> Iterato
         raise
     finally:
         _current = previous
+
+
+LOCK_FILE = ".aslam.lock"
+
+
+@contextlib.contextmanager
+def folder_lock(folder: Path, *, holder: str, what: str) -> Iterator[None]:
+    """Hold ``folder`` for this process, or fail at once naming the process that holds it.
+
+    ``flock`` on ``folder/.aslam.lock``, which the kernel releases when the process ends however it
+    ends (a SIGKILL leaves no stale lock); the file, left in place, says who held it last (``PID
+    HOST``). ``holder`` names the kind of command (``another sweep``), ``what`` the folder (``results
+    folder``). On a file system without locks (some network shares) the block runs unguarded.
+    """
+    try:
+        descriptor = os.open(Path(folder) / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o666)
+    except OSError as err:
+        raise InputError(f"cannot write: {err.strerror or err}", path=folder) from err
+    try:
+        if _locked(descriptor, folder, holder=holder, what=what):
+            os.ftruncate(descriptor, 0)
+            os.pwrite(descriptor, f"{os.getpid()} {socket.gethostname()}\n".encode(), 0)
+        yield
+    finally:
+        os.close(descriptor)
+
+
+def check_folder_free(folder: Path, *, holder: str, what: str) -> None:
+    """Fail at once if a process holds ``folder`` (:func:`folder_lock`); writes nothing, so a command
+    that may turn out to have nothing to write is refused before its work, not after."""
+    try:
+        descriptor = os.open(Path(folder) / LOCK_FILE, os.O_RDONLY)
+    except OSError:
+        return  # never held (a folder that cannot be read fails where it is read)
+    try:
+        _locked(descriptor, folder, holder=holder, what=what)
+    finally:
+        os.close(descriptor)  # releases the lock just taken
+
+
+def _locked(descriptor: int, folder: Path, *, holder: str, what: str) -> bool:
+    """Take the lock of an open lock file; whether it is held now (False: no locks on this file
+    system). InputError naming the process that holds it."""
+    try:
+        fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        pid, _, host = os.pread(descriptor, 300, 0).decode("utf-8", "replace").strip().partition(" ")
+        who = f"{holder} (process {pid} on {host})" if pid.isdigit() and host else holder
+        raise InputError(
+            f"{who} is running in this {what}; wait for it to end, or give another folder", path=folder
+        ) from None
+    except OSError:
+        return False
+    return True
 
 
 def make_output_folder(folder: Path) -> None:

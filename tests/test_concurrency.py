@@ -10,6 +10,9 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import socket
+import subprocess
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -155,3 +158,46 @@ def test_a_temporary_name_another_writer_holds_is_never_written_into(
     else:
         assert json.loads(output.read_text())["keyframes"]
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([output.name, theirs.name])
+
+
+HOLDER = """
+import fcntl, os, socket, sys
+descriptor = os.open(sys.argv[1], os.O_RDWR | os.O_CREAT)
+fcntl.flock(descriptor, fcntl.LOCK_EX)
+os.write(descriptor, f"{os.getpid()} {socket.gethostname()}\\n".encode())
+print("held", flush=True)
+sys.stdin.read()  # until the test closes the pipe
+"""
+
+
+def test_a_second_sweep_in_a_results_folder_is_refused_while_the_first_runs(
+    two_recordings: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+):
+    """Two ``aslam sweep S -o R`` at once (a CI job started twice, a sweep re-run while it still
+    runs): both ran every task, twice the work, each writing the other's files. Now the second
+    is refused at once, one line naming the process that holds the folder, nothing written; the
+    lock goes with that process, however it ends. The first sweep is a process holding the lock
+    as a sweep does (flock on ``R/.aslam.lock``, its id and host in it)."""
+    sweep = tmp_path / "s.toml"
+    sweep.write_text(f'figures = ["keyframes"]\n[recordings]\npaths = ["{two_recordings[1]}"]\n')
+    results = tmp_path / "results"
+    results.mkdir()
+    argv = ["sweep", str(sweep), "-o", str(results), "--workers", "1", "-q"]
+    holder = subprocess.Popen(
+        [sys.executable, "-c", HOLDER, str(results / ".aslam.lock")],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout is not None and holder.stdout.readline() == "held\n"
+        assert main(argv) == 2
+        assert capsys.readouterr().err == (
+            f"aslam: error: {results}: another sweep (process {holder.pid} on {socket.gethostname()})"
+            " is running in this results folder; wait for it to end, or give another folder\n"
+        )
+        assert [p.name for p in results.iterdir()] == [".aslam.lock"]
+    finally:
+        holder.communicate("")
+    assert main(argv) == 0
+    assert (results / "results.parquet").exists()
