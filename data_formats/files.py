@@ -70,19 +70,29 @@ def _partial_prefix(path: Path) -> str:
     return f".{os.fsdecode(kept)}~{digest}{PARTIAL_MARK}"
 
 
+_held: dict[Path, int] = {}
+"""This process's temporary files, each with a descriptor holding its ``flock`` until the file is
+renamed into place or removed: a live writer's file, whatever its process id says elsewhere."""
+
+
 def _temporary(target: Path) -> Path:
     """A temporary name of ``target`` no other writer holds: :func:`partial_name`, created empty
-    and exclusively (``O_EXCL``), then registered with the running command. A process id is unique
-    on one machine only: two containers or hosts sharing a folder run processes of the same id,
-    which opened one temporary file, each writing over the other's bytes and renaming it while
-    the other still wrote (a torn output, exit 0). A name that is taken gets ``-2``, ``-3``, …"""
+    and exclusively (``O_EXCL``), locked (``flock``) while it is written, and registered with the
+    running command. A process id is unique on one machine only: two containers or hosts sharing a
+    folder run processes of the same id, which opened one temporary file, each writing over the
+    other's bytes and renaming it while the other still wrote (a torn output, exit 0). A name that
+    is taken gets ``-2``, ``-3``, …; the lock tells a live writer's file from one left by a killed
+    run where the id cannot (:func:`_writer_gone`)."""
     first = partial_name(target)
     for attempt in range(1, _NAME_ATTEMPTS + 1):
         partial = first if attempt == 1 else first.with_name(f"{first.name}-{attempt}")
         try:
-            os.close(os.open(partial, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            descriptor = os.open(partial, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         except FileExistsError:
             continue
+        _held[partial] = descriptor
+        with contextlib.suppress(OSError):  # a file system without locks: judged by the id alone
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
         files = current()
         if files is not None:
             files.temporaries.append(partial)
@@ -218,6 +228,14 @@ def _discard(path: Path) -> None:
     called for it (a read-only folder refuses even to unlink a file that was never made)."""
     with contextlib.suppress(OSError):
         path.unlink(missing_ok=True)
+    _release(path)
+
+
+def _release(partial: Path) -> None:
+    """Let go of a temporary file this process held (renamed into place, or removed)."""
+    descriptor = _held.pop(partial, None)
+    if descriptor is not None:
+        os.close(descriptor)
 
 
 _WRITTEN_MEANWHILE = (
@@ -246,6 +264,7 @@ def _move_into_place(partial: Path, target: Path, *, replace: bool) -> bool:
             return True
     created = not os.path.lexists(target)
     os.replace(partial, target)
+    _release(partial)
     return created
 
 
@@ -553,9 +572,26 @@ def remove_stale_partials(folder: Path) -> list[Path]:
 
 
 def _writer_gone(partial: Path) -> bool:
-    """Whether the process a temporary file is named after (``.NAME.partial-PID``) has ended."""
+    """Whether the writer of a temporary file (``.NAME.partial-PID``) has ended: no process of that
+    id here, and none holding the file's lock. The id alone is this machine's: a live writer in
+    another container or on another host sharing the folder was taken for a killed run, its file
+    named to be deleted (and a sweep deleted it)."""
     pid_text = partial.name.rpartition(PARTIAL_MARK)[2].partition("-")[0]  # -2, -3: a name taken
-    return pid_text.isdigit() and not _process_alive(int(pid_text))
+    if not pid_text.isdigit() or _process_alive(int(pid_text)):
+        return False
+    try:
+        descriptor = os.open(partial, os.O_RDONLY | os.O_NONBLOCK)
+    except OSError:
+        return False  # gone already, or not ours to judge
+    try:
+        fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return False
+    except OSError:
+        pass  # no locks here: the id decides
+    finally:
+        os.close(descriptor)
+    return True
 
 
 def _process_alive(pid: int) -> bool:

@@ -25,7 +25,7 @@ import aslam.app.score as score_module
 import aslam.data_formats.estimate as estimate_format
 from aslam.cli.app import main
 from aslam.data_formats.estimate import read_estimate
-from aslam.data_formats.files import partial_name
+from aslam.data_formats.files import partial_name, remove_stale_partials
 
 ONE_LAP = 16
 """Keyframes of one lap of the square route (its first 16 poses): another estimate's length."""
@@ -201,3 +201,45 @@ def test_a_second_sweep_in_a_results_folder_is_refused_while_the_first_runs(
         holder.communicate("")
     assert main(argv) == 0
     assert (results / "results.parquet").exists()
+
+
+WRITER_ELSEWHERE = """
+import fcntl, os, sys
+descriptor = os.open(sys.argv[1], os.O_WRONLY | os.O_CREAT | os.O_EXCL)
+fcntl.flock(descriptor, fcntl.LOCK_EX)
+print("writing", flush=True)
+sys.stdin.read()  # until the test closes the pipe
+"""
+
+
+def test_a_live_writers_temporary_file_in_another_container_is_not_called_left_over(
+    two_recordings: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+):
+    """A temporary file is judged by the process id in its name, and an id is this machine's: an
+    ``estimate -o E`` in another container (``unshare -pf``: its pid 3 none here) still writing
+    ``.E.mcap.partial-3`` was named by an ``estimate -o E --force`` here as ``temporary file left
+    by an interrupted run; delete it``, and a sweep's clean-up deleted such files in its folder.
+    Now a writer holds a lock on its file, which tells: named and removed only once it is let go.
+    The other container's writer is a process holding such a file under an id that is not alive."""
+    gone_pid = subprocess.Popen(["true"])
+    gone_pid.wait()
+    output = tmp_path / "E.mcap"
+    theirs = output.with_name(f".E.mcap.partial-{gone_pid.pid}")
+    writer = subprocess.Popen(
+        [sys.executable, "-c", WRITER_ELSEWHERE, str(theirs)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    argv = ["estimate", str(two_recordings[1]), "-o", str(output), "--force", "--no-timing"]
+    try:
+        assert writer.stdout is not None and writer.stdout.readline() == "writing\n"
+        assert main(argv) == 0
+        assert "temporary file left" not in capsys.readouterr().err
+        assert remove_stale_partials(tmp_path) == []
+        assert theirs.exists()
+    finally:
+        writer.communicate("")
+    assert main(argv) == 0  # now it is left over, and named
+    assert f"{theirs}: temporary file left by an interrupted run; delete it" in capsys.readouterr().err
+    assert remove_stale_partials(tmp_path) == [theirs]
