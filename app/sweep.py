@@ -13,8 +13,9 @@ a re-run skips tasks whose successful result is saved (``force`` recomputes), an
 left to do writes nothing, so a read-only results folder still gives its rows. A task's key is the
 SHA-256 of its recording's identity (the file's SHA-256, or for a recording to render its
 configuration, which decides its bytes), its full estimator configuration, the scoring options
-and the code version (``provenance.code_version``: the version and its source's SHA-256, so the
-results of other code are never reused). The tables (``results.parquet``, ``results.csv``) hold
+and the code version (``provenance.code_version``: the version and a SHA-256 of its source and of
+the versions of the libraries that compute with it, so the results of other code, or of other
+numpy, are never reused). The tables (``results.parquet``, ``results.csv``) hold
 one row per task, in task order (recordings in file order, then parameter sets in grid order), so
 the same sweep gives the same rows, except the timing and worker columns.
 """
@@ -52,7 +53,7 @@ from aslam.data_formats.files import (
     write_atomically,
     write_problem,
 )
-from aslam.data_formats.provenance import code_version
+from aslam.data_formats.provenance import code_version, library_versions
 from aslam.recorder.config import NoiseParams, RecordConfig
 
 RESULTS_PARQUET = "results.parquet"
@@ -730,9 +731,23 @@ def check_workers(client: Any, address: str) -> None:
     ours = code_version()
     for worker, version in sorted(versions.items()):
         if version != ours:
-            raise ClusterLost(
-                f"worker {worker} of the Dask cluster at {address} runs aslam {version}; this is aslam {ours}"
-            )
+            difference = _library_difference(client, worker) or f"aslam {version}; this is aslam {ours}"
+            raise ClusterLost(f"worker {worker} of the Dask cluster at {address} runs {difference}")
+
+
+def _library_difference(client: Any, worker: str) -> str | None:
+    """The first library whose version on ``worker`` is not this process's, as ``numpy 2.5.5; here
+    numpy 2.4.6``; None where none differs (its aslam code does), or it cannot say (an aslam older
+    than ``library_versions``). Two code versions alone do not tell a user what to reinstall."""
+    ours = library_versions()
+    try:
+        theirs = client.run(library_versions, workers=[worker])[worker]
+    except Exception:
+        return None
+    for library, installed in ours.items():
+        if theirs.get(library) != installed:
+            return f"{library} {theirs.get(library, '-')}; here {library} {installed}"
+    return None
 
 
 def run_sweep(

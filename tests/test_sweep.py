@@ -588,6 +588,58 @@ def test_results_of_other_code_under_the_same_version_are_never_reused(recording
     assert [path for _, path in edited[:2]] == [path for _, path in here[:2]]
 
 
+def _with_library_version(pythonpath: Path, library: str, version: str) -> Path:
+    """``library``'s metadata at ``version`` on ``pythonpath``, found before the installed one's: what
+    ``pip install -U`` leaves, as far as asking for the version goes (the library itself is the same)."""
+    info = pythonpath / f"{library.replace('-', '_')}-{version}.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {library}\nVersion: {version}\n")
+    return pythonpath
+
+
+def test_results_of_other_libraries_are_never_reused(recordings, tmp_path):
+    """``pip install -U numpy`` (2.4.6 -> 2.5.5) moved the last digits of ``report --json``'s errors,
+    but the code version hashed aslam's source alone: a sweep resumed after the upgrade took the old
+    numpy's results and renders for the new one's, and its table mixed the two. Each library whose
+    arithmetic or decoding enters a result now counts by its version, read without importing it."""
+    from aslam.data_formats.provenance import RESULT_LIBRARIES, library_versions
+
+    sweep_file = _write_sweep(recordings)
+    results = tmp_path / "results"
+    here = [[t.key, str(t.source.path)] for t in plan_tasks(read_sweep_file(sweep_file), results)]
+    same = _copy_of_this_aslam(tmp_path / "same")
+    assert _planned_by(same, sweep_file, results) == here
+    assert list(library_versions()) == ["python", *RESULT_LIBRARIES]
+    assert "-" not in library_versions().values()  # every one is installed, so every one is read
+    for library in ("numpy", "opencv-python-headless"):
+        upgraded = _with_library_version(_copy_of_this_aslam(tmp_path / library), library, "99.0.0")
+        planned = _planned_by(upgraded, sweep_file, results)
+        assert all(new[0] != old[0] for new, old in zip(planned, here, strict=True)), library
+        assert planned[2][1] != here[2][1]  # the render too: another numpy may render other bytes
+        assert [path for _, path in planned[:2]] == [path for _, path in here[:2]]
+    libraries = [
+        "numpy",
+        "cv2",
+        "imagecodecs",
+        "faiss",
+        "gtsam",
+        "evo",
+        "scipy",
+        "pyrender",
+        "trimesh",
+        "PIL",
+    ]
+    script = (
+        "import sys\n"
+        "from aslam.data_formats.provenance import code_version\n"
+        "code_version()\n"
+        f"print([name for name in {libraries!r} if name in sys.modules])\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(same), "PYTHONDONTWRITEBYTECODE": "1"}
+    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, check=True)
+    assert done.stdout.strip() == "[]", done.stdout  # reading a version imports nothing of the library
+
+
 def _sourceless(pythonpath: Path) -> Path:
     """The copy at ``pythonpath`` as an install that ships bytecode alone: ``compileall -b`` puts
     each module's .pyc beside it, then the .py files go."""
@@ -1274,6 +1326,27 @@ def test_a_worker_running_other_code_of_the_same_version_is_refused(recordings, 
     err = capsys.readouterr().err
     assert code == 2, err
     assert err.count("\n") == 1 and "runs aslam 0.1.0+src." in err and "; this is aslam 0.1.0+src." in err
+    assert not (results / "tasks").exists()
+
+
+def test_a_worker_with_another_library_version_is_refused_by_its_name(recordings, tmp_path, capsys):
+    """A worker of the same aslam over another numpy computes other last digits and would file them
+    under this process's task keys; it is refused, and the line names the library to reinstall
+    rather than two code versions that differ in nothing the user can see."""
+    upgraded = _with_library_version(_copy_of_this_aslam(tmp_path / "upgraded"), "numpy", "99.0.0")
+    process, address = _scheduler(tmp_path)
+    try:
+        with _dask_worker(address, pythonpath=upgraded):
+            results = tmp_path / "results"
+            code = main(
+                ["sweep", str(_write_sweep(recordings)), "-o", str(results), "--scheduler", address, "-q"]
+            )
+    finally:
+        process.terminate()
+        process.wait(timeout=30)
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert err.count("\n") == 1 and " runs numpy 99.0.0; here numpy 2." in err
     assert not (results / "tasks").exists()
 
 
