@@ -63,6 +63,10 @@ class PipelineCounts:
     samples: int = 0
     keyframes: int = 0
     slam_s: float = 0.0
+    images: int | None = None
+    """Images in the source, once its reader has opened it (its index or summary says); None before,
+    or where it cannot say. The reader sets it: a bag opened for the count alone, then again to
+    be read, was opened twice (rosbags decompresses a bag compressed by file whole at each open)."""
 
 
 WINDOW_HEADING_DEG = 20.0
@@ -268,8 +272,10 @@ class ReaderProcess:
 
     Started at once, so whatever the caller prepares next (opening the output, the imports the
     end of the run needs) overlaps the child's reading instead of delaying it. The samples it reads
-    must not have been started: the child opens and reads the recording. Errors raised in the child
-    (a bad recording) are raised here; ``close()``, or an interrupt, stops the child.
+    must not have been started: the child opens and reads the recording. The child counts into its
+    own copy of ``counts`` (the fork's), so what the samples set there (``images``, once they have
+    opened the source) reaches ``counts`` here with the items. Errors raised in the child (a bad
+    recording) are raised here; ``close()``, or an interrupt, stops the child.
     """
 
     def __init__(self, produce: Callable[[PipelineCounts], Iterator[Any]], *, counts: PipelineCounts) -> None:
@@ -283,21 +289,25 @@ class ReaderProcess:
             # caught up alone on one core after the last image (12–49 ms of a 0.6 s estimate).
             os.nice(5)
             self._receiver.close()
-            child_counts = PipelineCounts()
+            child_counts = self._counts  # this process's copy
+
+            def counted() -> tuple[int, int | None]:
+                return child_counts.samples, child_counts.images
+
             try:
                 batch: list[Any] = []
                 for item in produce(child_counts):
                     batch.append(item)
                     if len(batch) >= SEND_BATCH:
-                        sender.send(("items", batch, child_counts.samples))
+                        sender.send(("items", batch, counted()))
                         batch = []
-                sender.send(("items", batch, child_counts.samples))
-                sender.send(("done", None, child_counts.samples))
+                sender.send(("items", batch, counted()))
+                sender.send(("done", None, counted()))
             except BaseException as err:  # handed to the parent, which raises it
                 try:
-                    sender.send(("error", err, child_counts.samples))
+                    sender.send(("error", err, counted()))
                 except Exception:  # the error itself does not pickle: keep its words
-                    sender.send(("error", RuntimeError(f"{type(err).__name__}: {err}"), child_counts.samples))
+                    sender.send(("error", RuntimeError(f"{type(err).__name__}: {err}"), counted()))
             finally:
                 sender.close()
                 os._exit(0)
@@ -309,10 +319,10 @@ class ReaderProcess:
     def __iter__(self) -> Iterator[Any]:
         while True:
             try:
-                kind, payload, samples_read = self._receiver.recv()
+                kind, payload, counted = self._receiver.recv()
             except EOFError:  # the child died without a word: killed from outside
                 raise AslamError(self._death()) from None
-            self._counts.samples = samples_read
+            self._counts.samples, self._counts.images = counted
             if kind == "items":
                 yield from payload
             elif kind == "error":

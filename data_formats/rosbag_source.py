@@ -366,28 +366,43 @@ def iter_bag_samples(
     topics: BagTopics = BagTopics(),
     *,
     on_warning: Callable[[str], None] | None = None,
+    on_image_count: Callable[[int], None] | None = None,
 ) -> Iterator[Sample]:
     """One ``Sample`` per camera image of a bag, in time order, with poses interpolated to its stamp.
 
     Streams (rosbags reads chunk by chunk; only images waiting for the next odometry message are
     held). The path is checked at once; topic problems surface on the first ``next``. Warnings
-    (dropped images, odometry taken from /tf) go to ``on_warning``, one line each.
+    (dropped images, odometry taken from /tf) go to ``on_warning``, one line each;
+    ``on_image_count(n)``, once the bag is open, gets the image topic's message count from its index.
     """
     path = Path(path)
     check_bag_path(path)
-    return _iter_bag_samples(path, topics, on_warning or (lambda _message: None))
+    return _iter_bag_samples(path, topics, on_warning or (lambda _message: None), on_image_count)
 
 
-def _iter_bag_samples(path: Path, topics: BagTopics, warn: Callable[[str], None]) -> Iterator[Sample]:
+def _iter_bag_samples(
+    path: Path,
+    topics: BagTopics,
+    warn: Callable[[str], None],
+    on_image_count: Callable[[int], None] | None,
+) -> Iterator[Sample]:
     with _open_reader(path) as reader:
-        yield from _bag_samples(path, reader, topics, warn)
+        yield from _bag_samples(path, reader, topics, warn, on_image_count)
 
 
-def _bag_samples(path: Path, reader: Any, topics: BagTopics, warn: Callable[[str], None]) -> Iterator[Sample]:
+def _bag_samples(
+    path: Path,
+    reader: Any,
+    topics: BagTopics,
+    warn: Callable[[str], None],
+    on_image_count: Callable[[int], None] | None = None,
+) -> Iterator[Sample]:
     """The samples of the bag ``reader`` has open, then the pairing's warnings."""
     types = _topic_types(reader)
     resolved = resolve_topics(path, types, topics)
     counts = {topic: info.msgcount for topic, info in reader.topics.items()}
+    if on_image_count is not None:
+        on_image_count(int(counts[resolved.image]))
     assembler = SampleAssembler(path)
     assembler.expect_ground_truth = resolved.ground_truth is not None and counts[resolved.ground_truth] != 0
     tf = _TfOdometry(topics.odom_frame, topics.base_frame, warn, path) if resolved.tf else None

@@ -89,7 +89,10 @@ class RecordingInput:
         """The topics as the estimate file records them."""
         return asdict(self.topics)
 
-    def samples(self) -> Iterator[Sample]:
+    def samples(self, on_image_count: Callable[[int | None], None] | None = None) -> Iterator[Sample]:
+        """The samples; ``on_image_count(n)`` at once, from the summary already read."""
+        if on_image_count is not None:
+            on_image_count(self.image_count())
         return self.recording.samples(self.topics)
 
     def image_count(self) -> int | None:
@@ -135,8 +138,12 @@ class BagInput:
     def stored_topics(self) -> dict[str, str | None]:
         return asdict(self.choice)
 
-    def samples(self) -> Iterator[Sample]:
-        return iter_bag_samples(self.path, self.topics, on_warning=self._warnings)
+    def samples(self, on_image_count: Callable[[int | None], None] | None = None) -> Iterator[Sample]:
+        """The samples; ``on_image_count(n)`` once the iteration has opened the bag (its index says),
+        wherever it runs: in a reader process, the bag is opened there alone."""
+        return iter_bag_samples(
+            self.path, self.topics, on_warning=self._warnings, on_image_count=on_image_count
+        )
 
     def image_count(self) -> int | None:
         summary = summarize_bag(self.path, self.topics)

@@ -470,6 +470,38 @@ def test_info_opens_a_bag_once_to_count_its_images_and_once_to_read_it(bags, mon
     assert len(opened) == 2
 
 
+@pytest.mark.parametrize("reader_process", [True, False])
+def test_estimate_opens_a_bag_once(bags, tmp_path, monkeypatch, reader_process):
+    """``aslam estimate`` opened a bag to count its images (the progress bar's total), then its
+    reader opened it again to read it: rosbags decompresses a bag compressed by file whole at each
+    open (0.6 s of a 4.4 s estimate of 3,000 images) and reads a ROS 1 bag's whole index. The
+    reader's own opening now gives the count, in the reader process where there is one."""
+    from aslam.app.estimate import estimate
+    from aslam.core.config import EstimatorConfig
+    from aslam.data_formats import rosbag_source
+
+    opened = tmp_path / "opened.txt"  # a file: the reader process's opens are counted too
+    real_open = rosbag_source._open_reader
+
+    def counted(path):
+        with opened.open("a") as log:
+            log.write(f"{path}\n")
+        return real_open(path)
+
+    monkeypatch.setattr(rosbag_source, "_open_reader", counted)
+    totals = []
+    summary = estimate(
+        bags["rosbag2-mcap-zstd-file"],
+        tmp_path / "estimate.mcap",
+        EstimatorConfig(),
+        reader_process=reader_process,
+        on_progress=lambda progress: totals.append(progress.samples_total),
+    )
+    assert summary.samples == N_IMAGES
+    assert len(opened.read_text().splitlines()) == 1
+    assert totals[-1] == N_IMAGES
+
+
 @pytest.mark.parametrize(("encoding", "padding"), [("bgra8", 0), ("mono16", 3), ("mono8", 5), ("bgr8", 2)])
 def test_raw_encodings_and_padded_rows(tmp_path, encoding, padding):
     path = write_rosbag2(tmp_path / "bag", Options(encoding=encoding, padding=padding), storage="mcap")
