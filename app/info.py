@@ -28,6 +28,13 @@ def describe(
     source = open_input(recording, topics, on_warning=on_warning)
     if on_progress is None:
         return source.describe()
-    total = source.image_count()
-    on_progress(0, total)  # the total shown before the first image is read
-    return source.describe(on_sample=lambda done: on_progress(done, total))
+    total: int | None = None
+
+    def counted(images: int | None) -> None:
+        """The total, shown before the first image is read: from the reading's own opening of the
+        source (a bag opened for the count, then to be read, was opened twice)."""
+        nonlocal total
+        total = images
+        on_progress(0, total)
+
+    return source.describe(on_sample=lambda done: on_progress(done, total), on_image_count=counted)

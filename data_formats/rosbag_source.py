@@ -596,9 +596,11 @@ def describe_bag(
     *,
     on_warning: Callable[[str], None] | None = None,
     on_sample: Callable[[int], None] | None = None,
+    on_image_count: Callable[[int], None] | None = None,
 ) -> Any:
     """Read the whole bag, decoding every image, and say what it holds, as ``describe_recording``
     does for a recording (same ``RecordingInfo`` type, so ``aslam info`` prints both alike).
+    ``on_image_count`` and ``on_sample`` as :func:`iter_bag_samples`'s and after each sample.
 
     The bag's own facts (kind, storage, files, compression, the topics read) go in ``metadata``.
     """
@@ -620,7 +622,7 @@ def describe_bag(
         summary = _summary(path, kind, reader, topics)
         if summary.problem is not None:
             raise BagError(summary.problem, path=path)
-        for sample in _bag_samples(path, reader, topics, warn):
+        for sample in _bag_samples(path, reader, topics, warn, on_image_count):
             stats.add(sample)
             if on_sample is not None:
                 on_sample(stats.samples)

@@ -2,8 +2,8 @@
 ROS bags of every kind (see ``rosbag_source.classify``), as the same ``Sample`` stream.
 
 ``open_input(path, topics)`` looks at the path once (for our MCAP recordings: the one ``McapFile``,
-its summary read once) and returns an object that serves the samples, the image count, the ground
-truth and the description, whatever the kind.
+its summary read once) and returns an object that serves the samples (with the image count), the
+ground truth and the description, whatever the kind.
 
 Topic names are optional everywhere: a recording falls back to its standard topics, a bag finds
 its own (``rosbag_source.resolve_topics``). An image folder is refused with the command that
@@ -92,11 +92,8 @@ class RecordingInput:
     def samples(self, on_image_count: Callable[[int | None], None] | None = None) -> Iterator[Sample]:
         """The samples; ``on_image_count(n)`` at once, from the summary already read."""
         if on_image_count is not None:
-            on_image_count(self.image_count())
+            on_image_count(self.recording.image_count(self.topics))
         return self.recording.samples(self.topics)
-
-    def image_count(self) -> int | None:
-        return self.recording.image_count(self.topics)
 
     def ground_truth(self) -> Generator[tuple[int, np.ndarray], None, None]:
         return self.recording.ground_truth(self.topics)
@@ -119,8 +116,15 @@ class RecordingInput:
     def size_bytes(self) -> int:
         return self.recording.file.size
 
-    def describe(self, on_sample: Callable[[int], None] | None = None) -> RecordingInfo:
-        """Read it all (``aslam info``); ``on_sample(n)`` after each sample."""
+    def describe(
+        self,
+        on_sample: Callable[[int], None] | None = None,
+        on_image_count: Callable[[int | None], None] | None = None,
+    ) -> RecordingInfo:
+        """Read it all (``aslam info``); ``on_image_count`` and ``on_sample(n)`` as :meth:`samples`
+        and after each sample."""
+        if on_image_count is not None:
+            on_image_count(self.recording.image_count(self.topics))
         info = describe_recording(self.recording, self.topics, warn=self._warnings, on_sample=on_sample)
         return replace(info, warnings=tuple(self._warnings.lines))
 
@@ -145,12 +149,6 @@ class BagInput:
             self.path, self.topics, on_warning=self._warnings, on_image_count=on_image_count
         )
 
-    def image_count(self) -> int | None:
-        summary = summarize_bag(self.path, self.topics)
-        if summary.resolved is None:
-            return None
-        return next((t.messages for t in summary.topics if t.topic == summary.resolved.image), None)
-
     def ground_truth(self) -> Generator[tuple[int, np.ndarray], None, None]:
         if self.choice.ground_truth is None:
             raise BagError(
@@ -173,9 +171,20 @@ class BagInput:
     def size_bytes(self) -> int:
         return sum(file.stat().st_size for file in source_files(self.path))
 
-    def describe(self, on_sample: Callable[[int], None] | None = None) -> RecordingInfo:
-        """Read it all (``aslam info``); ``on_sample(n)`` after each sample."""
-        info = describe_bag(self.path, self.topics, on_warning=self._warnings, on_sample=on_sample)
+    def describe(
+        self,
+        on_sample: Callable[[int], None] | None = None,
+        on_image_count: Callable[[int | None], None] | None = None,
+    ) -> RecordingInfo:
+        """Read it all (``aslam info``); ``on_image_count`` and ``on_sample(n)`` as :meth:`samples`
+        and after each sample."""
+        info = describe_bag(
+            self.path,
+            self.topics,
+            on_warning=self._warnings,
+            on_sample=on_sample,
+            on_image_count=on_image_count,
+        )
         return replace(info, warnings=tuple(self._warnings.lines))
 
 
