@@ -94,21 +94,42 @@ def is_hidden(path: Path) -> bool:
     return path.name.startswith(".")
 
 
+def is_frame(path: Path) -> bool:
+    """Whether the folder entry ``path`` is one of the folder's frames: a PNG or JPEG name
+    (``IMAGE_SUFFIXES``, in any case), not hidden (:func:`is_hidden`), and a regular file or a link
+    to one (a folder named ``x.png`` is none). The one rule :func:`holds_frames` and
+    :func:`list_images` apply."""
+    return path.suffix.lower() in IMAGE_SUFFIXES and not is_hidden(path) and path.is_file()
+
+
 def holds_frames(folder: Path) -> bool:
     """Whether ``folder`` has a file that would be one of its frames (``aslam estimate`` on it is
-    then told to ``aslam import`` it), by the rule :func:`list_images` applies."""
-    return any(
-        p.suffix.lower() in IMAGE_SUFFIXES and not is_hidden(p) and p.is_file() for p in folder.iterdir()
-    )
+    then told to ``aslam import`` it)."""
+    return any(is_frame(path) for path in folder.iterdir())
+
+
+def _refusal(path: Path) -> str | None:
+    """Why ``path``, not a frame (:func:`is_frame`), stops an import, since skipping it would pair
+    every later frame wrongly: an image name that cannot be read (a broken symbolic link: a dataset
+    on a disk not mounted; a pipe), or another image format's. None: it is simply no frame (hidden,
+    a folder, another kind of file)."""
+    suffix = path.suffix.lower()
+    if is_hidden(path) or suffix not in IMAGE_SUFFIXES + OTHER_IMAGE_SUFFIXES or path.is_dir():
+        return None
+    if not path.exists():
+        return "cannot read: a broken symbolic link"
+    if suffix in OTHER_IMAGE_SUFFIXES:
+        return (
+            f"a {suffix} image among the frames; import stores PNG and JPEG only (convert it, "
+            "or move it out of the folder)"
+        )
+    return "is not a regular file (a pipe, socket or device)"
 
 
 def list_images(folder: Path) -> list[Path]:
-    """The png/jpg files of ``folder`` (not its subfolders), in natural file-name order, or by value
-    where every name is a number (``0.05.png`` before ``0.1.png``: stamps as Python writes them).
-
-    Hidden files are not frames (:func:`is_hidden`); a frame that cannot be read (a broken link: a
-    dataset on a disk not mounted; a pipe) or is stored in another image format is refused, since
-    skipping it would pair every later frame wrongly. Folders are never frames, whatever their names.
+    """The frames of ``folder`` (:func:`is_frame`; not its subfolders), in natural file-name order,
+    or by value where every name is a number (``0.05.png`` before ``0.1.png``: stamps as Python
+    writes them). An entry :func:`_refusal` names stops it (ImageFolderError naming the entry).
     """
     folder = Path(folder)
     if not folder.exists():
@@ -120,22 +141,12 @@ def list_images(folder: Path) -> list[Path]:
         # In name order, so that of several frames refused the first is named, whatever the file
         # system lists first.
         for path in sorted(folder.iterdir(), key=_natural_key):
-            suffix = path.suffix.lower()
-            if is_hidden(path) or suffix not in IMAGE_SUFFIXES + OTHER_IMAGE_SUFFIXES:
+            if is_frame(path):
+                images.append(path)
                 continue
-            if path.is_dir():
-                continue
-            if not path.exists():
-                raise ImageFolderError("cannot read: a broken symbolic link", path=path)
-            if suffix in OTHER_IMAGE_SUFFIXES:
-                raise ImageFolderError(
-                    f"a {suffix} image among the frames; import stores PNG and JPEG only (convert it, "
-                    "or move it out of the folder)",
-                    path=path,
-                )
-            if not path.is_file():
-                raise ImageFolderError("is not a regular file (a pipe, socket or device)", path=path)
-            images.append(path)
+            problem = _refusal(path)
+            if problem is not None:
+                raise ImageFolderError(problem, path=path)
     except OSError as err:
         raise ImageFolderError(f"cannot list: {err.strerror or err}", path=folder) from err
     if not images:

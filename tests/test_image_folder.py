@@ -911,3 +911,61 @@ def test_a_quaternion_not_of_unit_length_gives_its_rotation(scale: float):
     assert yaw == pytest.approx(math.radians(90.0), abs=1e-12)
     with pytest.raises(ValueError, match="zero"):
         yaw_of_quaternion(0.0, 0.0, 0.0, 0.0)
+
+
+#: Folder entries, and whether each is a frame: hidden names (macOS's ``._``), suffixes in any case,
+#: ``.jfif``, a folder named like an image, a link to a frame and a name that only holds ``png``.
+HOSTILE_ENTRIES = {
+    "._0.png": False,
+    ".hidden.png": False,
+    "UPPER.PNG": True,
+    "shout.JPG": True,
+    "mixed.JpEg": True,
+    "photo.jfif": True,
+    "PHOTO.JFIF": True,
+    "x.png": False,  # a folder
+    "linked.png": True,  # a link to a frame elsewhere
+    "notes.png.txt": False,
+    "png": False,
+}
+
+
+def _hostile_entry(folder: Path, name: str) -> None:
+    if name == "x.png":
+        (folder / name).mkdir()
+    elif name == "linked.png":
+        write_images(folder.parent / f"{folder.name}-elsewhere", 1, name=lambda _i: "frame.png")
+        (folder / name).symlink_to(folder.parent / f"{folder.name}-elsewhere" / "frame.png")
+    else:
+        (folder / name).write_bytes(b"\xff\xd8\xff")
+
+
+@pytest.mark.parametrize(("name", "frame"), sorted(HOSTILE_ENTRIES.items()))
+def test_estimate_tells_an_image_folder_by_the_frames_import_takes(tmp_path, name, frame):
+    """Which entries of a folder are frames is one rule (``image_folder.is_frame``): the folder
+    ``estimate`` and ``info`` tell to import (``holds_frames``) is one whose frames ``import`` lists
+    (``list_images``), each odd name alone in its folder and all of them in one."""
+    from aslam.data_formats.image_folder import ImageFolderError, holds_frames, list_images
+
+    alone = tmp_path / "alone"
+    alone.mkdir()
+    _hostile_entry(alone, name)
+    assert holds_frames(alone) is frame
+    if frame:
+        assert list_images(alone) == [alone / name]
+    else:
+        with pytest.raises(ImageFolderError, match=r"has no \.png or \.jpg images"):
+            list_images(alone)
+
+
+def test_the_frames_of_a_folder_of_odd_names_are_those_import_lists(tmp_path):
+    from aslam.data_formats.image_folder import holds_frames, list_images
+
+    folder = tmp_path / "all"
+    folder.mkdir()
+    for name in HOSTILE_ENTRIES:
+        _hostile_entry(folder, name)
+    assert holds_frames(folder)
+    assert sorted(p.name for p in list_images(folder)) == sorted(
+        n for n, frame in HOSTILE_ENTRIES.items() if frame
+    )
