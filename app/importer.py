@@ -72,7 +72,7 @@ def import_image_folder(
     """
     from aslam.data_formats.camera import CameraIntrinsics, fov_option_problem
     from aslam.data_formats.files import check_output_path, full_path, real_path
-    from aslam.data_formats.images import EncodedImage, ImageFormat
+    from aslam.data_formats.images import EncodedImage, ImageFormat, JpegDamage
     from aslam.data_formats.recording_writer import RecordingWriter
 
     if fov_deg is not None and (problem := fov_option_problem(fov_deg)) is not None:
@@ -126,10 +126,11 @@ def import_image_folder(
         metadata["odometry_step_m"] = f"{SYNTHETIC_STEP_M:g}"
     total = len(source)
     done = 0
+    damage = JpegDamage()
     with RecordingWriter(output, camera=camera, metadata=metadata, force=force) as writer:
         for sample in source.samples(on_warning=warn):
             image = sample.image
-            shape = image.decode_gray().shape  # decoded once: a corrupt file fails here, named
+            shape = damage.decode_gray(image).shape  # decoded once: a corrupt file fails here, named
             if shape != (height_px, width_px):
                 raise ImageFolderError(
                     f"is {shape[1]}x{shape[0]} but {first.name} (the first image) is {width_px}x{height_px}",
@@ -151,6 +152,8 @@ def import_image_folder(
                 f"{source.stamps}); nothing to import",
                 path=folder,
             )
+    if (line := damage.warning(Path(folder), done)) is not None:
+        warn(line)
     return ImportResult(
         output=output,
         images=total,

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from aslam.data_formats.camera import CameraIntrinsics
+from aslam.data_formats.images import JpegDamage
 from aslam.data_formats.pose_sync import Sample
 from aslam.data_formats.recording import METADATA_NAME, Recording, RecordingTopics
 
@@ -87,10 +88,11 @@ class SampleStats:
     encodings: dict[str, int] = field(default_factory=dict)
     sizes: dict[str, int] = field(default_factory=dict)
     distance_m: float = 0.0
+    jpeg_damage: JpegDamage = field(default_factory=JpegDamage)
     _previous_xy: Any = None
 
     def add(self, sample: Sample) -> None:
-        gray = sample.image.decode_gray()
+        gray = self.jpeg_damage.decode_gray(sample.image)
         size = f"{gray.shape[1]}x{gray.shape[0]}"
         self.sizes[size] = self.sizes.get(size, 0) + 1
         self.encodings[sample.image.encoding] = self.encodings.get(sample.image.encoding, 0) + 1
@@ -143,6 +145,8 @@ def describe_recording(
         if on_sample is not None:
             on_sample(stats.samples)
     sizes = stats.sizes
+    if (line := stats.jpeg_damage.warning(path, stats.samples)) is not None:
+        warn(line)
 
     if camera is not None and sizes:
         expected = f"{camera.width_px}x{camera.height_px}"

@@ -627,6 +627,8 @@ def describe_bag(
             if on_sample is not None:
                 on_sample(stats.samples)
         camera = _camera_intrinsics(path, reader)
+    if (line := stats.jpeg_damage.warning(path, stats.samples)) is not None:
+        warn(line)
     resolved = summary.resolved
     assert resolved is not None
     metadata = {

@@ -59,3 +59,75 @@ def test_a_cmyk_jpeg_greys_as_its_colours_do():
     cmyk = pillow(Image.fromarray(rgb).convert("CMYK"), "JPEG", quality=95)
     difference = gray(cmyk, "jpeg").astype(int) - cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
     assert np.abs(difference).max() <= 2
+
+
+def _camera_jpeg(seed: int, *, garbled: bool = False) -> bytes:
+    """A 160×120 JPEG as a camera writes one (OpenCV, quality 90); ``garbled``: eight bytes flipped
+    inside its entropy-coded data, where JPEG has no checksum and libjpeg only warns."""
+    rng = np.random.default_rng(seed)
+    image = cv2.GaussianBlur(rng.integers(0, 256, (120, 160, 3), dtype=np.uint8), (0, 0), 2)
+    data = bytearray(cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 90])[1].tobytes())
+    if garbled:
+        scan = data.index(b"\xff\xda")
+        start, end = scan + 2 + int.from_bytes(data[scan + 2 : scan + 4], "big"), len(data) - 2
+        for k in range(1, 9):
+            data[start + (end - start) * k // 9] ^= 0x55
+    return bytes(data)
+
+
+def test_jpegs_damaged_inside_their_data_are_read_with_one_warning_naming_the_first(tmp_path, capsys):
+    """libjpeg decodes a JPEG garbled inside its compressed data, recovering (wrong blocks), and
+    only prints a warning, which the CLI sends to /dev/null with every C library's: ``import`` and
+    ``info`` went on without a word. Real cameras' frames have such damage (a UVC camera's MJPEG),
+    so they are read, exit 0, and one line says how many and names the first."""
+    from conftest import ForeignRecording
+
+    from aslam.app.info import describe
+    from aslam.cli.app import main
+
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i in range(4):
+        (folder / f"{i}.jpg").write_bytes(_camera_jpeg(i, garbled=i in (1, 3)))
+    assert main(["import", str(folder), "-o", str(tmp_path / "rec.mcap")]) == 0
+    warnings = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+    assert len(warnings) == 1, warnings
+    assert warnings[0].startswith(
+        f"aslam: warning: {folder}: 2 of 4 images have damaged JPEG data, read as libjpeg recovers them"
+        " (wrong blocks); the first: 1.jpg: Corrupt JPEG data: "
+    )
+    recorded = describe(tmp_path / "rec.mcap")
+    assert recorded.samples == 4
+    assert [line.split("; the first: ")[1].split(": Corrupt")[0] for line in recorded.warnings] == [
+        "image on '/camera/image/compressed' at stamp 1600000001000000000 ns"
+    ]
+
+    bag = tmp_path / "bag.mcap"
+    with ForeignRecording(bag) as writer:
+        for i in range(3):
+            stamp_ns = 1_000_000_000 * (i + 1)
+            writer.compressed_image("/cam/compressed", stamp_ns, _camera_jpeg(i, garbled=i == 2), "jpeg")
+            writer.odometry("/odom", stamp_ns, float(i), 0.0, 0.0)
+    assert [line.split(": Corrupt JPEG data: ")[0] for line in describe(bag).warnings] == [
+        f"{bag}: 1 of 3 images have damaged JPEG data, read as libjpeg recovers them (wrong blocks);"
+        " the first: image on '/cam/compressed' at stamp 3000000000 ns"
+    ]
+
+
+def test_what_else_reaches_descriptor_2_while_a_jpeg_decodes_is_passed_on(capfd):
+    """libjpeg's words are taken from descriptor 2 for the decode; another library's, or another
+    thread's, written meanwhile are not lost."""
+    import os
+
+    from aslam.data_formats.images import _libjpeg_warnings
+
+    def decode() -> np.ndarray:
+        os.write(2, b"libpng warning: iCCP: known incorrect sRGB profile\n")
+        os.write(2, b"Corrupt JPEG data: premature end of data segment\n")
+        return np.zeros((2, 2), np.uint8)
+
+    pixels, damage = _libjpeg_warnings.first_damage(decode)
+    assert pixels.shape == (2, 2)
+    assert damage == "Corrupt JPEG data: premature end of data segment"
+    assert capfd.readouterr().err == "libpng warning: iCCP: known incorrect sRGB profile\n"
+    assert _libjpeg_warnings.first_damage(lambda: pixels)[1] is None  # nothing left over
