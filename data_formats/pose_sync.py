@@ -30,9 +30,17 @@ MAX_PENDING_IMAGES = 512
 POSE_HISTORY = 256
 POSE_HISTORY_NS = 10_000_000_000
 POSE_HISTORY_MAX = 65_536
-# Images stamped before an image logged earlier are dropped one by one (frames logged swapped);
-# once at least this many are, and more than a quarter of the images so far, the stamps are refused.
+# Messages stamped before one logged earlier on their topic are dropped one by one (two logged
+# swapped); once at least this many are, and more than a quarter of the topic's messages so far (a
+# clock jumping back and forth, two publishers on one topic), the stamps are refused.
 OUT_OF_ORDER_MIN = 3
+# How far back an odometry (or ground-truth) stamp may go and be dropped as jitter: a driver's
+# threads logging two messages swapped, a stamp taken on receipt, are off by a few milliseconds
+# whatever the rate. Further back is a clock that stepped back, which is refused: ntpd steps a clock
+# only when it is off by 128 ms or more (it slews it below), a restarted driver's stamps restart,
+# another publisher keeps its own clock. A fixed bound, not a number of periods: jitter does not
+# grow with the period, and three periods of a 1 Hz odometry would pass a clock stepped back by 3 s.
+POSE_STAMP_JITTER_NS = 50_000_000
 # Images interpolated between two odometry messages further apart than this are counted and said
 # (a dropout, a driver stopped): across it the pose is a straight line, whatever the robot did. Twice
 # the period of a 1 Hz odometry, so that slow odometry is not a gap.
@@ -102,6 +110,73 @@ class PoseTrack:
         return (stamps[j], stamps[j]) if stamps[j] == stamp_ns else (stamps[j], stamps[j + 1])
 
 
+@dataclass
+class StampOrder:
+    """Which messages of one topic are kept, read in the order logged: those stamped after the last
+    kept one. One stamped the same is dropped as a repeat; one stamped before it is dropped as out
+    of order, unless it goes back more than ``tolerance_ns`` (a clock stepped back) or at least
+    OUT_OF_ORDER_MIN and more than a quarter of the messages so far do (the stamps jump back and
+    forth): then the stamps are refused, one RecordingError naming the topic and both stamps."""
+
+    path: Path
+    what: str  # whose stamps: "image", "odometry", "ground-truth"
+    topic: str | None  # named in the error (None: not known)
+    tolerance_ns: int | None = POSE_STAMP_JITTER_NS  # None: any amount back is dropped and counted
+    noun: str = "messages"  # what the refusal counts
+    cause: str = "two publishers on one topic, or a clock that jumps back and forth"
+    messages: int = 0
+    repeated: int = 0
+    out_of_order: int = 0
+    furthest_back_ns: int = 0  # of the out-of-order messages dropped
+    last_ns: int | None = None  # of the last message kept
+
+    def admits(self, stamp_ns: int) -> bool:
+        """Whether the next message, stamped ``stamp_ns``, is kept (RecordingError: the stamps are
+        refused)."""
+        self.messages += 1
+        last = self.last_ns
+        if last is None or stamp_ns > last:
+            self.last_ns = stamp_ns
+            return True
+        if stamp_ns == last:
+            self.repeated += 1
+            return False
+        on = "" if self.topic is None else f" on {self.topic}"
+        back_ns = last - stamp_ns
+        if self.tolerance_ns is not None and back_ns > self.tolerance_ns:
+            raise RecordingError(
+                f"{self.what} stamps go backwards{on}: {stamp_ns} ns after {last} ns, {back_ns / 1e9:,.3f} s "
+                f"back, more than the {self.tolerance_ns / 1e6:g} ms a stamp may jitter: a clock stepped "
+                "back (NTP), a driver restarted, or a publisher on another clock",
+                path=self.path,
+            )
+        self.out_of_order += 1
+        self.furthest_back_ns = max(self.furthest_back_ns, back_ns)
+        if self.out_of_order >= OUT_OF_ORDER_MIN and self.out_of_order * 4 > self.messages:
+            raise RecordingError(
+                f"{self.what} stamps go backwards{on} at {self.out_of_order} of {self.messages} "
+                f"{self.noun} (now {stamp_ns} ns after {last} ns): {self.cause}",
+                path=self.path,
+            )
+        return False
+
+    def dropped(self) -> list[str]:
+        """The warnings of a pose topic's dropped messages, one line per reason."""
+        on = "" if self.topic is None else f" on {self.topic}"
+        out = []
+        if self.repeated:
+            out.append(
+                f"{self.path}: dropped {self.repeated} {self.what} message(s){on} stamped the same as the "
+                "message before (logged twice)"
+            )
+        if self.out_of_order:
+            out.append(
+                f"{self.path}: dropped {self.out_of_order} {self.what} message(s){on} stamped before a "
+                f"message logged earlier (out of order, at most {self.furthest_back_ns / 1e6:g} ms back)"
+            )
+        return out
+
+
 @dataclass(eq=False)
 class _Pending:
     stamp_ns: int
@@ -115,8 +190,6 @@ class _Pending:
 @dataclass
 class _Counts:
     before_first: int = 0
-    repeated: int = 0
-    out_of_order: int = 0
     late: int = 0
     gap: int = 0
     after_last: int = 0
@@ -130,6 +203,9 @@ class SampleAssembler:
     """Pairs images with poses interpolated to their stamps, holding only images still waiting."""
 
     path: Path
+    # The pose topics, as the errors and warnings of their stamps name them (e.g. "'/odom'").
+    odometry_topic: str | None = None
+    ground_truth_topic: str | None = None
     max_pending: int = MAX_PENDING_IMAGES
     # Whether images wait for a ground-truth pose; set once the ground-truth channel is known
     # (on a linear read it may be met after the first images).
@@ -137,40 +213,47 @@ class SampleAssembler:
     odometry: PoseTrack = field(default_factory=PoseTrack)
     ground_truth: PoseTrack = field(default_factory=PoseTrack)
     counts: _Counts = field(default_factory=_Counts)
-    images: int = 0
+    # Which messages are kept. A reader asks a pose topic's before it reads the pose (a dropped
+    # message's is never read, nor checked against the one before): add_odometry and
+    # add_ground_truth take only the messages admitted.
+    image_stamps: StampOrder = field(init=False)
+    odometry_stamps: StampOrder = field(init=False)
+    ground_truth_stamps: StampOrder = field(init=False)
     # images whose header stamp was unset, stamped with their log time by the reader
     log_time_images: int = 0
     yielded: int = 0
     first_image_ns: int | None = None
-    last_image_ns: int | None = None
     _pending: deque[_Pending] = field(default_factory=deque)
     # Images let go past max_pending while odometry had stopped: in a gap if odometry comes back past
     # the last of them, else after the last odometry message (known only then, or at the end).
     _let_go_waiting: int = 0
     _let_go_last_ns: int = 0
 
+    def __post_init__(self) -> None:
+        # An image is dropped however far back (a camera's frames are not interpolated); a clock
+        # that jumps ahead would let every later frame go: refused by their count.
+        self.image_stamps = StampOrder(
+            self.path, "image", None, tolerance_ns=None, noun="images", cause="the camera's clock jumps"
+        )
+        self.odometry_stamps = StampOrder(self.path, "odometry", self.odometry_topic)
+        self.ground_truth_stamps = StampOrder(self.path, "ground-truth", self.ground_truth_topic)
+
+    @property
+    def images(self) -> int:
+        """Images read, kept or not."""
+        return self.image_stamps.messages
+
+    @property
+    def last_image_ns(self) -> int | None:
+        return self.image_stamps.last_ns
+
     def add_image(self, stamp_ns: int, image: LazyImage) -> Iterator[Sample]:
-        self.images += 1
-        if stamp_ns == self.last_image_ns:
-            # A frame logged twice (a driver or a recorder repeating it): one camera has one view at
-            # an instant, and a copy would be paired, counted and estimated as another frame.
-            self.counts.repeated += 1
-            return
-        if self.last_image_ns is not None and stamp_ns < self.last_image_ns:
-            # A driver's threads may log two frames swapped: the later-logged, earlier-stamped one
-            # is let go (and counted) rather than the whole recording refused. A clock that jumps
-            # ahead would let every later frame go: that is refused, not run on what is left.
-            self.counts.out_of_order += 1
-            if self.counts.out_of_order >= OUT_OF_ORDER_MIN and self.counts.out_of_order * 4 > self.images:
-                raise RecordingError(
-                    f"image stamps go backwards at {self.counts.out_of_order} of {self.images} images "
-                    f"(now {stamp_ns} ns after {self.last_image_ns} ns): the camera's clock jumps",
-                    path=self.path,
-                )
+        # A frame logged twice (one camera has one view at an instant: a copy would be paired,
+        # counted and estimated as another frame) or two logged swapped is let go, and counted.
+        if not self.image_stamps.admits(stamp_ns):
             return
         if self.first_image_ns is None:
             self.first_image_ns = stamp_ns
-        self.last_image_ns = stamp_ns
         item = _Pending(stamp_ns, image)
         self._resolve(item)
         if not item.dropped:
@@ -178,6 +261,8 @@ class SampleAssembler:
         yield from self._drain()
 
     def add_odometry(self, stamp_ns: int, pose: np.ndarray) -> Iterator[Sample]:
+        """The next odometry pose, stamped after the one before: a reader of messages that may not
+        be keeps those ``odometry_stamps`` admits."""
         self.odometry.add(stamp_ns, pose)
         if self._let_go_waiting and stamp_ns >= self._let_go_last_ns:
             self.counts.gap += self._let_go_waiting
@@ -188,6 +273,7 @@ class SampleAssembler:
         yield from self._drain()
 
     def add_ground_truth(self, stamp_ns: int, pose: np.ndarray) -> Iterator[Sample]:
+        """The next true pose, stamped after the one before (as ``add_odometry``'s)."""
         self.ground_truth.add(stamp_ns, pose)
         for item in self._pending:
             if not item.ground_truth_done and not item.dropped:
@@ -305,8 +391,14 @@ class SampleAssembler:
                 "image(s) stamped before the first odometry message"
                 + (f" (at {first} ns)" if first is not None else ""),
             ),
-            (c.repeated, "image(s) stamped the same as the image before (a frame logged twice)"),
-            (c.out_of_order, "image(s) stamped before an image logged earlier (out of order)"),
+            (
+                self.image_stamps.repeated,
+                "image(s) stamped the same as the image before (a frame logged twice)",
+            ),
+            (
+                self.image_stamps.out_of_order,
+                "image(s) stamped before an image logged earlier (out of order)",
+            ),
             (
                 c.late,
                 "image(s) that arrived after the odometry at their stamp was let go (the last "
@@ -321,6 +413,7 @@ class SampleAssembler:
             ),
         ]
         out = [f"{self.path}: dropped {count} {what}" for count, what in lines if count]
+        out += self.odometry_stamps.dropped() + self.ground_truth_stamps.dropped()
         if self.log_time_images and (c.before_first or c.after_last):
             out.append(
                 f"{self.path}: {self.log_time_images} image(s) had no header stamp and took their log time,"

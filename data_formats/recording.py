@@ -29,7 +29,7 @@ from aslam.data_formats.image_encodings import RAW_ENCODINGS, is_raw_encoding
 from aslam.data_formats.images import LazyImage, sniffed_format
 from aslam.data_formats.mcap_file import McapFile
 from aslam.data_formats.pose_limits import implausible
-from aslam.data_formats.pose_sync import Sample, SampleAssembler
+from aslam.data_formats.pose_sync import Sample, SampleAssembler, StampOrder
 from aslam.data_formats.schema_check import definition_problem
 
 METADATA_NAME = "aslam.recording"
@@ -187,24 +187,14 @@ def _lazy_image(path: Path, topic: str, datatype: str, msg: Any, stamp_ns: int) 
 
 
 class _Stream:
-    """One kind of message in a recording: its accepted types, and stamps that must not go back
-    (``ordered``; images out of order are the assembler's to drop)."""
+    """One kind of message in a recording: its accepted types, its stamps and poses checked (which
+    messages are kept, in stamp order, is a ``pose_sync.StampOrder``'s to say)."""
 
-    def __init__(
-        self,
-        path: Path,
-        what: str,
-        accepted: tuple[str, ...],
-        decode: _MessageDecoder,
-        *,
-        ordered: bool = True,
-    ) -> None:
+    def __init__(self, path: Path, what: str, accepted: tuple[str, ...], decode: _MessageDecoder) -> None:
         self.path = path
-        self.ordered = ordered
         self.what = what
         self.accepted = accepted
         self.decode = decode
-        self.last_ns: int | None = None
         self.last_pose: np.ndarray | None = None
 
     def read(self, schema: Any, channel: Any, message: Any) -> tuple[int, Any, str]:
@@ -215,20 +205,13 @@ class _Stream:
         stamp_ns = _header_stamp_ns(msg, message.log_time)
         if stamp_ns < 0:
             raise RecordingError(negative_stamp(self.what, channel.topic, stamp_ns), path=self.path)
-        if self.ordered and self.last_ns is not None and stamp_ns < self.last_ns:
-            raise RecordingError(backwards(self.what, channel.topic, stamp_ns, self.last_ns), path=self.path)
-        self.last_ns = stamp_ns
         return stamp_ns, msg, datatype
 
     def pose(self, topic: str, datatype: str, msg: Any, stamp_ns: int) -> np.ndarray:
-        """The planar pose of a pose message (Odometry, PoseStamped, ...), finite and plausible."""
+        """The planar pose of a pose message (Odometry, PoseStamped, ...), finite and plausible after
+        the pose before it (of the messages kept)."""
         self.last_pose = checked_pose(self.path, self.what, topic, datatype, msg, stamp_ns, self.last_pose)
         return self.last_pose
-
-
-def backwards(what: str, topic: str, stamp_ns: int, previous_ns: int) -> str:
-    """The problem of a stamp before the one before it on its topic."""
-    return f"{what} stamps go backwards on '{topic}': {stamp_ns} ns after {previous_ns} ns"
 
 
 def checked_pose(
@@ -336,8 +319,10 @@ class Recording:
                     ros_msgs.POSE_TYPES,
                 )
         decode = _MessageDecoder(path)
-        assembler = SampleAssembler(path)
-        images = _Stream(path, "image", ros_msgs.IMAGE_TYPES, decode, ordered=False)
+        assembler = SampleAssembler(
+            path, odometry_topic=f"'{topics.odometry}'", ground_truth_topic=f"'{topics.ground_truth}'"
+        )
+        images = _Stream(path, "image", ros_msgs.IMAGE_TYPES, decode)
         odometry = _Stream(path, "odometry", ros_msgs.POSE_TYPES, decode)
         truth = _Stream(path, "ground-truth", ros_msgs.POSE_TYPES, decode)
         wanted = (topics.image, topics.odometry, topics.ground_truth)
@@ -352,10 +337,14 @@ class Recording:
                 yield from assembler.add_image(stamp_ns, _lazy_image(path, topic, datatype, msg, stamp_ns))
             elif topic == topics.odometry:
                 stamp_ns, msg, datatype = odometry.read(schema, channel, message)
-                yield from assembler.add_odometry(stamp_ns, odometry.pose(topic, datatype, msg, stamp_ns))
+                if assembler.odometry_stamps.admits(stamp_ns):
+                    yield from assembler.add_odometry(stamp_ns, odometry.pose(topic, datatype, msg, stamp_ns))
             else:
                 stamp_ns, msg, datatype = truth.read(schema, channel, message)
-                yield from assembler.add_ground_truth(stamp_ns, truth.pose(topic, datatype, msg, stamp_ns))
+                if assembler.ground_truth_stamps.admits(stamp_ns):
+                    yield from assembler.add_ground_truth(
+                        stamp_ns, truth.pose(topic, datatype, msg, stamp_ns)
+                    )
         if not source.complete_channels:
             if topics.image not in channels:
                 raise _missing_topic(path, "image", topics.image, channels, source)
@@ -377,7 +366,8 @@ class Recording:
     def ground_truth(
         self, topics: RecordingTopics = RecordingTopics()
     ) -> Generator[tuple[int, np.ndarray], None, None]:
-        """``(stamp_ns, (x_m, y_m, yaw_rad))`` of every ground-truth message, in time order.
+        """``(stamp_ns, (x_m, y_m, yaw_rad))`` of every ground-truth message kept (as ``samples``
+        keeps them), in time order.
 
         RecordingError if the recording has no ground-truth topic.
         """
@@ -386,9 +376,12 @@ class Recording:
         if source.complete_channels and topic not in source.channels:
             raise _missing_topic(path, "ground-truth", topic, source.channels, source)
         stream = _Stream(path, "ground-truth", ros_msgs.POSE_TYPES, _MessageDecoder(path))
+        order = StampOrder(path, "ground-truth", f"'{topic}'")
         count = 0
         for schema, channel, message in source.messages([topic]):
             stamp_ns, msg, datatype = stream.read(schema, channel, message)
+            if not order.admits(stamp_ns):
+                continue
             count += 1
             yield stamp_ns, stream.pose(topic, datatype, msg, stamp_ns)
         if not source.complete_channels and topic not in source.channels:
@@ -398,6 +391,8 @@ class Recording:
             self._warn(
                 f"{path}: truncated at byte {cut.at_byte} of {cut.size}; read {count} poses, the rest is lost"
             )
+        for line in order.dropped():
+            self._warn(line)
 
     def camera(self, topics: RecordingTopics = RecordingTopics()) -> CameraIntrinsics | None:
         """The intrinsics of the first camera-info message (horizontal FOV from ``fx``), or None."""

@@ -31,12 +31,11 @@ from aslam.data_formats.errors import BagError
 from aslam.data_formats.files import check_input_file, source_files
 from aslam.data_formats.mcap_file import McapFile
 from aslam.data_formats.pose_limits import implausible
-from aslam.data_formats.pose_sync import Sample, SampleAssembler
+from aslam.data_formats.pose_sync import Sample, SampleAssembler, StampOrder
 from aslam.data_formats.recording import (
     _header_stamp_ns,
     _lazy_image,
     _set_header_stamp_ns,
-    backwards,
     checked_pose,
     negative_stamp,
 )
@@ -234,28 +233,6 @@ def _stamp(path: Path, what: str, topic: str, msg: Any, log_time: int) -> int:
     return stamp_ns
 
 
-def _next_pose(
-    path: Path,
-    kind: str,
-    topic: str,
-    datatype: str,
-    msg: Any,
-    log_time: int,
-    last_ns: int | None,
-    last_pose: np.ndarray | None,
-) -> tuple[int, np.ndarray]:
-    """The stamp and planar pose of one odometry or ground-truth message, refused when its stamp goes
-    back (``last_ns``, ``last_pose``: the topic's message before)."""
-    stamp_ns = _stamp(path, kind, topic, msg, log_time)
-    if last_ns is not None and stamp_ns < last_ns:
-        raise _backwards(path, kind, topic, stamp_ns, last_ns)
-    return stamp_ns, _pose(path, kind, topic, datatype, msg, stamp_ns, last_pose)
-
-
-def _backwards(path: Path, what: str, topic: str, stamp_ns: int, previous_ns: int) -> BagError:
-    return BagError(backwards(what, topic, stamp_ns, previous_ns), path=path)
-
-
 @contextmanager
 def _rosbags_errors(path: Path, doing: str) -> Iterator[None]:
     """Every exception from rosbags (and the sqlite/zstd/yaml code under it) → one BagError line."""
@@ -403,11 +380,14 @@ def _bag_samples(
     counts = {topic: info.msgcount for topic, info in reader.topics.items()}
     if on_image_count is not None:
         on_image_count(int(counts[resolved.image]))
-    assembler = SampleAssembler(path)
-    assembler.expect_ground_truth = resolved.ground_truth is not None and counts[resolved.ground_truth] != 0
     tf = _TfOdometry(topics.odom_frame, topics.base_frame, warn, path) if resolved.tf else None
-    last_odometry_ns: int | None = None
-    last_truth_ns: int | None = None
+    odometry_topic = (
+        f"'{resolved.odometry}'" if tf is None else f"'{resolved.tf}' (from frame '{tf.odom_frame}')"
+    )
+    assembler = SampleAssembler(
+        path, odometry_topic=odometry_topic, ground_truth_topic=f"'{resolved.ground_truth}'"
+    )
+    assembler.expect_ground_truth = resolved.ground_truth is not None and counts[resolved.ground_truth] != 0
     last_odometry: np.ndarray | None = None
     last_truth: np.ndarray | None = None
     wanted = {t for t in (resolved.image, resolved.odometry, resolved.ground_truth, resolved.tf) if t}
@@ -417,29 +397,27 @@ def _bag_samples(
             assembler.log_time_images += _set_header_stamp_ns(msg) is None
             yield from assembler.add_image(stamp_ns, _lazy_image(path, topic, datatype, msg, stamp_ns))
         elif topic == resolved.odometry:
-            last_odometry_ns, last_odometry = _next_pose(
-                path, "odometry", topic, datatype, msg, log_time, last_odometry_ns, last_odometry
-            )
-            yield from assembler.add_odometry(last_odometry_ns, last_odometry)
+            stamp_ns = _stamp(path, "odometry", topic, msg, log_time)
+            if assembler.odometry_stamps.admits(stamp_ns):
+                last_odometry = _pose(path, "odometry", topic, datatype, msg, stamp_ns, last_odometry)
+                yield from assembler.add_odometry(stamp_ns, last_odometry)
         elif topic == resolved.tf and tf is not None:
             for stamp_ns, pose in tf.poses(msg, log_time):
                 if stamp_ns < 0:
                     raise BagError(negative_stamp("odometry", topic, stamp_ns), path=path)
-                if last_odometry_ns is not None and stamp_ns <= last_odometry_ns:
-                    if stamp_ns == last_odometry_ns:
-                        continue  # the same transform published twice
-                    raise _backwards(path, "odometry", f"{topic} {tf.odom_frame}", stamp_ns, last_odometry_ns)
+                if not assembler.odometry_stamps.admits(stamp_ns):
+                    continue
                 problem = implausible(pose, last_odometry)
                 if problem is not None:
                     raise BagError(f"odometry pose on '{topic}' at stamp {stamp_ns} ns {problem}", path=path)
-                last_odometry_ns, last_odometry = stamp_ns, pose
+                last_odometry = pose
                 yield from assembler.add_odometry(stamp_ns, pose)
         else:
-            last_truth_ns, last_truth = _next_pose(
-                path, "ground-truth", topic, datatype, msg, log_time, last_truth_ns, last_truth
-            )
-            yield from assembler.add_ground_truth(last_truth_ns, last_truth)
-    if tf is not None and last_odometry_ns is None:
+            stamp_ns = _stamp(path, "ground-truth", topic, msg, log_time)
+            if assembler.ground_truth_stamps.admits(stamp_ns):
+                last_truth = _pose(path, "ground-truth", topic, datatype, msg, stamp_ns, last_truth)
+                yield from assembler.add_ground_truth(stamp_ns, last_truth)
+    if tf is not None and last_odometry is None:
         pairs = ", ".join(f"{p} → {c}" for p, c in sorted(tf.pairs_seen)) or "none"
         raise BagError(
             f"no transform from frame '{tf.odom_frame}'"
@@ -458,15 +436,20 @@ def _bag_samples(
         warn(line)
 
 
-def iter_bag_ground_truth(path: Path, topic: str) -> Generator[tuple[int, np.ndarray], None, None]:
-    """``(stamp_ns, (x_m, y_m, yaw_rad))`` of every message on the ground-truth ``topic``, in order
-    (what ``report`` scores against, like ``recording.iter_ground_truth``)."""
+def iter_bag_ground_truth(
+    path: Path, topic: str, *, on_warning: Callable[[str], None] | None = None
+) -> Generator[tuple[int, np.ndarray], None, None]:
+    """``(stamp_ns, (x_m, y_m, yaw_rad))`` of every message kept on the ground-truth ``topic`` (as
+    ``iter_bag_samples`` keeps them), in order: what ``report`` scores against, like
+    ``Recording.ground_truth``. The messages dropped are said to ``on_warning`` at the end."""
     path = Path(path)
     check_bag_path(path)
-    return _iter_bag_ground_truth(path, topic)
+    return _iter_bag_ground_truth(path, topic, on_warning or (lambda _message: None))
 
 
-def _iter_bag_ground_truth(path: Path, topic: str) -> Generator[tuple[int, np.ndarray], None, None]:
+def _iter_bag_ground_truth(
+    path: Path, topic: str, warn: Callable[[str], None]
+) -> Generator[tuple[int, np.ndarray], None, None]:
     with _open_reader(path) as reader:
         types = _topic_types(reader)
         if topic not in types:
@@ -479,15 +462,15 @@ def _iter_bag_ground_truth(path: Path, topic: str) -> Generator[tuple[int, np.nd
                 f"expected {' or '.join(ros_msgs.POSE_TYPES)}",
                 path=path,
             )
-        last: int | None = None
+        order = StampOrder(path, "ground-truth", f"'{topic}'")
         pose: np.ndarray | None = None
         for _topic, datatype, log_time, msg in _messages(path, reader, {topic}):
             stamp_ns = _stamp(path, "ground-truth", topic, msg, log_time)
-            if last is not None and stamp_ns < last:
-                raise _backwards(path, "ground-truth", topic, stamp_ns, last)
-            last = stamp_ns
-            pose = _pose(path, "ground-truth", topic, datatype, msg, stamp_ns, pose)
-            yield stamp_ns, pose
+            if order.admits(stamp_ns):
+                pose = _pose(path, "ground-truth", topic, datatype, msg, stamp_ns, pose)
+                yield stamp_ns, pose
+        for line in order.dropped():
+            warn(line)
 
 
 # --- describing ---------------------------------------------------------------------------------

@@ -155,7 +155,7 @@ class BagInput:
                 "no ground-truth topic named for this bag (--ground-truth-topic of estimate or report)",
                 path=self.path,
             )
-        return iter_bag_ground_truth(self.path, self.choice.ground_truth)
+        return iter_bag_ground_truth(self.path, self.choice.ground_truth, on_warning=self._warnings)
 
     def has_topic(self, topic: str) -> bool:
         """Whether the bag has ``topic`` (its index says; no message read)."""

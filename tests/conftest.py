@@ -181,7 +181,7 @@ class ForeignRecording:
             topic, self.schema(ros_msgs.ODOMETRY), message, log_time=log_time or stamp_ns
         )
 
-    def pose(self, topic: str, stamp_ns: int, pose: np.ndarray) -> None:
+    def pose(self, topic: str, stamp_ns: int, pose: np.ndarray, log_time: int | None = None) -> None:
         """A ``PoseStamped`` (a bag's ground truth: motion capture, GPS)."""
         x, y, yaw = (float(v) for v in pose)
         message = {
@@ -191,7 +191,9 @@ class ForeignRecording:
                 "orientation": {"x": 0.0, "y": 0.0, "z": math.sin(yaw / 2), "w": math.cos(yaw / 2)},
             },
         }
-        self.writer.write_message(topic, self.schema(ros_msgs.POSE_STAMPED), message, log_time=stamp_ns)
+        self.writer.write_message(
+            topic, self.schema(ros_msgs.POSE_STAMPED), message, log_time=log_time or stamp_ns
+        )
 
     def close(self) -> None:
         self.writer.finish()
