@@ -233,8 +233,10 @@ def iter_poses(
 ) -> Iterator[PoseRow]:
     """Every pose of ``path``, in file order; a malformed line is a PoseFileError naming it.
 
-    Stamps must not go backwards (TUM and CSV); ``unit`` as ``stamp_text_ns`` takes it. The format
-    is detected when ``fmt`` is None.
+    Stamps must not go backwards (TUM and CSV), where a bag's odometry drops a message that does
+    (``pose_sync.StampOrder``): a text file is sorted in a moment, and one of a row per image is
+    paired row by row, which a dropped row would shift. ``unit`` as ``stamp_text_ns`` takes it. The
+    format is detected when ``fmt`` is None.
     """
     path = Path(path)
     fmt = detect_format(path) if fmt is None else PoseFormat(fmt)
