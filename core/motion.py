@@ -4,6 +4,11 @@ A relative pose with its covariance is a flat tuple ``(x, y, yaw, cxx, cxy, cxt,
 ("rel"): the graph search composes thousands of them per keyframe and plain floats are several
 times faster than tiny numpy arrays there. Covariances compose with the SE(2) Jacobians:
 ``Σ_ac = J₁ Σ_ab J₁ᵀ + J₂ Σ_bc J₂ᵀ``.
+
+No BLAS or LAPACK here: their kernels are chosen for the CPU when they load, and a 3×3 product or
+inverse came out a last bit apart on AVX2 and AVX-512 machines (a hypothesis' belief with it).
+Products are written out and stacks contracted with ``einsum``, which sums in a fixed order on
+every CPU (docs/usage.md, "Same inputs, same bytes").
 """
 
 from __future__ import annotations
@@ -28,11 +33,15 @@ def action_covariance(action: np.ndarray, noise: MotionNoise) -> np.ndarray:
     heading = noise.fraction * abs(dyaw) + noise.drift_rad_per_m * distance + noise.floor_rad
     direction = math.atan2(dy, dx) if distance > 0.0 else 0.0
     c, s = math.cos(direction), math.sin(direction)
-    rotation = np.array([[c, -s], [s, c]])
-    covariance = np.zeros((3, 3))
-    covariance[:2, :2] = rotation @ np.diag([along**2, lateral**2]) @ rotation.T
-    covariance[2, 2] = heading**2
-    return covariance
+    along2, lateral2 = along**2, lateral**2
+    cross = c * s * (along2 - lateral2)
+    return np.array(
+        [
+            [c * c * along2 + s * s * lateral2, cross, 0.0],
+            [cross, s * s * along2 + c * c * lateral2, 0.0],
+            [0.0, 0.0, heading**2],
+        ]
+    )
 
 
 def to_rel(pose: np.ndarray, covariance: np.ndarray) -> Rel:
@@ -111,15 +120,40 @@ def inverse_rel(a: Rel) -> Rel:
 
 def fuse_rel(a: Rel, b: Rel) -> Rel:
     """Information-weighted fusion of two measurements of the same link (traversed again)."""
-    ca, cb = rel_covariance(a), rel_covariance(b)
-    pa, pb = rel_pose(a), rel_pose(b)
-    pb = pb.copy()
-    pb[2] = pa[2] + se2.wrap_angle(pb[2] - pa[2])  # average headings on the short arc
-    info_a, info_b = np.linalg.inv(ca), np.linalg.inv(cb)
-    covariance = np.linalg.inv(info_a + info_b)
-    pose = covariance @ (info_a @ pa + info_b @ pb)
-    pose[2] = se2.wrap_angle(pose[2])
-    return to_rel(pose, covariance)
+    ax, ay, at = a[:3]
+    bx, by, bt = b[:3]
+    bt = at + float(se2.wrap_angle(bt - at))  # average headings on the short arc
+    info_a, info_b = _inverse(a[3:]), _inverse(b[3:])
+    c11, c12, c13, c22, c23, c33 = covariance = _inverse(
+        tuple(p + q for p, q in zip(info_a, info_b, strict=True))
+    )
+    ia11, ia12, ia13, ia22, ia23, ia33 = info_a
+    ib11, ib12, ib13, ib22, ib23, ib33 = info_b
+    vx = ia11 * ax + ia12 * ay + ia13 * at + ib11 * bx + ib12 * by + ib13 * bt
+    vy = ia12 * ax + ia22 * ay + ia23 * at + ib12 * bx + ib22 * by + ib23 * bt
+    vt = ia13 * ax + ia23 * ay + ia33 * at + ib13 * bx + ib23 * by + ib33 * bt
+    x = c11 * vx + c12 * vy + c13 * vt
+    y = c12 * vx + c22 * vy + c23 * vt
+    yaw = float(se2.wrap_angle(c13 * vx + c23 * vy + c33 * vt))
+    return (x, y, yaw, *covariance)
+
+
+def _inverse(covariance: tuple[float, ...]) -> tuple[float, float, float, float, float, float]:
+    """The inverse of a symmetric 3×3 matrix given as ``(c11, c12, c13, c22, c23, c33)``, by its
+    cofactors (in the same order)."""
+    c11, c12, c13, c22, c23, c33 = covariance
+    m11 = c22 * c33 - c23 * c23
+    m12 = c13 * c23 - c12 * c33
+    m13 = c12 * c23 - c13 * c22
+    determinant = c11 * m11 + c12 * m12 + c13 * m13
+    return (
+        m11 / determinant,
+        m12 / determinant,
+        m13 / determinant,
+        (c11 * c33 - c13 * c13) / determinant,
+        (c12 * c13 - c11 * c23) / determinant,
+        (c11 * c22 - c12 * c12) / determinant,
+    )
 
 
 LEVER_ARM_M = 5.0
@@ -167,6 +201,27 @@ def revisit_residuals(
     j2[:, 0, 0], j2[:, 0, 1] = ci, -si
     j2[:, 1, 0], j2[:, 1, 1] = si, ci
     j2[:, 2, 2] = 1.0
-    a = j1 @ j_inv
-    covariance = a @ state_covariances @ a.transpose(0, 2, 1) + j2 @ action_cov @ j2.transpose(0, 2, 1)
+    a = np.einsum("nij,njk->nik", j1, j_inv)
+    covariance = np.einsum("nij,njk,nlk->nil", a, state_covariances, a) + np.einsum(
+        "nij,jk,nlk->nil", j2, action_cov, j2
+    )
     return residual, covariance
+
+
+def mahalanobis2_and_logdet(residuals: np.ndarray, covariances: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``rᵀ Σ⁻¹ r`` and ``log |Σ|`` of each residual (n, 3) under its covariance (n, 3, 3), by the
+    cofactors of Σ (symmetric: its upper triangle is read)."""
+    s11, s12, s13 = covariances[:, 0, 0], covariances[:, 0, 1], covariances[:, 0, 2]
+    s22, s23, s33 = covariances[:, 1, 1], covariances[:, 1, 2], covariances[:, 2, 2]
+    m11 = s22 * s33 - s23 * s23
+    m12 = s13 * s23 - s12 * s33
+    m13 = s12 * s23 - s13 * s22
+    m22 = s11 * s33 - s13 * s13
+    m23 = s12 * s13 - s11 * s23
+    m33 = s11 * s22 - s12 * s12
+    determinant = s11 * m11 + s12 * m12 + s13 * m13
+    x, y, t = residuals[:, 0], residuals[:, 1], residuals[:, 2]
+    quadratic = m11 * x * x + m22 * y * y + m33 * t * t + 2.0 * (m12 * x * y + m13 * x * t + m23 * y * t)
+    # math.log (the C library's), not np.log: on AVX-512 CPUs numpy takes its own, whose last bits differ.
+    logdet = np.array([math.log(abs(d)) for d in determinant.tolist()])
+    return quadratic / determinant, logdet

@@ -30,6 +30,7 @@ from aslam.core.motion import (
     compose_rel,
     inverse_rel,
     link_weight,
+    mahalanobis2_and_logdet,
     revisit_residuals,
     to_rel,
 )
@@ -791,9 +792,7 @@ class HypothesisTree:
         else:
             beyond = np.zeros(len(residual), dtype=bool)
         covariance += self._place_cov
-        inverse = np.linalg.inv(covariance)
-        mahalanobis2 = np.einsum("ni,nij,nj->n", residual, inverse, residual)
-        logdet = np.linalg.slogdet(covariance)[1]
+        mahalanobis2, logdet = mahalanobis2_and_logdet(residual, covariance)
         # Normalised so a perfectly predicted revisit with no chain uncertainty scores log 1.
         return 0.5 * (self._place_logdet - logdet) - 0.5 * mahalanobis2, mahalanobis2, beyond
 

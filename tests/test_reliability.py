@@ -12,6 +12,7 @@ import hashlib
 import json
 import math
 import os
+import platform
 import shutil
 import signal
 import struct
@@ -904,6 +905,93 @@ def test_record_estimate_and_report_write_the_same_bytes_in_another_environment(
     assert len(written[0]) == 12  # the recording, estimate, two JSON, three trajectories, five plots
     assert written[0].keys() == written[1].keys()
     assert [name for name in written[0] if written[0][name] != written[1][name]] == []
+
+
+@pytest.fixture(scope="module")
+def paper_route(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The paper's route rendered small, twice round: enough fused links and revisits that the
+    old BLAS motion model's last bits differed between AVX-512 and AVX2 kernels (a square route's
+    did not)."""
+    path = tmp_path_factory.mktemp("paper") / "paper.mcap"
+    assert main(["record", "--route", "paper", "--laps", "2", "--size", "32x24", "-o", str(path), "-q"]) == 0
+    return path
+
+
+OPENBLAS_KERNELS = {"Haswell": {"avx2", "fma"}, "Sandybridge": {"avx"}, "Prescott": set()}
+"""OpenBLAS kernels a CPU of another generation gets (AVX2, AVX, SSE3), with the CPU flags each needs."""
+
+
+def _openblas_core(env: dict[str, str]) -> str:
+    """The kernel OpenBLAS (numpy's) picks when loaded in ``env``, as it says with ``OPENBLAS_VERBOSE``."""
+    done = subprocess.run(
+        [sys.executable, "-c", "import numpy"],
+        env={**env, "OPENBLAS_VERBOSE": "2"},
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    return next((line for line in (done.stdout + done.stderr).splitlines() if line.startswith("Core:")), "")
+
+
+def _estimate_and_export(
+    recording: Path,
+    out: Path,
+    env: dict[str, str],
+    modes: tuple[tuple[str, list[str]], ...] = (("default", []), ("paper", ["--paper-faithful"])),
+) -> dict[str, bytes]:
+    """Every file ``estimate`` (by default with the defaults and ``--paper-faithful``) and
+    ``report``'s map and trajectory exports write, in a fresh process under ``env``, by name."""
+    out.mkdir()
+    code = "import sys\nfrom aslam.cli.app import main\nsys.exit(max(map(main, eval(sys.argv[1]))))"
+    commands = []
+    for name, flags in modes:
+        est = str(out / f"{name}.mcap")
+        commands.append(["estimate", str(recording), "-o", est, "--no-timing", "-q", *flags])
+        exports = ["--graph", str(out / f"{name}.json"), "--trajectory", str(out / f"{name}.tum")]
+        commands.append(["report", est, "--recording", str(recording), "-q", *exports])
+    done = subprocess.run(
+        [sys.executable, "-c", code, repr(commands)], env=env, capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0, done.stderr
+    return {p.name: p.read_bytes() for p in sorted(out.iterdir())}
+
+
+@pytest.mark.parametrize("kernel", sorted(OPENBLAS_KERNELS))
+def test_an_estimate_is_the_same_bytes_under_another_cpus_openblas_kernels(
+    paper_route: Path, tmp_path: Path, kernel: str
+):
+    """OpenBLAS picks its kernels for the CPU it loads on; forced to another generation's with
+    ``OPENBLAS_CORETYPE``, the estimates, the map and the embedded trajectory are the same bytes.
+    Before, the motion model's 3×3 products and inverses ran in BLAS and LAPACK: their last bits
+    differed between kernels, and so did link means, beliefs and the metric view."""
+    if platform.machine() not in ("x86_64", "AMD64"):
+        pytest.skip(f"OPENBLAS_CORETYPE picks among x86-64 kernels; this is {platform.machine()}")
+    flags = (
+        next(
+            (
+                set(line.split(":", 1)[1].split())
+                for line in Path("/proc/cpuinfo").read_text().splitlines()
+                if line.startswith("flags")
+            ),
+            set(),
+        )
+        if Path("/proc/cpuinfo").exists()
+        else set()
+    )
+    if not OPENBLAS_KERNELS[kernel] <= flags:
+        pytest.skip(
+            f"this CPU cannot run OpenBLAS's {kernel} kernels (needs {sorted(OPENBLAS_KERNELS[kernel])})"
+        )
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_CORETYPE"}
+    other = {**env, "OPENBLAS_CORETYPE": kernel}
+    own_core, other_core = _openblas_core(env), _openblas_core(other)
+    if not other_core or other_core == own_core:
+        pytest.skip(f"OPENBLAS_CORETYPE={kernel} changes no kernel here ({own_core or 'not reported'})")
+    out = tmp_path / "out"
+    written = _estimate_and_export(paper_route, out, env)
+    out.rename(tmp_path / "own")
+    assert len(written) == 10  # two estimates, two maps, two of each trajectory
+    assert _estimate_and_export(paper_route, out, other) == written
 
 
 def test_a_stdout_that_is_not_utf8_gets_escapes_not_an_internal_error(estimate_file: Path):
