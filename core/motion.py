@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from aslam.core import se2
+from aslam.core import portable_math, se2
 from aslam.core.config import MotionNoise
 
 Rel = tuple[float, float, float, float, float, float, float, float, float]
@@ -222,6 +222,4 @@ def mahalanobis2_and_logdet(residuals: np.ndarray, covariances: np.ndarray) -> t
     determinant = s11 * m11 + s12 * m12 + s13 * m13
     x, y, t = residuals[:, 0], residuals[:, 1], residuals[:, 2]
     quadratic = m11 * x * x + m22 * y * y + m33 * t * t + 2.0 * (m12 * x * y + m13 * x * t + m23 * y * t)
-    # math.log (the C library's), not np.log: on AVX-512 CPUs numpy takes its own, whose last bits differ.
-    logdet = np.array([math.log(abs(d)) for d in determinant.tolist()])
-    return quadratic / determinant, logdet
+    return quadratic / determinant, portable_math.log(np.abs(determinant))

@@ -26,6 +26,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from aslam.core import portable_math
 from aslam.core.config import EstimatorConfig, HistogramConfig
 
 
@@ -109,7 +110,7 @@ class HistogramModel:
         return chi2_distances(observation, stored)
 
     def log_likelihood(self, distances: np.ndarray | float) -> np.ndarray:
-        return -self.beta * np.log(np.maximum(distances, self.floor))
+        return -self.beta * portable_math.log(np.maximum(distances, self.floor))
 
     @property
     def index_key_parts(self) -> tuple[int, ...]:
@@ -189,7 +190,7 @@ class ThumbnailModel:
         return best
 
     def log_likelihood(self, distances: np.ndarray | float) -> np.ndarray:
-        return -self.beta * np.log(np.maximum(distances, self.floor))
+        return -self.beta * portable_math.log(np.maximum(distances, self.floor))
 
     @property
     def index_key_parts(self) -> tuple[int, ...]:

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from aslam.core import portable_math
 from aslam.core.config import EstimatorConfig
 from aslam.core.mapgraph import GrowableArray, KeyframeViews, PriorMap, SharedMap
 from aslam.core.motion import (
@@ -1003,7 +1004,7 @@ class HypothesisTree:
             key=lambda i: (-log_beliefs[i], candidates[i][1].id, candidates[i][2]),
         )[: self.config.max_hypotheses]
         kept = log_beliefs[order]
-        normaliser = best + math.log(np.exp(kept - best).sum())
+        normaliser = best + math.log(portable_math.exp(kept - best).sum())
         return [(float(log_beliefs[i] - normaliser), *candidates[i][1:]) for i in order]
 
     def _commit_shared_history(self) -> None:

@@ -994,6 +994,50 @@ def test_an_estimate_is_the_same_bytes_under_another_cpus_openblas_kernels(
     assert _estimate_and_export(paper_route, out, other) == written
 
 
+NUMPY_WITHOUT_AVX512 = {"NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL"}
+"""numpy's own code for a CPU without AVX-512 (numpy 2.4's names; older ones warn and ignore them)."""
+
+
+def test_the_estimator_is_the_same_bytes_under_numpys_code_for_a_cpu_without_avx512(
+    paper_route: Path, tmp_path: Path
+):
+    """numpy computes float64 ``log`` and ``exp`` with its own AVX-512 code where the CPU has it
+    and with the C library's elsewhere; the two differed in last bits, and an estimate's beliefs
+    with them (Nordland winter in summer's map). The observation models' log-likelihoods, a wide
+    range of them, and an estimate with its exports are the same bytes under numpy's code for
+    AVX2 machines."""
+    try:
+        from numpy._core._multiarray_umath import __cpu_features__ as features
+    except ImportError:  # numpy 1: other module and feature names
+        features = {}
+    if not features.get("X86_V4"):
+        pytest.skip(
+            "numpy runs no AVX-512 code on this CPU (or names its features otherwise): nothing to compare"
+        )
+    code = (
+        "import sys, numpy as np\n"
+        "from aslam.core.observation import HistogramModel, ThumbnailModel\n"
+        "u = np.random.default_rng(0).uniform(0.0, 1.0, 100_000)\n"
+        "d = 3.0 * u * u * u  # 0 to 3, some below the floors (np.power would vary too)\n"
+        "sys.stdout.write(ThumbnailModel().log_likelihood(d).tobytes().hex())\n"
+        "sys.stdout.write(HistogramModel().log_likelihood(d).tobytes().hex())\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "NPY_DISABLE_CPU_FEATURES"}
+    likelihoods = [
+        subprocess.run([sys.executable, "-c", code], env=e, capture_output=True, text=True, timeout=60).stdout
+        for e in (env, {**env, **NUMPY_WITHOUT_AVX512})
+    ]
+    assert len(likelihoods[0]) == 2 * 100_000 * 16
+    assert likelihoods[0] == likelihoods[1]
+    out = tmp_path / "out"
+    written = _estimate_and_export(paper_route, out, env, modes=(("default", []),))
+    out.rename(tmp_path / "own")
+    assert (
+        _estimate_and_export(paper_route, out, {**env, **NUMPY_WITHOUT_AVX512}, modes=(("default", []),))
+        == written
+    )
+
+
 def test_a_stdout_that_is_not_utf8_gets_escapes_not_an_internal_error(estimate_file: Path):
     env = {**os.environ, "PYTHONIOENCODING": "ascii"}
     argv = [str(ASLAM), "report", str(estimate_file)]
