@@ -356,11 +356,13 @@ class SampleAssembler:
 
     def unpaired(self, images: str, odometry: str) -> str | None:
         """Why no image was paired, where the images and the odometry never meet: no odometry
-        message at all, or every image stamped before the first or after the last one (two clocks: a
+        message at all, every image stamped before the first or after the last one (two clocks: a
         camera's never set counts from 1970, a driver's own from its start, a stamp in the wrong unit
-        is far off). The reader refuses with it: an estimate of nothing would hide the cause behind a
-        warning. None when an image was paired, none was read, or images were lost otherwise (late,
-        in gaps: the warnings say so). ``images`` and ``odometry`` name the two streams."""
+        is far off), or the odometry all between two images (some before it, the rest after: no
+        offset to give, nor a second clock to blame). The reader refuses with it: an estimate of
+        nothing would hide the cause behind a warning. None when an image was paired, none was read,
+        or images were lost otherwise (late, in gaps: the warnings say so). ``images`` and
+        ``odometry`` name the two streams."""
         c = self.counts
         if self.yielded or self.first_image_ns is None or self.last_image_ns is None or c.late or c.gap:
             return None
@@ -370,17 +372,22 @@ class SampleAssembler:
                 f"{self.images} image(s) on {images} and no odometry message on {odometry} to pair them with"
             )
         a, b = self.first_image_ns, self.last_image_ns
-        off_s, side = ((first - b) / 1e9, "before") if b < first else ((a - last) / 1e9, "after")
         unset = (
             f" ({self.log_time_images} image(s) had no header stamp and took their log time)"
             if self.log_time_images
             else ""
         )
+        if b < first or a > last:
+            off_s, side = ((first - b) / 1e9, "before") if b < first else ((a - last) / 1e9, "after")
+            why = (
+                f"{off_s:,.3f} s {side} it: the two clocks differ (a clock never set counts from 1970, a "
+                "driver's own from its start; or stamps in another unit)"
+            )
+        else:
+            why = f"all of it between two images ({c.before_first} image(s) before it, {c.after_last} after)"
         return (
             f"no image on {images} is stamped within the odometry on {odometry}: the images from {a} to "
-            f"{b} ns{unset}, the odometry from {first} to {last} ns, {off_s:,.3f} s {side} it: the two "
-            "clocks differ (a clock never set counts from 1970, a driver's own from its start; or stamps "
-            "in another unit)"
+            f"{b} ns{unset}, the odometry from {first} to {last} ns, {why}"
         )
 
     def warnings(self) -> list[str]:

@@ -119,3 +119,23 @@ def test_every_image_gets_the_poses_at_its_stamp_or_is_counted_dropped(odometry,
     assert len(samples) + counts.before_first + counts.after_last + repeated == len(stamps)
     assert len(stamps) == assembler.images
     assert counts.no_ground_truth == sum(s.ground_truth_pose is None for s in samples) * expect_truth
+
+
+def test_odometry_all_between_two_images_is_refused_for_what_the_stamps_show():
+    """Odometry that lies between two images, some images before it and the rest after (a short
+    stretch of odometry recorded), pairs no image and is refused; the refusal said ``-5.000 s after
+    it: the two clocks differ``, an offset below zero and a cause the stamps do not show."""
+    s = 1_000_000_000
+    assembler = SampleAssembler(PATH)
+    for stamp in (1 * s, 2 * s):
+        assert not list(assembler.add_image(stamp, LazyImage(b"", "png", path=PATH)))
+    for stamp, x in ((4 * s, 0.0), (5 * s, 1.0), (6 * s, 2.0)):
+        assert not list(assembler.add_odometry(stamp, np.array([x, 0.0, 0.0])))
+    for stamp in (10 * s, 11 * s):
+        assert not list(assembler.add_image(stamp, LazyImage(b"", "png", path=PATH)))
+    assert not list(assembler.finish())
+    assert assembler.unpaired("'/cam'", "'/odom'") == (
+        "no image on '/cam' is stamped within the odometry on '/odom': the images from 1000000000 to "
+        "11000000000 ns, the odometry from 4000000000 to 6000000000 ns, all of it between two images "
+        "(2 image(s) before it, 2 after)"
+    )
