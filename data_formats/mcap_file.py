@@ -74,12 +74,18 @@ class _BoundedFile:
 
 class _Pinned(io.RawIOBase):
     """A descriptor read at a position of its own: by offset (``os.pread``), so the readers of one
-    ``McapFile`` never move each other, nor a forked child's. Closing it leaves the descriptor open."""
+    ``McapFile`` never move each other, nor a forked child's. Closing it leaves the descriptor open.
 
-    def __init__(self, descriptor: int, size: int) -> None:
+    The file is read as ``size`` bytes long, its size when opened; a read that finds fewer (another
+    process truncated the file in place, which a descriptor does not guard against as it does a
+    rename) raises ``cut_short()`` rather than reading short: read short, the digest of a prefix was
+    stored with the size of the whole, and an index read as damage (``corrupt MCAP data: EndOfFile``)."""
+
+    def __init__(self, descriptor: int, size: int, cut_short: Callable[[], Exception]) -> None:
         super().__init__()
         self._descriptor = descriptor
         self._size = size
+        self._cut_short = cut_short
         self._pos = 0
 
     def readable(self) -> bool:
@@ -90,7 +96,10 @@ class _Pinned(io.RawIOBase):
 
     def readinto(self, buffer: Any) -> int:
         view = memoryview(buffer).cast("B")
-        data = os.pread(self._descriptor, min(len(view), max(0, self._size - self._pos)), self._pos)
+        wanted = min(len(view), max(0, self._size - self._pos))
+        data = os.pread(self._descriptor, wanted, self._pos)
+        if len(data) < wanted:
+            raise self._cut_short()
         view[: len(data)] = data
         self._pos += len(data)
         return len(data)
@@ -167,7 +176,15 @@ class McapFile:
 
     def _open(self) -> io.BufferedReader:
         """A buffered reader of the opened file, from its start."""
-        return io.BufferedReader(_Pinned(self._descriptor, self.size))
+        return io.BufferedReader(_Pinned(self._descriptor, self.size, self._cut_short))
+
+    def _cut_short(self) -> InputError:
+        now = os.fstat(self._descriptor).st_size
+        return self._error_type(
+            f"was cut to {now:,} bytes while it was read ({self.size:,} when opened): another process"
+            " truncated it; read it again once it is whole",
+            path=self.path,
+        )
 
     def sha256(self, stop: threading.Event | None = None) -> str:
         """SHA-256 of the opened file's bytes (the file read, whatever is at its name now). ``stop``
@@ -212,6 +229,8 @@ class McapFile:
                 summary = reader.get_summary()
         except OSError as err:
             raise self._error("cannot read", err) from err
+        except InputError:  # cut short meanwhile
+            raise
         except Exception as err:  # mcap raises many types on a damaged summary
             self._warn(f"{self.path}: unreadable summary section ({err}); reading the file linearly")
             return None
@@ -260,6 +279,8 @@ class McapFile:
                     item = next(iterator)
                 except StopIteration:
                     return
+                except InputError:  # cut short meanwhile
+                    raise
                 except Exception as err:  # zstd, struct, McapError, ... on a damaged chunk
                     raise self._error("corrupt MCAP data", err) from err
                 yield item
@@ -278,6 +299,8 @@ class McapFile:
                 # A record runs past the end of the file (or claims to be longer than the file).
                 self.truncation = Truncation(at_byte=intact_end, size=self.size)
                 return
+            except InputError:  # cut short meanwhile
+                raise
             except Exception as err:
                 raise self._error(f"corrupt MCAP record after byte {intact_end}", err) from err
             intact_end = bounded.tell()

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import socket
 import subprocess
@@ -24,7 +25,8 @@ import aslam.app.estimate as estimate_module
 import aslam.app.score as score_module
 import aslam.data_formats.estimate as estimate_format
 from aslam.cli.app import main
-from aslam.data_formats.estimate import read_estimate
+from aslam.data_formats.errors import EstimateError
+from aslam.data_formats.estimate import iter_keyframes, open_estimate, read_estimate
 from aslam.data_formats.files import partial_name, remove_stale_partials
 
 ONE_LAP = 16
@@ -110,6 +112,28 @@ def test_an_estimate_is_of_the_recording_it_opened_when_another_process_replaces
     assert main(["estimate", str(recording), "-o", str(meanwhile), "-q", "--no-timing"]) == 0
     assert recording.read_bytes() == theirs.read_bytes()
     assert meanwhile.read_bytes() == alone.read_bytes()
+
+
+def test_a_file_cut_short_in_place_while_it_is_read_is_named_not_read_short(
+    two_estimates: tuple[Path, Path], tmp_path: Path
+):
+    """An opened file guards against a rename, not against another process truncating the file in
+    place (``truncate``, or ``cp`` over it, which reopens it with O_TRUNC): reads by offset then
+    came short, so the SHA-256 an estimate stores of its recording was the digest of the part left,
+    stored with the size of the whole, and a report's keyframes failed as ``corrupt MCAP data:
+    EndOfFile``. Both now name the file cut short."""
+    estimate = tmp_path / "E.mcap"
+    shutil.copyfile(two_estimates[0], estimate)
+    opened = open_estimate(estimate)
+    opened.sha256()
+    os.truncate(estimate, opened.size // 2)
+    cut = re.escape(
+        f"{estimate}: was cut to {opened.size // 2:,} bytes while it was read ({opened.size:,} when opened)"
+    )
+    with pytest.raises(EstimateError, match=f"^{cut}"):
+        opened.sha256()
+    with pytest.raises(EstimateError, match=f"^{cut}"):
+        list(iter_keyframes(opened))
 
 
 def test_a_run_in_a_map_reads_one_map_when_another_process_replaces_it(
