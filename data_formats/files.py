@@ -310,13 +310,25 @@ def folder_lock(folder: Path, *, holder: str, what: str) -> Iterator[None]:
     ends (a SIGKILL leaves no stale lock); the file, left in place, says who held it last (``PID
     HOST``). ``holder`` names the kind of command (``another sweep``), ``what`` the folder (``results
     folder``). On a file system without locks (some network shares) the block runs unguarded.
+
+    A lock file this process may not write (another user's: a sweep run as root in a container, a
+    colleague's in a shared folder) is locked read-only, as ``flock`` allows, and keeps the last
+    holder's line: refused for it, a user who may replace every file of the folder could not
+    resume its sweep.
     """
+    lock = Path(folder) / LOCK_FILE
     try:
-        descriptor = os.open(Path(folder) / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o666)
+        descriptor, named = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666), True
     except OSError as err:
-        raise InputError(f"cannot write: {err.strerror or err}", path=folder) from err
+        cannot = InputError(f"cannot write: {err.strerror or err}", path=folder)
+        if not isinstance(err, PermissionError) and err.errno != errno.EROFS:
+            raise cannot from err
+        try:
+            descriptor, named = os.open(lock, os.O_RDONLY), False
+        except OSError:
+            raise cannot from err
     try:
-        if _locked(descriptor, folder, holder=holder, what=what):
+        if _locked(descriptor, folder, holder=holder, what=what) and named:
             os.ftruncate(descriptor, 0)
             os.pwrite(descriptor, f"{os.getpid()} {socket.gethostname()}\n".encode(), 0)
         yield
@@ -344,7 +356,8 @@ def _locked(descriptor: int, folder: Path, *, holder: str, what: str) -> bool:
         fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
         pid, _, host = os.pread(descriptor, 300, 0).decode("utf-8", "replace").strip().partition(" ")
-        who = f"{holder} (process {pid} on {host})" if pid.isdigit() and host else holder
+        named = pid.isdigit() and host and (host != socket.gethostname() or _process_alive(int(pid)))
+        who = f"{holder} (process {pid} on {host})" if named else holder  # not a holder gone since
         raise InputError(
             f"{who} is running in this {what}; wait for it to end, or give another folder", path=folder
         ) from None

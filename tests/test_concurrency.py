@@ -227,6 +227,49 @@ def test_a_second_sweep_in_a_results_folder_is_refused_while_the_first_runs(
     assert (results / "results.parquet").exists()
 
 
+HOLDER_READ_ONLY = """
+import sys
+from pathlib import Path
+from aslam.core.errors import InputError
+from aslam.data_formats.files import check_folder_free, folder_lock
+folder = Path(sys.argv[1])
+with folder_lock(folder, holder="another sweep", what="results folder"):
+    try:
+        check_folder_free(folder, holder="another sweep", what="results folder")
+    except InputError as err:
+        print(err)
+"""
+
+
+def test_a_lock_file_this_user_may_not_write_still_holds_the_folder(tmp_path: Path):
+    """``R/.aslam.lock`` left by another user (a sweep run as root in a container on a mounted
+    folder, a colleague's in a shared one) could not be opened for writing, and a sweep in a folder
+    whose every other file this user may replace was refused: ``R: cannot write: Permission
+    denied``. It is now locked read-only (``flock`` needs no more), a second sweep still refused,
+    and the last holder's line, of a process gone, is not named. A read-only bind mount of the lock
+    file stands in for another user's (root may write any file)."""
+    if shutil.which("unshare") is None or subprocess.run(["unshare", "-rm", "true"]).returncode != 0:
+        pytest.skip("needs unshare -rm (user and mount namespaces) to make one file read-only")
+    results = tmp_path / "results"
+    results.mkdir()
+    gone = subprocess.Popen(["true"])
+    gone.wait()
+    lock = results / ".aslam.lock"
+    lock.write_text(f"{gone.pid} {socket.gethostname()}\n")
+    read_only = 'mount --bind "$1" "$1" && mount -o remount,bind,ro "$1" && exec "$2" -c "$3" "$4"'
+    run = subprocess.run(
+        ["unshare", "-rm", "sh", "-c", read_only, "sh", lock, sys.executable, HOLDER_READ_ONLY, results],
+        capture_output=True,
+        text=True,
+    )
+    assert (run.returncode, run.stderr) == (0, "")
+    assert run.stdout == (
+        f"{results}: another sweep is running in this results folder; wait for it to end, or give"
+        " another folder\n"
+    )
+    assert lock.read_text() == f"{gone.pid} {socket.gethostname()}\n"
+
+
 WRITER_ELSEWHERE = """
 import fcntl, os, sys
 descriptor = os.open(sys.argv[1], os.O_WRONLY | os.O_CREAT | os.O_EXCL)
