@@ -378,12 +378,17 @@ class Recording:
         stream = _Stream(path, "ground-truth", ros_msgs.POSE_TYPES, _MessageDecoder(path))
         order = StampOrder(path, "ground-truth", f"'{topic}'")
         count = 0
-        for schema, channel, message in source.messages([topic]):
-            stamp_ns, msg, datatype = stream.read(schema, channel, message)
-            if not order.admits(stamp_ns):
-                continue
-            count += 1
-            yield stamp_ns, stream.pose(topic, datatype, msg, stamp_ns)
+        try:
+            for schema, channel, message in source.messages([topic]):
+                stamp_ns, msg, datatype = stream.read(schema, channel, message)
+                if not order.admits(stamp_ns):
+                    continue
+                count += 1
+                yield stamp_ns, stream.pose(topic, datatype, msg, stamp_ns)
+        except GeneratorExit:  # closed once read far enough (report: at its last keyframe's stamp)
+            for line in order.dropped():
+                self._warn(line)
+            raise
         if not source.complete_channels and topic not in source.channels:
             raise _missing_topic(path, "ground-truth", topic, source.channels, source)
         if source.truncation is not None:

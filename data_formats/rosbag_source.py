@@ -464,11 +464,16 @@ def _iter_bag_ground_truth(
             )
         order = StampOrder(path, "ground-truth", f"'{topic}'")
         pose: np.ndarray | None = None
-        for _topic, datatype, log_time, msg in _messages(path, reader, {topic}):
-            stamp_ns = _stamp(path, "ground-truth", topic, msg, log_time)
-            if order.admits(stamp_ns):
-                pose = _pose(path, "ground-truth", topic, datatype, msg, stamp_ns, pose)
-                yield stamp_ns, pose
+        try:
+            for _topic, datatype, log_time, msg in _messages(path, reader, {topic}):
+                stamp_ns = _stamp(path, "ground-truth", topic, msg, log_time)
+                if order.admits(stamp_ns):
+                    pose = _pose(path, "ground-truth", topic, datatype, msg, stamp_ns, pose)
+                    yield stamp_ns, pose
+        except GeneratorExit:  # closed once read far enough (report: at its last keyframe's stamp)
+            for line in order.dropped():
+                warn(line)
+            raise
         for line in order.dropped():
             warn(line)
 

@@ -295,3 +295,28 @@ def test_odometry_at_1_hz_logged_swapped_is_refused_a_second_is_no_jitter(tmp_pa
     path = write("ROS 2", tmp_path, rows)
     assert "odometry stamps go backwards on '/odom': " in refusal(path)
     assert ", 1.000 s back, more than the 50 ms a stamp may jitter" in refusal(path)
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_report_says_the_ground_truth_it_dropped_though_it_stops_at_its_last_keyframe(tmp_path, kind):
+    """``report`` reads the truth up to its last keyframe's stamp and closes the stream there
+    (``truth_at_stamps``); the warning of the messages dropped came after the stream's last message,
+    so a report of a recording whose truth runs past its last keyframe (most do) never said it."""
+    from contextlib import closing
+
+    from aslam.app.score import truth_at_stamps
+
+    path = write(kind, tmp_path, steady(1000), swapped(steady(100), 50))
+    topic = "/ground_truth/pose" if kind == "MCAP" else "/ground_truth"
+    report: list[str] = []
+    if kind == "MCAP":
+        stream = Recording(path, on_warning=report.append).ground_truth()
+    else:
+        stream = iter_bag_ground_truth(path, topic, on_warning=report.append)
+    with closing(stream):
+        poses = truth_at_stamps([T0_NS + i * CAMERA_PERIOD_NS for i in range(IMAGES)], stream)
+    assert not np.isnan(poses).any()
+    assert report == [
+        f"{path}: dropped 1 ground-truth message(s) on '{topic}' stamped before a message logged "
+        "earlier (out of order, at most 10 ms back)"
+    ]
