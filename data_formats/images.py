@@ -288,21 +288,21 @@ class _LibjpegWarnings:
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
+        self._made = False
         self._fd: int | None = None
 
     def first_damage(self, decode: Callable[[], np.ndarray]) -> tuple[np.ndarray, str | None]:
         """``decode()``, and libjpeg's first warning of damage during it (None: no word)."""
         with self._lock:
+            if not self._made:
+                self._made, self._fd = True, _unnamed_file()
+            if self._fd is None:  # nowhere to hear libjpeg on
+                return decode(), None
             try:
                 saved = os.dup(2)
             except OSError:  # no descriptor 2 at all (a daemon's): nothing to hear libjpeg on
                 return decode(), None
             try:
-                if self._fd is None:
-                    import tempfile
-
-                    with tempfile.TemporaryFile() as file:  # no name; it lives while our descriptor does
-                        self._fd = os.dup(file.fileno())
                 os.dup2(self._fd, 2)
                 try:
                     pixels = decode()
@@ -327,6 +327,23 @@ class _LibjpegWarnings:
 
 
 _libjpeg_warnings = _LibjpegWarnings()
+
+
+def _unnamed_file() -> int | None:
+    """A descriptor of a file with no name, to hear descriptor 2 on: in memory where the system has
+    them (Linux's ``memfd_create``), else in the temporary folder; None where neither can be made
+    (libjpeg then goes unheard). A read-only container (``docker run --read-only``) has no temporary
+    folder: ``aslam info`` of JPEG images, which writes nothing, failed there, ``No usable temporary
+    directory found``."""
+    try:
+        if hasattr(os, "memfd_create"):
+            return os.memfd_create("aslam-libjpeg-warnings")
+        import tempfile
+
+        with tempfile.TemporaryFile() as file:  # its descriptor duplicated: it lives while that does
+            return os.dup(file.fileno())
+    except OSError:
+        return None
 
 
 def _first_damage(said: bytes) -> str | None:

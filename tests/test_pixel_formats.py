@@ -131,3 +131,24 @@ def test_what_else_reaches_descriptor_2_while_a_jpeg_decodes_is_passed_on(capfd)
     assert damage == "Corrupt JPEG data: premature end of data segment"
     assert capfd.readouterr().err == "libpng warning: iCCP: known incorrect sRGB profile\n"
     assert _libjpeg_warnings.first_damage(lambda: pixels)[1] is None  # nothing left over
+
+
+def test_libjpeg_is_heard_where_no_temporary_folder_can_be_written(tmp_path, monkeypatch):
+    """A read-only container (``docker run --read-only``, no tmpfs on /tmp) has no folder for a
+    temporary file, and the file libjpeg's words were heard on was one: ``aslam info R.mcap`` of
+    JPEG images, which writes nothing, failed ``aslam: error: No usable temporary directory found
+    in [...]``, as did ``import``. libjpeg is now heard on a file in memory where the system has
+    them (Linux), and left unheard where no file can be made: the image is read either way."""
+    import os
+    import tempfile
+
+    from aslam.data_formats.images import LazyImage, _LibjpegWarnings
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "no such folder"))
+    image = LazyImage(_camera_jpeg(1, garbled=True), "jpeg", path=tmp_path / "1.jpg")
+    pixels, damage = _LibjpegWarnings().first_damage(image.decode_gray)
+    assert pixels.shape == (120, 160)
+    if hasattr(os, "memfd_create"):
+        assert damage is not None and damage.startswith("Corrupt JPEG data: ")
+    else:
+        assert damage is None
