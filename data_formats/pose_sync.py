@@ -110,6 +110,16 @@ class PoseTrack:
         return (stamps[j], stamps[j]) if stamps[j] == stamp_ns else (stamps[j], stamps[j + 1])
 
 
+def _how_far(ns: int) -> str:
+    """A step between two stamps, in the unit that shows it against POSE_STAMP_JITTER_NS: seconds
+    printed to the millisecond said a stamp 50.4 ms back was ``0.050 s back, more than the 50 ms``."""
+    if ns >= 1_000_000_000:
+        return f"{ns / 1e9:,.3f} s"
+    if ns >= 1_000_000:
+        return f"{ns / 1e6:.6f}".rstrip("0").rstrip(".") + " ms"
+    return f"{ns:,} ns"
+
+
 @dataclass
 class StampOrder:
     """Which messages of one topic are kept, read in the order logged: those stamped after the last
@@ -145,7 +155,7 @@ class StampOrder:
         back_ns = last - stamp_ns
         if self.tolerance_ns is not None and back_ns > self.tolerance_ns:
             raise RecordingError(
-                f"{self.what} stamps go backwards{on}: {stamp_ns} ns after {last} ns, {back_ns / 1e9:,.3f} s "
+                f"{self.what} stamps go backwards{on}: {stamp_ns} ns after {last} ns, {_how_far(back_ns)} "
                 f"back, more than the {self.tolerance_ns / 1e6:g} ms a stamp may jitter: a clock stepped "
                 "back (NTP), a driver restarted, or a publisher on another clock",
                 path=self.path,
@@ -172,7 +182,7 @@ class StampOrder:
         if self.out_of_order:
             out.append(
                 f"{self.path}: dropped {self.out_of_order} {self.what} message(s){on} stamped before a "
-                f"message logged earlier (out of order, at most {self.furthest_back_ns / 1e6:g} ms back)"
+                f"message logged earlier (out of order, at most {_how_far(self.furthest_back_ns)} back)"
             )
         return out
 

@@ -320,3 +320,20 @@ def test_report_says_the_ground_truth_it_dropped_though_it_stops_at_its_last_key
         f"{path}: dropped 1 ground-truth message(s) on '{topic}' stamped before a message logged "
         "earlier (out of order, at most 10 ms back)"
     ]
+
+
+def test_how_far_back_a_stamp_went_is_said_in_a_unit_that_shows_it_against_the_50_ms():
+    """In seconds to the millisecond, a stamp 50.4 ms back was refused as ``0.050 s back, more than
+    the 50 ms a stamp may jitter``, and one 1 ns back was said to be ``at most 1e-06 ms back``."""
+    from aslam.data_formats.pose_sync import StampOrder
+
+    order = StampOrder(Path("odom.mcap"), "odometry", "'/odom'")
+    assert order.admits(T0_NS) and not order.admits(T0_NS - 1)
+    assert order.dropped() == [
+        "odom.mcap: dropped 1 odometry message(s) on '/odom' stamped before a message logged earlier "
+        "(out of order, at most 1 ns back)"
+    ]
+    with pytest.raises(RecordingError, match=r", 50\.4 ms back, more than the 50 ms a stamp may jitter"):
+        order.admits(T0_NS - 50_400_000)
+    with pytest.raises(RecordingError, match=r", 50\.000001 ms back, more than the 50 ms"):
+        order.admits(T0_NS - 50_000_001)
