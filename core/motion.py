@@ -14,6 +14,7 @@ every CPU (docs/usage.md, "Same inputs, same bytes").
 from __future__ import annotations
 
 import math
+from typing import TypeVar
 
 import numpy as np
 
@@ -21,6 +22,7 @@ from aslam.core import portable_math, se2
 from aslam.core.config import MotionNoise
 
 Rel = tuple[float, float, float, float, float, float, float, float, float]
+_F = TypeVar("_F", float, np.ndarray)
 IDENTITY_REL: Rel = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
@@ -49,10 +51,6 @@ def to_rel(pose: np.ndarray, covariance: np.ndarray) -> Rel:
     x, y, yaw = (float(v) for v in pose)
     c = covariance
     return (x, y, yaw, c[0, 0], c[0, 1], c[0, 2], c[1, 1], c[1, 2], c[2, 2])
-
-
-def rel_pose(rel: Rel) -> np.ndarray:
-    return np.array(rel[:3])
 
 
 def rel_covariance(rel: Rel) -> np.ndarray:
@@ -139,21 +137,31 @@ def fuse_rel(a: Rel, b: Rel) -> Rel:
 
 
 def _inverse(covariance: tuple[float, ...]) -> tuple[float, float, float, float, float, float]:
-    """The inverse of a symmetric 3×3 matrix given as ``(c11, c12, c13, c22, c23, c33)``, by its
-    cofactors (in the same order)."""
+    """The inverse of a symmetric 3×3 matrix given as ``(c11, c12, c13, c22, c23, c33)``, in the
+    same order."""
     c11, c12, c13, c22, c23, c33 = covariance
-    m11 = c22 * c33 - c23 * c23
-    m12 = c13 * c23 - c12 * c33
-    m13 = c12 * c23 - c13 * c22
-    determinant = c11 * m11 + c12 * m12 + c13 * m13
+    m11, m12, m13, m22, m23, m33, determinant = _cofactors(c11, c12, c13, c22, c23, c33)
     return (
         m11 / determinant,
         m12 / determinant,
         m13 / determinant,
-        (c11 * c33 - c13 * c13) / determinant,
-        (c12 * c13 - c11 * c23) / determinant,
-        (c11 * c22 - c12 * c12) / determinant,
+        m22 / determinant,
+        m23 / determinant,
+        m33 / determinant,
     )
+
+
+def _cofactors(c11: _F, c12: _F, c13: _F, c22: _F, c23: _F, c33: _F) -> tuple[_F, _F, _F, _F, _F, _F, _F]:
+    """The cofactors ``(m11, m12, m13, m22, m23, m33)`` of a symmetric 3×3 matrix given by its upper
+    triangle, and its determinant: of floats, or elementwise of arrays (a stack), in one order of
+    operations for both, so a link's fusion and a revisit's likelihood invert alike."""
+    m11 = c22 * c33 - c23 * c23
+    m12 = c13 * c23 - c12 * c33
+    m13 = c12 * c23 - c13 * c22
+    m22 = c11 * c33 - c13 * c13
+    m23 = c12 * c13 - c11 * c23
+    m33 = c11 * c22 - c12 * c12
+    return m11, m12, m13, m22, m23, m33, c11 * m11 + c12 * m12 + c13 * m13
 
 
 LEVER_ARM_M = 5.0
@@ -211,15 +219,14 @@ def revisit_residuals(
 def mahalanobis2_and_logdet(residuals: np.ndarray, covariances: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``rᵀ Σ⁻¹ r`` and ``log |Σ|`` of each residual (n, 3) under its covariance (n, 3, 3), by the
     cofactors of Σ (symmetric: its upper triangle is read)."""
-    s11, s12, s13 = covariances[:, 0, 0], covariances[:, 0, 1], covariances[:, 0, 2]
-    s22, s23, s33 = covariances[:, 1, 1], covariances[:, 1, 2], covariances[:, 2, 2]
-    m11 = s22 * s33 - s23 * s23
-    m12 = s13 * s23 - s12 * s33
-    m13 = s12 * s23 - s13 * s22
-    m22 = s11 * s33 - s13 * s13
-    m23 = s12 * s13 - s11 * s23
-    m33 = s11 * s22 - s12 * s12
-    determinant = s11 * m11 + s12 * m12 + s13 * m13
+    m11, m12, m13, m22, m23, m33, determinant = _cofactors(
+        covariances[:, 0, 0],
+        covariances[:, 0, 1],
+        covariances[:, 0, 2],
+        covariances[:, 1, 1],
+        covariances[:, 1, 2],
+        covariances[:, 2, 2],
+    )
     x, y, t = residuals[:, 0], residuals[:, 1], residuals[:, 2]
     quadratic = m11 * x * x + m22 * y * y + m33 * t * t + 2.0 * (m12 * x * y + m13 * x * t + m23 * y * t)
     return quadratic / determinant, portable_math.log(np.abs(determinant))
