@@ -30,7 +30,7 @@ from aslam.core.mapgraph import GrowableArray
 from aslam.core.metrics import AssignmentScore, Evaluation, evaluate, score_assignment
 from aslam.data_formats.errors import EstimateError, RecordingError
 from aslam.data_formats.estimate import EstimateFile, iter_keyframes, map_digest, open_estimate, read_estimate
-from aslam.data_formats.files import file_name_from_utf8, full_path, source_files
+from aslam.data_formats.files import file_name_from_utf8, full_path, source_size_bytes
 from aslam.data_formats.graph_json import build_graph_json
 from aslam.data_formats.mcap_file import McapFile
 from aslam.data_formats.pose_sync import TRUTH_MAX_GAP_NS
@@ -643,7 +643,7 @@ def _find_recording(
     if given is not None:
         if not given.exists():
             raise InputError("no such recording", path=given)
-        size = _size_bytes(given)
+        size = source_size_bytes(given)
         if size != info.metadata.recording.size_bytes:  # another file: a bag with the truth, or a mistake
             warn(
                 f"{given} is not the recording the estimate was made from ({size} bytes, that one"
@@ -655,22 +655,17 @@ def _find_recording(
     if not path.exists():
         beside = full_path(estimate).parent / path.name
         try:
-            moved = beside != path and beside.exists() and _size_bytes(beside) == size_bytes
+            moved = beside != path and beside.exists() and source_size_bytes(beside) == size_bytes
         except (InputError, OSError):  # a folder of no bag, a file we may not read
             moved = False
         if moved:
             return beside
         warn(f"recording {named} (named in {estimate}) not found; {without}")
         return None
-    size = _size_bytes(path)
+    size = source_size_bytes(path)
     if size != size_bytes:
         warn(f"recording {named} has changed since the estimate ({size} bytes, was {size_bytes})")
     return path
-
-
-def _size_bytes(path: Path) -> int:
-    """Bytes of a recording (a bag folder's files summed)."""
-    return sum(file.stat().st_size for file in source_files(path))
 
 
 def _ground_truth(

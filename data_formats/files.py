@@ -821,6 +821,11 @@ def source_files(path: Path) -> list[Path]:
     return [path]
 
 
+def source_size_bytes(path: Path) -> int:
+    """Bytes of a source: the file, or a bag folder's files summed (:func:`source_files`)."""
+    return sum(file.stat().st_size for file in source_files(path))
+
+
 def source_sha256(path: Path, stop: threading.Event | None = None) -> str:
     """SHA-256 of a recording's bytes (one file, or a bag folder's files in name order): its identity,
     wherever it lives. ``stop`` set: return early (the digest is then meaningless). InputError on a
@@ -831,11 +836,16 @@ def source_sha256(path: Path, stop: threading.Event | None = None) -> str:
             if not stat.S_ISREG(os.stat(file).st_mode):  # a FIFO would block, /dev/zero never end
                 raise InputError("is not a regular file (a FIFO, socket or device)", path=file)
             with file.open("rb") as f:
-                while not (stop is not None and stop.is_set()):
-                    block = f.read(4 * 1024 * 1024)
-                    if not block:
-                        break
-                    sha.update(block)
+                hash_file(sha, f, stop)
     except OSError as err:
         raise InputError(f"cannot read: {err.strerror or err}", path=path) from err
     return sha.hexdigest()
+
+
+def hash_file(sha: hashlib._Hash, f: IO[bytes], stop: threading.Event | None) -> None:
+    """Feed ``f``, from where it is to its end, to ``sha`` in blocks, until ``stop`` is set."""
+    while not (stop is not None and stop.is_set()):
+        block = f.read(4 * 1024 * 1024)
+        if not block:
+            return
+        sha.update(block)

@@ -36,7 +36,7 @@ from mcap.summary import Summary
 from aslam.core.errors import InputError
 from aslam.data_formats.errors import RecordingError
 from aslam.data_formats.files import MCAP_MAGIC as MAGIC
-from aslam.data_formats.files import open_mcap_input
+from aslam.data_formats.files import hash_file, open_mcap_input
 
 _FOOTER_RECORD_SIZE = 1 + 8 + 8 + 8 + 4  # opcode, length, summary_start, summary_offset_start, crc
 
@@ -192,11 +192,7 @@ class McapFile:
         sha = hashlib.sha256()
         try:
             with self._open() as f:
-                while not (stop is not None and stop.is_set()):
-                    block = f.read(4 * 1024 * 1024)
-                    if not block:
-                        break
-                    sha.update(block)
+                hash_file(sha, f, stop)
         except OSError as err:
             raise self._error("cannot read", err) from err
         return sha.hexdigest()

@@ -28,7 +28,7 @@ from aslam.core.errors import InputError
 from aslam.data_formats import ros_msgs
 from aslam.data_formats.camera import CameraIntrinsics
 from aslam.data_formats.errors import BagError
-from aslam.data_formats.files import check_input_file, source_files
+from aslam.data_formats.files import check_input_file, source_size_bytes
 from aslam.data_formats.mcap_file import McapFile
 from aslam.data_formats.pose_limits import implausible
 from aslam.data_formats.pose_sync import Sample, SampleAssembler, StampOrder
@@ -631,7 +631,7 @@ def describe_bag(
     }
     return RecordingInfo(
         path=str(path),
-        size_bytes=sum(file.stat().st_size for file in source_files(path)),
+        size_bytes=source_size_bytes(path),
         topics=tuple(TopicInfo(t.topic, t.datatype, t.messages) for t in summary.topics),
         **stats.fields(),
         camera=camera,

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aslam.data_formats.files import source_files, source_sha256
+from aslam.data_formats.files import source_sha256, source_size_bytes
 from aslam.data_formats.pose_sync import Sample
 from aslam.data_formats.recording import Recording, RecordingTopics
 from aslam.data_formats.recording_info import RecordingInfo, describe_recording
@@ -114,7 +114,7 @@ class RecordingInput:
         return self.recording.file.sha256(stop)
 
     def size_bytes(self) -> int:
-        return self.recording.file.size
+        return self.recording.size_bytes
 
     def describe(
         self,
@@ -169,7 +169,7 @@ class BagInput:
         return source_sha256(self.path, stop)
 
     def size_bytes(self) -> int:
-        return sum(file.stat().st_size for file in source_files(self.path))
+        return source_size_bytes(self.path)
 
     def describe(
         self,
