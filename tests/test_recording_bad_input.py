@@ -274,7 +274,8 @@ def test_any_cut_reads_a_prefix_or_fails_cleanly(small_recording, fraction):
 
 def test_an_image_stamped_before_the_one_logged_before_it_is_dropped_and_said(tmp_path: Path):
     """Header stamps run backwards once while the log times run forwards: that image goes, with a
-    warning, and the rest of the recording is read (odometry going backwards is still refused)."""
+    warning, and the rest of the recording is read (odometry more than 50 ms back is refused:
+    ``odometry stamps backwards`` above; less, dropped: tests/test_pose_stamp_order.py)."""
     from aslam.data_formats.recording import Recording
 
     path = tmp_path / "swapped.mcap"
