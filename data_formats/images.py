@@ -364,7 +364,7 @@ class JpegDamage:
     such image, recovering what it can; but a user should know the images are not what the camera
     saw, and which one to look at."""
 
-    images: int = 0
+    damaged: int = 0
     first: str | None = None
     """The first damaged image, named, with libjpeg's words."""
 
@@ -374,17 +374,17 @@ class JpegDamage:
             return image.decode_gray()
         pixels, damage = _libjpeg_warnings.first_damage(image.decode_gray)
         if damage is not None:
-            self.images += 1
+            self.damaged += 1
             if self.first is None:
                 self.first = f"{image.where or image.path.name}: {damage}"
         return pixels
 
     def warning(self, path: Path, images: int) -> str | None:
         """The warning line for ``path``, of ``images`` images in all; None when none was damaged."""
-        if not self.images:
+        if not self.damaged:
             return None
         return (
-            f"{path}: {self.images} of {images} images have damaged JPEG data, read as libjpeg recovers"
+            f"{path}: {self.damaged} of {images} images have damaged JPEG data, read as libjpeg recovers"
             f" them (wrong blocks); the first: {self.first}"
         )
 
