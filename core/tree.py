@@ -228,6 +228,8 @@ class HypothesisTree:
         self._place_cov = np.diag(
             [config.place_radius_m**2, config.place_radius_m**2, math.radians(config.place_heading_deg) ** 2]
         )
+        # LAPACK, unlike the motion model (core/motion.py): a diagonal matrix's LU multiplies by zeros
+        # only, and numpy sums the C library's logs, so every CPU's kernel gives these bits.
         self._place_logdet = float(np.linalg.slogdet(self._place_cov)[1])
         self._place_position_trace = 2.0 * config.place_radius_m**2
         self._place_heading_variance = math.radians(config.place_heading_deg) ** 2
