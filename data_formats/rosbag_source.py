@@ -372,9 +372,10 @@ def _bag_samples(
     reader: Any,
     topics: BagTopics,
     warn: Callable[[str], None],
-    on_image_count: Callable[[int], None] | None = None,
+    on_image_count: Callable[[int], None] | None,
 ) -> Iterator[Sample]:
-    """The samples of the bag ``reader`` has open, then the pairing's warnings."""
+    """The samples of the bag ``reader`` has open, then the pairing's warnings; ``on_image_count``
+    as :func:`iter_bag_samples`'s."""
     types = _topic_types(reader)
     resolved = resolve_topics(path, types, topics)
     counts = {topic: info.msgcount for topic, info in reader.topics.items()}
