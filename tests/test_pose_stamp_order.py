@@ -24,6 +24,7 @@ from test_rosbag_source import (
     raw_image_msg,
     tf_msg,
     true_pose,
+    write_ros1_rows,
     write_rosbag2,
 )
 
@@ -112,16 +113,7 @@ def write(kind: str, folder: Path, odometry: Rows, truth: Rows | None = None, *,
     messages.sort(key=lambda row: row[0])
     if kind == "ROS 2":
         return write_rosbag2(folder / "bag", messages=messages)
-    from rosbags.rosbag1 import Writer
-
-    path = folder / "driver.bag"
-    with Writer(path) as writer:
-        connections: dict[str, Any] = {}
-        for log, topic, msgtype, msg in messages:
-            if topic not in connections:
-                connections[topic] = writer.add_connection(topic, msgtype, typestore=ts)
-            writer.write(connections[topic], log, ts.serialize_ros1(msg, msgtype))
-    return path
+    return write_ros1_rows(folder / "driver.bag", ts, messages)
 
 
 def read(path: Path) -> tuple[list, list[str]]:

@@ -285,7 +285,6 @@ def write_rosbag1(
     edit: Callable[[list[tuple[int, str, str, Any]]], None] | None = None,
 ) -> Path:
     """A ROS 1 bag of ``bag_messages``, changed in place by ``edit`` (its rows, in log-time order)."""
-    from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     ts = get_typestore(Stores.ROS1_NOETIC)
@@ -294,6 +293,14 @@ def write_rosbag1(
     rows = bag_messages(ts, options)
     if edit is not None:
         edit(rows)
+    return write_ros1_rows(path, ts, rows)
+
+
+def write_ros1_rows(path: Path, ts: Any, rows: list[tuple[int, str, str, Any]]) -> Path:
+    """A ROS 1 bag of ``rows`` (log time, topic, type, message of typestore ``ts``), one connection
+    per topic, written by rosbags."""
+    from rosbags.rosbag1 import Writer
+
     with Writer(path) as writer:
         connections: dict[str, Any] = {}
         for log, topic, msgtype, msg in rows:
@@ -301,6 +308,18 @@ def write_rosbag1(
                 connections[topic] = writer.add_connection(topic, msgtype, typestore=ts)
             writer.write(connections[topic], log, ts.serialize_ros1(msg, msgtype))
     return path
+
+
+def driver_bag(folder: Path, ros: int, edit: Callable[[list[tuple[int, str, str, Any]]], None]) -> Path:
+    """The driver bag of ``bag_messages`` as ROS 1 (``driver.bag``) or ROS 2 (``bag/``), its rows
+    changed in place by ``edit``."""
+    if ros == 1:
+        return write_rosbag1(folder / "driver.bag", edit=edit)
+    from rosbags.typesys import Stores, get_typestore
+
+    rows = bag_messages(get_typestore(Stores.ROS2_HUMBLE))
+    edit(rows)
+    return write_rosbag2(folder / "bag", messages=rows)
 
 
 def write_split_rosbag2(path: Path, options: Options = Options()) -> Path:
@@ -786,14 +805,7 @@ def _every_frame_twice(rows: list[tuple[int, str, str, Any]]) -> None:
 def test_every_frame_logged_twice_is_read_once(tmp_path, ros):
     """A frame repeated at its stamp (a camera topic recorded twice over) is one image: the copies
     are dropped and counted, not paired, counted and estimated as frames of their own (24 samples)."""
-    if ros == 1:
-        path = write_rosbag1(tmp_path / "driver.bag", edit=_every_frame_twice)
-    else:
-        from rosbags.typesys import Stores, get_typestore
-
-        rows = bag_messages(get_typestore(Stores.ROS2_HUMBLE))
-        _every_frame_twice(rows)
-        path = write_rosbag2(tmp_path / "bag", messages=rows)
+    path = driver_bag(tmp_path, ros, _every_frame_twice)
     warnings: list[str] = []
     assert_driver_samples(list(iter_bag_samples(path, WITH_TRUTH, on_warning=warnings.append)))
     assert warnings == [
@@ -908,14 +920,7 @@ def test_images_on_another_clock_than_the_odometry_are_refused_naming_both(tmp_p
     """Every image stamped outside the odometry (a camera clock never set, a driver's own clock, a
     stamp in nanoseconds taken for microseconds) is one error naming the topics and the stamps; it
     was an estimate of no keyframe, exit 0, with a warning that 12 images were dropped."""
-    if ros == 1:
-        path = write_rosbag1(tmp_path / "driver.bag", edit=_stamped_from_1970)
-    else:
-        from rosbags.typesys import Stores, get_typestore
-
-        rows = bag_messages(get_typestore(Stores.ROS2_HUMBLE))
-        _stamped_from_1970(rows)
-        path = write_rosbag2(tmp_path / "bag", messages=rows)
+    path = driver_bag(tmp_path, ros, _stamped_from_1970)
     first, last = (stamp - T0_NS + 100_000_000_000 for stamp in (image_stamps()[0], image_stamps()[-1]))
     with pytest.raises(BagError) as caught:
         list(iter_bag_samples(path))
