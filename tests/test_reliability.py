@@ -1343,9 +1343,22 @@ def test_a_sweep_worker_spawned_from_the_console_script_can_be_terminated(tmp_pa
     instead of 0.1 s). Ctrl-C stays the command's: its workers ignore it and are closed by it."""
     script = tmp_path / "aslam_script.py"
     script.write_text(SPAWNING_CONSOLE_SCRIPT)
-    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60)
+    done = subprocess.run(
+        [sys.executable, str(script)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        preexec_fn=_default_hangup_and_terminate,
+    )
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "['SIG_IGN', 'SIG_DFL', 'SIG_DFL']"
+
+
+def _default_hangup_and_terminate() -> None:
+    """As a shell starts a command: a test run under ``nohup`` (or a CI runner ignoring SIGHUP)
+    passes SIG_IGN on through exec, which is the runner's choice, not the command's."""
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def test_a_reader_killed_from_outside_is_one_line_not_an_internal_error(tmp_path: Path):
