@@ -47,6 +47,7 @@ ROBUST_TABLES = {
     "robust_seeds_33_34": "robust_matrix_seeds_33_34.md",
     "robust_seeds_35_36": "robust_matrix_seeds_35_36.md",
     "robust_seeds_41_42": "robust_matrix_seeds_41_42.md",
+    "robust_seeds_43_44": "robust_matrix_seeds_43_44.md",
     "robust_recorder_settings": "robust_matrix_recorder_settings.md",
 }
 """The robust-revisit matrix's tables (``bench/robust_matrix.py --markdown``), beside the results,
@@ -59,7 +60,7 @@ held out; the route files with other turns and steps; those with arcs, zigzags a
 sparse streams; seeds 27–28, rendered after that day's changes; seeds 29–30 on video-rate streams,
 rendered after the window's sharper motion term; seeds 31–32 on seven routes, the families with
 targets, rendered a session later with the estimator unchanged (and seeds 33–34 and 35–36, each a
-session later again, 35–36 with two more mixes; 41–42 on nine routes, with six route files);
+session later again, 35–36 with two more mixes; 41–42 and 43–44 on nine routes each);
 recorder settings the families never vary (image size, JPEG, lens, laps, camera height). A table
 not made is left out of the page."""
 TEMPLATES = Path(__file__).resolve().parent / "templates"
