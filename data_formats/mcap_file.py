@@ -95,14 +95,12 @@ class _Pinned(io.RawIOBase):
         return True
 
     def readinto(self, buffer: Any) -> int:
-        view = memoryview(buffer).cast("B")
-        wanted = min(len(view), max(0, self._size - self._pos))
-        data = os.pread(self._descriptor, wanted, self._pos)
-        if len(data) < wanted:
+        view = memoryview(buffer).cast("B")[: max(0, self._size - self._pos)]
+        got = os.preadv(self._descriptor, [view], self._pos)  # into the buffer: no copy of a chunk
+        if got < len(view):
             raise self._cut_short()
-        view[: len(data)] = data
-        self._pos += len(data)
-        return len(data)
+        self._pos += got
+        return got
 
     def seek(self, offset: int, whence: int = os.SEEK_SET) -> int:
         base = {os.SEEK_SET: 0, os.SEEK_CUR: self._pos, os.SEEK_END: self._size}[whence]
