@@ -320,7 +320,8 @@ class Estimator:
 
     def add_keyframe(self, stamp_ns: int, action: np.ndarray, observation: np.ndarray) -> StepResult:
         """The SLAM step proper, on an observation vector (``observation_model.describe`` of the image)."""
-        hypotheses = self._tree.add_keyframe(action, observation)
+        elapsed = int(stamp_ns) - self._stamps[-1] if self._stamps else None
+        hypotheses = self._tree.add_keyframe(action, observation, elapsed)
         self._stamps.append(int(stamp_ns))
         a = tuple(float(v) for v in action)
         keyframe = self._first_keyframe + len(self._stamps) - 1

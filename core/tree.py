@@ -78,9 +78,10 @@ class Node:
         # The keyframe from which this line's revisits may be the best (a jump by appearance is
         # believed once the motion model has confirmed it: ``JUMP_CONFIRMATIONS``).
         self.settled_at: int = 0 if parent is None else parent.settled_at
-        # A jump born while the best line explored new ground without having lost track: it is
-        # confirmed twice whatever the other lines predict (docs/estimator.md, "Exploring, not lost").
-        self.doubted = False
+        # A line that began with a jump born while the best line explored new ground without having
+        # lost track (docs/estimator.md, "Exploring, not lost"): its jump is confirmed whatever the
+        # other lines predict, and until it settles it is no proof the robot was ever on the map.
+        self.doubted: bool = parent is not None and parent.doubted
 
 
 @dataclass(frozen=True)
@@ -261,9 +262,18 @@ class HypothesisTree:
         odometry jumped. Driving off the end of mapped ground is exploring, not losing track."""
         self._odometry_jumped_at = -1
         """The keyframe odometry last jumped (a reset): no track leads past it."""
+        self._paused_at = -math.inf
+        """The keyframe that last came after a pause (``PAUSE_FACTOR``): time for a carry."""
+        self._intervals = WindowMedian(JUMP_WINDOW)
+        """Recent times between keyframes, nanoseconds."""
         self._best_in_map = True
         """Whether the best leaf's map has a place within ``IN_MAP_STEPS`` steps of where odometry
         puts the robot now (set by each graph search of the best leaf)."""
+        self._best_paths: dict[int, tuple[int, Rel, float, float]] = {}
+        """The best leaf's graph search this step: each state it reached (but its own) with the state
+        and link it was reached through; empty when nothing was searched."""
+        self._paths: dict[int, tuple[int, Rel, float, float]] = {}
+        """The same for the last graph search."""
         self._in_map2 = (IN_MAP_STEPS * config.step_m) ** 2
         self._nearest2 = 0.0
         """Squared distance from the prediction to the nearest place the last graph search reached."""
@@ -329,9 +339,19 @@ class HypothesisTree:
         self.commit_root = start
 
     # ------------------------------------------------------------------ the step
-    def add_keyframe(self, action: np.ndarray, observation: np.ndarray) -> list[Hypothesis]:
-        """Advance every hypothesis by one keyframe; returns the surviving leaves, best first."""
+    def add_keyframe(
+        self, action: np.ndarray, observation: np.ndarray, elapsed_ns: int | None = None
+    ) -> list[Hypothesis]:
+        """Advance every hypothesis by one keyframe; returns the surviving leaves, best first.
+
+        ``elapsed_ns``: the time since the keyframe before (None: unknown, as at a session's first),
+        which tells a robot that may have been carried from one that drove on (``PAUSE_FACTOR``).
+        """
         keyframe = self.views.append(observation)
+        if elapsed_ns is not None:
+            if len(self._intervals) >= JUMP_WARMUP and elapsed_ns > PAUSE_FACTOR * self._intervals.median:
+                self._paused_at = keyframe
+            self._intervals.append(float(elapsed_ns))
         previous, self._previous_view = self._previous_view, np.array(observation, dtype=np.float32)
         if keyframe == 0:
             self._index_place(0)
@@ -353,6 +373,7 @@ class HypothesisTree:
         action_cov = action_covariance(action, self._noise)
         jumped = self._jump_factor > 0 and self._odometry_jumped(action)
         after_odometry_jump = self._odometry_jumped_at == keyframe - 1
+        self._best_paths = {}
         if jumped:  # not a motion: nothing to predict from it
             self._odometry_jumped_at = keyframe
             proposals = [(np.zeros(0, np.int64), np.zeros(0)) for _ in self.leaves]
@@ -466,10 +487,22 @@ class HypothesisTree:
                 rel = rel[:3] + _UNKNOWN_LINK
             node = self._new_node(keyframe, state, parent, log_belief, is_new, rel)
             if jump:
-                node.settled_at = keyframe + JUMP_CONFIRMATIONS
-                node.doubted = best.is_new and not lost
+                # A place odometry rules out, with no pause in which the robot could have been
+                # carried, is a look-alike stretch until it outlasts one. Born while exploring, or
+                # from a doubted line not yet settled, a jump is doubted too (confirmed twice).
+                drove_on = keyframe - self._paused_at > self.config.lost_window
+                ruled_out = drove_on and self._ruled_out_by_odometry(state, action, action_cov)
+                node.doubted = ruled_out or (best.is_new and not lost) or self._unsettled(best, keyframe)
+                node.settled_at = keyframe + (DOUBTED_CONFIRMATIONS if ruled_out else JUMP_CONFIRMATIONS)
             leaves.append(node)
-        if not self.leaves[0].is_new and leaves[0].is_new and (jumped or self._best_in_map):
+        was_best = self.leaves[0]
+        # The end of an unsettled doubted line is no loss of track: the robot was never shown to be there.
+        if (
+            not was_best.is_new
+            and leaves[0].is_new
+            and not self._unsettled(was_best, keyframe)
+            and (jumped or self._best_in_map)
+        ):
             self._lost_at = keyframe
         if not leaves[0].is_new:
             self._tracked_at = keyframe
@@ -477,6 +510,29 @@ class HypothesisTree:
         self._commit_shared_history()
         self._record_count(len(leaves))
         return self.hypotheses()
+
+    def _ruled_out_by_odometry(self, state: int, action: np.ndarray, action_cov: np.ndarray) -> bool:
+        """Whether the best leaf's map puts ``state`` so far from where odometry says the robot is
+        (over ``RULED_OUT_SIGMA``) that only a carry could have brought it there. Beyond the reach of
+        its search (a long drift, a lap's loop not yet closed) odometry cannot tell."""
+        paths = self._best_paths
+        if state not in paths:
+            return False
+        chain = [state]
+        while chain[-1] in paths:
+            chain.append(paths[chain[-1]][0])
+        rel = IDENTITY_REL
+        for node in reversed(chain[:-1]):
+            rel = compose_rel(rel, paths[node][1])
+        pose = np.array([rel[:3]])
+        covariance = np.array(rel)[[3, 4, 5, 4, 6, 7, 5, 7, 8]].reshape(1, 3, 3)
+        mahalanobis2 = float(self._transition(pose, covariance, action, action_cov)[1][0])
+        return mahalanobis2 > RULED_OUT_SIGMA**2
+
+    def _unsettled(self, leaf: Node, keyframe: int) -> bool:
+        """Whether ``leaf``'s line began with a doubted jump that settled under ``lost_window``
+        keyframes ago (or has not yet): a look-alike stretch ends about then, a kidnap's track goes on."""
+        return leaf.doubted and leaf.settled_at > keyframe - self.config.lost_window
 
     def _start_session(self, observation: np.ndarray, keyframe: int) -> list[Hypothesis]:
         """The first keyframe in a prior map: anywhere in it, or somewhere new.
@@ -818,6 +874,7 @@ class HypothesisTree:
         else:
             searches = [self._search(leaves[0], action, action_cov)]
             self._best_in_map = self._nearest2 <= self._in_map2
+            self._best_paths = self._paths
             searches += [self._search(leaf, action, action_cov) for leaf in leaves[1:]]
         sizes = [len(states) for states, _ in searches]
         if not any(sizes):
@@ -926,6 +983,7 @@ class HypothesisTree:
                     push(heap, (total + nearness * (ex * ex + ey * ey), neighbour))
         self._searched_sum += expanded
         self._nearest2 = nearest2
+        self._paths = via
         rels: dict[int, Rel] = {start: IDENTITY_REL}
 
         def rel_of(state: int) -> Rel:  # composed along the search tree, memoised
@@ -1113,6 +1171,22 @@ with another place, or when it was born while the robot explored without having 
 there, and at the next keyframe, the motion model's first confirmation, too. In an aliased stretch
 two views in a row can fit a look-alike track (a periodic wallpaper at two corners); a third rarely
 does (docs/estimator.md, "A jump the left track still explains" and "Exploring, not lost")."""
+DOUBTED_CONFIRMATIONS = 5
+"""Keyframes the line of a jump to a place odometry rules out (``RULED_OUT_SIGMA``) stays under the
+ceiling when no pause came before it: the robot drove on, so it was not carried, and the line is a
+look-alike stretch until it outlasts one. The figure-8's two lobes, every wall from one set of
+textures, fit a look-alike track five keyframes in a row (docs/estimator.md, "Where two
+confirmations are not enough")."""
+RULED_OUT_SIGMA = 8.0
+"""A place whose pose through the best leaf's map is this many σ from where odometry puts the robot
+is ruled out by odometry: the figure-8's look-alike lobe at aliasing 1.0 was 12–26 σ away (seeds 35,
+43, 44), a lap's start reached by a jump at 10 % odometry noise 4.4 σ (the gate is ``gate_sigma``, 4)."""
+PAUSE_FACTOR = 1.5
+"""A keyframe that comes over this many times the run's median interval after the one before ends a
+pause: time in which odometry measured less than a step. A kidnap takes one (the robot is lifted,
+carried and set down while its wheels turn no further); a continuous drive has none. In the
+recorder every action takes a second, a carry one more; a bag cut where the robot was carried
+skips the carry's time."""
 WELL_EXPLAINED = 0.5
 """A view the best leaf's predicted place fits at under this share of the new-place reference is
 explained: the index is not searched for a jump at that keyframe. A kidnap's first view fits the
