@@ -656,7 +656,8 @@ class HypothesisTree:
             last_keyframe, last_place, length = self._alarm_chain
             length = length + 1 if own and (last_keyframe, last_place) == (keyframe - 1, own[0] - 1) else 1
             self._alarm_chain = (keyframe, own[0], length) if own else (-1, -1, 0)
-            chained = length >= CHAIN_FOR_KIDNAP and keyframe - self._tracked_at <= self.config.lost_window
+            recent = min(keyframe - self._tracked_at, keyframe - self._paused_at)
+            chained = length >= CHAIN_FOR_KIDNAP and recent <= self.config.lost_window
             log_prior = self._log_relocalise_lost if lost or chained else self._log_relocalise
             log_prior += self._log_alarm_scale()
             priors += [log_prior] * len(own)
@@ -1162,8 +1163,8 @@ kidnap, a turn the map never saw from there); one stepping a whole step past its
 is exploring (docs/estimator.md, "Leaving the map is not losing track")."""
 CHAIN_FOR_KIDNAP = 3
 """Places singled out at this many keyframes in a row, each the place after the last, soon after the
-robot was tracked, are taken as a kidnap's sign even where odometry says it left the map: their
-jump gets the lost prior (``relocalisation_lost_prior``)."""
+robot was tracked or paused, are taken as a kidnap's sign even where odometry says it left the map
+or explored: their jump gets the lost prior (``relocalisation_lost_prior``)."""
 
 JUMP_CONFIRMATIONS = 2
 """Keyframes a jump's line stays under the ceiling while the track it left still explains the view
