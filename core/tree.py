@@ -78,9 +78,10 @@ class Node:
         # The keyframe from which this line's revisits may be the best (a jump by appearance is
         # believed once the motion model has confirmed it: ``JUMP_CONFIRMATIONS``).
         self.settled_at: int = 0 if parent is None else parent.settled_at
-        # A line that began with a jump born while the best line explored new ground without having
-        # lost track (docs/estimator.md, "Exploring, not lost"): its jump is confirmed whatever the
-        # other lines predict, and until it settles it is no proof the robot was ever on the map.
+        # A line that began with a doubted jump: born while the best line explored new ground without
+        # having lost track (docs/estimator.md, "Exploring, not lost"), or to a place odometry rules
+        # out. Its jump is confirmed whatever the other lines predict, and until it settles it is no
+        # proof the robot was ever on the map.
         self.doubted: bool = parent is not None and parent.doubted
 
 
@@ -1187,7 +1188,8 @@ PAUSE_FACTOR = 1.5
 pause: time in which odometry measured less than a step. A kidnap takes one (the robot is lifted,
 carried and set down while its wheels turn no further); a continuous drive has none. In the
 recorder every action takes a second, a carry one more; a bag cut where the robot was carried
-skips the carry's time."""
+skips the carry's time. A slow stretch makes one too (the recorder's arcs of 15° actions): there a
+jump odometry rules out is believed at its second confirmation, as before the rule."""
 WELL_EXPLAINED = 0.5
 """A view the best leaf's predicted place fits at under this share of the new-place reference is
 explained: the index is not searched for a jump at that keyframe. A kidnap's first view fits the
