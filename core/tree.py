@@ -32,6 +32,7 @@ from aslam.core.motion import (
     inverse_rel,
     link_weight,
     mahalanobis2_and_logdet,
+    rel_covariance,
     revisit_residuals,
     to_rel,
 )
@@ -516,17 +517,10 @@ class HypothesisTree:
         """Whether the best leaf's map puts ``state`` so far from where odometry says the robot is
         (over ``RULED_OUT_SIGMA``) that only a carry could have brought it there. Beyond the reach of
         its search (a long drift, a lap's loop not yet closed) odometry cannot tell."""
-        paths = self._best_paths
-        if state not in paths:
+        if state not in self._best_paths:
             return False
-        chain = [state]
-        while chain[-1] in paths:
-            chain.append(paths[chain[-1]][0])
-        rel = IDENTITY_REL
-        for node in reversed(chain[:-1]):
-            rel = compose_rel(rel, paths[node][1])
-        pose = np.array([rel[:3]])
-        covariance = np.array(rel)[[3, 4, 5, 4, 6, 7, 5, 7, 8]].reshape(1, 3, 3)
+        rel = _rel_along(self._best_paths, state, {self.leaves[0].state: IDENTITY_REL})
+        pose, covariance = np.array([rel[:3]]), rel_covariance(rel)[None]
         mahalanobis2 = float(self._transition(pose, covariance, action, action_cov)[1][0])
         return mahalanobis2 > RULED_OUT_SIGMA**2
 
@@ -987,17 +981,7 @@ class HypothesisTree:
         self._nearest2 = nearest2
         self._paths = via
         rels: dict[int, Rel] = {start: IDENTITY_REL}
-
-        def rel_of(state: int) -> Rel:  # composed along the search tree, memoised
-            chain = []
-            while state not in rels:
-                chain.append(state)
-                state = via[state][0]
-            for node in reversed(chain):
-                rels[node] = compose_rel(rels[via[node][0]], via[node][1])
-            return rels[chain[0]] if chain else rels[state]
-
-        return candidates, [rel_of(state) for state in candidates]
+        return candidates, [_rel_along(via, state, rels) for state in candidates]
 
     def _search_path(self, leaf: Node) -> tuple[list[int], list[Rel]]:
         """The paper's transition: trace the leaf's own path back in time, composing its actions.
@@ -1207,6 +1191,19 @@ JUMP_WARMUP = 5
 """Steps seen before any action can count as a jump."""
 SESSION_START = -1
 """State of the node a session in a prior map starts from: the robot is nowhere yet."""
+
+
+def _rel_along(paths: dict[int, tuple[int, Rel, float, float]], state: int, rels: dict[int, Rel]) -> Rel:
+    """``state``'s pose (with covariance) seen from a graph search's start, composed along the path
+    the search reached it by (``paths``: state → the state and link it came through); ``rels`` holds
+    the start's identity and memoises every state composed on the way."""
+    chain = []
+    while state not in rels:
+        chain.append(state)
+        state = paths[state][0]
+    for node in reversed(chain):
+        rels[node] = compose_rel(rels[paths[node][0]], paths[node][1])
+    return rels[chain[0]] if chain else rels[state]
 
 
 def _flat(covariance: np.ndarray) -> list[float]:
