@@ -16,6 +16,7 @@ import pytest
 from conftest import one_error_line, square_route, write_square_bag, write_square_recording
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from test_core_tree import carried_stamp
 
 from aslam.cli.app import main
 from aslam.core.config import EstimatorConfig
@@ -465,7 +466,7 @@ def _random_run(
 ) -> list:
     """``count`` keyframes one metre apart straight ahead, with random views; ``repeat`` maps a
     keyframe to an earlier one whose view it shows again (a look-alike); keyframe ``pause_at`` comes
-    after a pause (five keyframes' time: the robot may have been carried)."""
+    after a carry's time (the robot may have been carried)."""
     rng = np.random.default_rng(seed)
     views: list[np.ndarray] = []
     steps = []
@@ -474,7 +475,7 @@ def _random_run(
         if repeat and k in repeat:
             view = views[repeat[k]]
         views.append(view)
-        stamp = k + (5 if pause_at is not None and k >= pause_at else 0)
+        stamp = k if pause_at is None else carried_stamp(k, pause_at)
         steps.append(estimator.add_keyframe(stamp, np.array([1.0, 0, 0]) if k else np.zeros(3), view))
     return steps
 
