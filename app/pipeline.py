@@ -32,7 +32,7 @@ import numpy as np
 
 from aslam.core import se2
 from aslam.core.errors import AslamError
-from aslam.core.estimator import Estimator, Keyframer, StepResult
+from aslam.core.estimator import Estimator, Keyframer, StepResult, StillClock
 from aslam.core.observation import ObservationModel
 from aslam.data_formats.images import LazyImage
 from aslam.data_formats.pose_sync import Sample
@@ -47,6 +47,8 @@ class Frame(NamedTuple):
     stamp_ns: int
     odometry_pose: np.ndarray
     view: np.ndarray
+    still_ns: int
+    """The stream's :class:`StillClock` at this frame."""
 
 
 class Keyframe(NamedTuple):
@@ -54,6 +56,17 @@ class Keyframe(NamedTuple):
     action: np.ndarray
     """Odometry since the previous keyframe."""
     view: np.ndarray
+    still_ns: int
+    """The stream's :class:`StillClock` at this keyframe."""
+
+
+def still_clocked(samples: Iterable[Sample], counts: PipelineCounts) -> Iterator[tuple[Sample, int]]:
+    """``(sample, still_ns)``: each sample, counted, with the stream's :class:`StillClock` at it,
+    clocked before any sample is skipped."""
+    clock = StillClock()
+    for sample in samples:
+        counts.samples += 1
+        yield sample, clock.tick(sample.stamp_ns, sample.odometry_pose)
 
 
 @dataclass
@@ -90,19 +103,21 @@ def _near(a: np.ndarray, b: np.ndarray, window_m: float, heading_rad: float) -> 
     return math.hypot(float(a[0] - b[0]), float(a[1] - b[1])) <= window_m and abs(turn) <= heading_rad
 
 
-def dense_samples(samples: Iterable[Sample], window_m: float, counts: PipelineCounts) -> Iterator[Sample]:
-    """The samples worth describing on a dense stream: each one at least ``FRAME_SPACING`` of the
-    window away from the last one kept (in distance or heading)."""
+def dense_samples(
+    samples: Iterable[Sample], window_m: float, counts: PipelineCounts
+) -> Iterator[tuple[Sample, int]]:
+    """The samples worth describing on a dense stream, each with the stream's :class:`StillClock`:
+    each one at least ``FRAME_SPACING`` of the window away from the last one kept (in distance or
+    heading)."""
     spacing_m = FRAME_SPACING * window_m
     spacing_rad = FRAME_SPACING * math.radians(WINDOW_HEADING_DEG)
     last: np.ndarray | None = None
-    for sample in samples:
-        counts.samples += 1
+    for sample, still_ns in still_clocked(samples, counts):
         pose = np.asarray(sample.odometry_pose, dtype=float)
         if last is not None and _near(pose, last, spacing_m, spacing_rad):
             continue
         last = pose
-        yield sample
+        yield sample, still_ns
 
 
 def keyframes_taken(
@@ -226,15 +241,10 @@ def keyframe_views(
     ``keyframer`` decides from each sample's odometry pose.
     """
     counts = counts if counts is not None else PipelineCounts()
-
-    def counted() -> Iterator[Sample]:
-        for sample in samples:
-            counts.samples += 1
-            yield sample
-
-    keyframes = keyframer.keyframes(counted(), lambda sample: sample.odometry_pose)
-    for sample, action, vector in _described(keyframes, model, workers, depth):
-        yield Keyframe(sample.stamp_ns, action, vector)
+    keyframes = keyframer.keyframes(still_clocked(samples, counts), lambda clocked: clocked[0].odometry_pose)
+    items = ((sample, (action, still_ns)) for (sample, still_ns), action in keyframes)
+    for sample, (action, still_ns), vector in _described(items, model, workers, depth):
+        yield Keyframe(sample.stamp_ns, action, vector, still_ns)
 
 
 def frame_views(
@@ -248,9 +258,9 @@ def frame_views(
 ) -> Iterator[Frame]:
     """Every frame of a dense stream worth describing (:func:`dense_samples`), with its view."""
     counts = counts if counts is not None else PipelineCounts()
-    items = ((sample, None) for sample in dense_samples(samples, window_m, counts))
-    for sample, _, vector in _described(items, model, workers, depth):
-        yield Frame(sample.stamp_ns, np.asarray(sample.odometry_pose, dtype=float), vector)
+    items = dense_samples(samples, window_m, counts)
+    for sample, still_ns, vector in _described(items, model, workers, depth):
+        yield Frame(sample.stamp_ns, np.asarray(sample.odometry_pose, dtype=float), vector, still_ns)
 
 
 def _computed(function: Callable[..., np.ndarray], *args: Any) -> Future[np.ndarray]:
@@ -390,7 +400,7 @@ class EstimateSteps:
         try:
             for frame, action in taken:
                 start = time.perf_counter()
-                step = estimator.add_keyframe(frame.stamp_ns, action, frame.view)
+                step = estimator.add_keyframe(frame.stamp_ns, action, frame.view, frame.still_ns)
                 counts.slam_s += time.perf_counter() - start
                 counts.keyframes += 1
                 yield step

@@ -234,14 +234,15 @@ class EstimatorConfig:
     relocalisation_lost_prior: float = _param(
         0.1,
         "For lost_window keyframes after the robot lost track (the best hypothesis was at a mapped place"
-        " and now at none), a place appearance alone singles out is proposed with this prior instead of"
+        " and now at none) or after a pause (odometry standing still for half a keyframe interval, as"
+        " while carried), a place appearance alone singles out is proposed with this prior instead of"
         " relocalisation_prior: after a kidnap the right places often look only a little more alike than"
         " a new place (another light, a view off the first visit's line), and at 1e-4 such a jump was"
         " pruned before the next keyframe could confirm it (0 = relocalisation_prior throughout; no jumps"
         " at all while relocalisation_prior is 0).",
     )
     lost_window: int = _param(
-        5, "Keyframes after a loss of track during which relocalisation_lost_prior holds."
+        5, "Keyframes after a loss of track or a pause during which relocalisation_lost_prior holds."
     )
     jump_alarm_rate: float = _param(
         0.01,

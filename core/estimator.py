@@ -118,6 +118,40 @@ class Keyframer:
         self._previous = pose
 
 
+STILL_M_PER_S = 0.01
+"""Odometry moving slower than this (and turning slower than ``STILL_DEG_PER_S``) between two samples
+is standing still: a parked robot's wheel odometry moves not at all, a fused one drifts by
+millimetres a second; a robot creeping forward moves centimetres a second."""
+STILL_DEG_PER_S = 0.5
+
+
+class StillClock:
+    """The time a stream's odometry has stood still so far: a robot carried to another place (a
+    kidnap) measures no motion while it is carried, whether its camera sees the carry or the stream
+    skips it. Counted over every sample, not keyframes: a slow stretch (a route's tight arcs, a
+    keyframe every six seconds) keeps moving and counts nothing."""
+
+    def __init__(self) -> None:
+        self._last: tuple[int, float, float, float] | None = None
+        self.still_ns = 0
+
+    def tick(self, stamp_ns: int, odometry_pose: np.ndarray) -> int:
+        """Count the sample at ``stamp_ns``; returns the time stood still up to it, nanoseconds."""
+        x, y, yaw = (float(v) for v in odometry_pose)
+        if self._last is not None:
+            last_stamp, last_x, last_y, last_yaw = self._last
+            elapsed = int(stamp_ns) - last_stamp
+            seconds = elapsed * 1e-9
+            if (
+                elapsed > 0
+                and math.hypot(x - last_x, y - last_y) < STILL_M_PER_S * seconds
+                and abs(float(se2.wrap_angle(yaw - last_yaw))) < math.radians(STILL_DEG_PER_S) * seconds
+            ):
+                self.still_ns += elapsed
+        self._last = (int(stamp_ns), x, y, yaw)
+        return self.still_ns
+
+
 WINDOW_LEAF_BELIEF = 0.05
 """Hypotheses with at least this belief (and the best) say where a dense stream's keyframe is taken."""
 SPARSE_CHOICE_ODDS = 10.0
@@ -235,6 +269,7 @@ class Estimator:
         )
         self._first_keyframe = 0 if prior is None else prior.keyframes
         self._stamps: list[int] = []
+        self._still_ns = 0
 
     @property
     def keyframer(self) -> Keyframer:
@@ -318,11 +353,19 @@ class Estimator:
             return 0
         return best
 
-    def add_keyframe(self, stamp_ns: int, action: np.ndarray, observation: np.ndarray) -> StepResult:
-        """The SLAM step proper, on an observation vector (``observation_model.describe`` of the image)."""
+    def add_keyframe(
+        self, stamp_ns: int, action: np.ndarray, observation: np.ndarray, still_ns: int = 0
+    ) -> StepResult:
+        """The SLAM step proper, on an observation vector (``observation_model.describe`` of the image).
+
+        ``still_ns``: the stream's :class:`StillClock` at this keyframe (the time its odometry had
+        stood still so far), which tells a robot that may have been carried from one that drove on.
+        """
         elapsed = int(stamp_ns) - self._stamps[-1] if self._stamps else None
-        hypotheses = self._tree.add_keyframe(action, observation, elapsed)
+        still = int(still_ns) - self._still_ns
+        hypotheses = self._tree.add_keyframe(action, observation, elapsed, still)
         self._stamps.append(int(stamp_ns))
+        self._still_ns = int(still_ns)
         a = tuple(float(v) for v in action)
         keyframe = self._first_keyframe + len(self._stamps) - 1
         return StepResult(keyframe, int(stamp_ns), a, tuple(hypotheses))  # type: ignore[arg-type]

@@ -265,7 +265,7 @@ class HypothesisTree:
         self._odometry_jumped_at = -1
         """The keyframe odometry last jumped (a reset): no track leads past it."""
         self._paused_at = -math.inf
-        """The keyframe that last came after a pause (``PAUSE_FACTOR``): time for a carry."""
+        """The keyframe that last came after a pause (``PAUSE_SHARE``): time for a carry."""
         self._intervals = WindowMedian(JUMP_WINDOW)
         """Recent times between keyframes, nanoseconds."""
         self._best_in_map = True
@@ -342,16 +342,21 @@ class HypothesisTree:
 
     # ------------------------------------------------------------------ the step
     def add_keyframe(
-        self, action: np.ndarray, observation: np.ndarray, elapsed_ns: int | None = None
+        self,
+        action: np.ndarray,
+        observation: np.ndarray,
+        elapsed_ns: int | None = None,
+        still_ns: int = 0,
     ) -> list[Hypothesis]:
         """Advance every hypothesis by one keyframe; returns the surviving leaves, best first.
 
-        ``elapsed_ns``: the time since the keyframe before (None: unknown, as at a session's first),
-        which tells a robot that may have been carried from one that drove on (``PAUSE_FACTOR``).
+        ``elapsed_ns``: the time since the keyframe before (None: unknown, as at a session's first);
+        ``still_ns``: how much of it odometry stood still. Together they tell a robot that may have
+        been carried from one that drove on (``PAUSE_SHARE``).
         """
         keyframe = self.views.append(observation)
         if elapsed_ns is not None:
-            if len(self._intervals) >= JUMP_WARMUP and elapsed_ns > PAUSE_FACTOR * self._intervals.median:
+            if len(self._intervals) >= JUMP_WARMUP and still_ns >= PAUSE_SHARE * self._intervals.median:
                 self._paused_at = keyframe
             self._intervals.append(float(elapsed_ns))
         previous, self._previous_view = self._previous_view, np.array(observation, dtype=np.float32)
@@ -449,8 +454,10 @@ class HypothesisTree:
         # JUMP_CEILING_LOST while lost): the next keyframe must confirm it through the motion model,
         # as a revisit of the next place.
         best = self.leaves[0]
-        lost = keyframe - self._lost_at <= self.config.lost_window
-        ceiling = children[0][0] + math.log(JUMP_CEILING_LOST if lost else JUMP_CEILING)
+        lost_track = keyframe - self._lost_at <= self.config.lost_window
+        ceiling = children[0][0] + math.log(
+            JUMP_CEILING_LOST if self._maybe_carried(keyframe) else JUMP_CEILING
+        )
         # A jump's line is believed once the motion model confirmed it, unless the track it left
         # still explains the view otherwise (a settled line predicts another place that looks like a
         # revisit) or it was born while the robot explored without having lost track (``doubted``):
@@ -494,7 +501,9 @@ class HypothesisTree:
                 # from a doubted line not yet settled, a jump is doubted too (confirmed twice).
                 drove_on = keyframe - self._paused_at > self.config.lost_window
                 ruled_out = drove_on and self._ruled_out_by_odometry(state, action, action_cov)
-                node.doubted = ruled_out or (best.is_new and not lost) or self._unsettled(best, keyframe)
+                node.doubted = (
+                    ruled_out or (best.is_new and not lost_track) or self._unsettled(best, keyframe)
+                )
                 node.settled_at = keyframe + (DOUBTED_CONFIRMATIONS if ruled_out else JUMP_CONFIRMATIONS)
             leaves.append(node)
         was_best = self.leaves[0]
@@ -595,7 +604,8 @@ class HypothesisTree:
         similar committed places; they are then compared exactly. The best is returned if it looks
         more alike than the new-place reference, clearly more alike than the runner-up, and the
         motion model did not propose it; its prior is ``relocalisation_lost_prior`` for
-        ``lost_window`` keyframes after the robot lost track, ``relocalisation_prior`` otherwise.
+        ``lost_window`` keyframes after the robot lost track or paused (``_maybe_carried``), or at a
+        chain of places (``CHAIN_FOR_KIDNAP``), ``relocalisation_prior`` otherwise.
         In a prior map, the ``map_relocalisation_candidates`` most alike of the map's own places are
         returned too, untested (``map_relocalisation_prior``): the sequence that follows decides.
         After an odometry jump (``untested``) the robot may be anywhere: as at a session's start,
@@ -615,7 +625,7 @@ class HypothesisTree:
             # alarm count still counts the keyframe, as a search that singled out nothing would.
             if self._log_relocalise > -math.inf:
                 self._alarms.close_before(keyframe, lambda k, place: self._best_state_at(k) == place)
-                self._alarms.add(keyframe, None, keyframe - self._lost_at <= self.config.lost_window)
+                self._alarms.add(keyframe, None, self._maybe_carried(keyframe))
             return none
         top = self._shortlist(observation)
         if not len(top):
@@ -645,14 +655,13 @@ class HypothesisTree:
         if self._log_relocalise > -math.inf:
             own = self._distinctive(top, distances, order, fit)
             found += own
-            lost = keyframe - self._lost_at <= self.config.lost_window
+            lost = self._maybe_carried(keyframe)
             self._alarms.close_before(keyframe, lambda k, place: self._best_state_at(k) == place)
             # A chain: each keyframe singles out the place after the one the keyframe before did.
             last_keyframe, last_place, length = self._alarm_chain
             length = length + 1 if own and (last_keyframe, last_place) == (keyframe - 1, own[0] - 1) else 1
             self._alarm_chain = (keyframe, own[0], length) if own else (-1, -1, 0)
-            recent = min(keyframe - self._tracked_at, keyframe - self._paused_at)
-            chained = length >= CHAIN_FOR_KIDNAP and recent <= self.config.lost_window
+            chained = length >= CHAIN_FOR_KIDNAP and keyframe - self._tracked_at <= self.config.lost_window
             log_prior = self._log_relocalise_lost if lost or chained else self._log_relocalise
             log_prior += self._log_alarm_scale()
             priors += [log_prior] * len(own)
@@ -661,12 +670,18 @@ class HypothesisTree:
         return np.array(found, dtype=np.int64), priors, distinctive, elsewhere
 
     def lost_off_the_map(self) -> bool:
-        """Whether the next keyframe comes while the robot is lost (within ``lost_window`` keyframes
-        of losing track) and the best hypothesis still calls it somewhere new."""
+        """Whether the next keyframe comes while the robot may have been carried (``_maybe_carried``)
+        and the best hypothesis still calls it somewhere new."""
         best = self.leaves[0] if self.leaves else None
         if best is None or not best.is_new or best.state == SESSION_START:
             return False
-        return len(self.views) - self._lost_at <= self.config.lost_window
+        return self._maybe_carried(len(self.views))
+
+    def _maybe_carried(self, keyframe: int) -> bool:
+        """Whether ``keyframe`` comes within ``lost_window`` keyframes of losing track or of a pause
+        (``PAUSE_SHARE``): what the track predicts is then no proof of where the robot is, and a jump
+        by appearance gets the lost prior and ceiling."""
+        return keyframe - max(self._lost_at, self._paused_at) <= self.config.lost_window
 
     def nearest_mapped_distance(self, observation: np.ndarray) -> float:
         """Distance from ``observation`` to the most alike committed place the relocalisation index
@@ -1148,8 +1163,8 @@ kidnap, a turn the map never saw from there); one stepping a whole step past its
 is exploring (docs/estimator.md, "Leaving the map is not losing track")."""
 CHAIN_FOR_KIDNAP = 3
 """Places singled out at this many keyframes in a row, each the place after the last, soon after the
-robot was tracked or paused, are taken as a kidnap's sign even where odometry says it left the map
-or explored: their jump gets the lost prior (``relocalisation_lost_prior``)."""
+robot was tracked, are taken as a kidnap's sign even where odometry says it left the map: their jump
+gets the lost prior (``relocalisation_lost_prior``)."""
 
 JUMP_CONFIRMATIONS = 2
 """Keyframes a jump's line stays under the ceiling while the track it left still explains the view
@@ -1167,13 +1182,17 @@ RULED_OUT_SIGMA = 8.0
 """A place whose pose through the best leaf's map is this many σ from where odometry puts the robot
 is ruled out by odometry: the figure-8's look-alike lobe at aliasing 1.0 was 12–26 σ away (seeds 35,
 43, 44), a lap's start reached by a jump at 10 % odometry noise 4.4 σ (the gate is ``gate_sigma``, 4)."""
-PAUSE_FACTOR = 1.5
-"""A keyframe that comes over this many times the run's median interval after the one before ends a
-pause: time in which odometry measured less than a step. A kidnap takes one (the robot is lifted,
-carried and set down while its wheels turn no further); a continuous drive has none. In the
-recorder every action takes a second, a carry one more; a bag cut where the robot was carried
-skips the carry's time. A slow stretch makes one too (the recorder's arcs of 15° actions): there a
-jump odometry rules out is believed at its second confirmation, as before the rule."""
+PAUSE_SHARE = 0.5
+"""A keyframe before which odometry stood still for at least this share of the run's median
+keyframe interval ends a pause (:class:`aslam.core.estimator.StillClock`). A kidnap takes one: the
+robot is lifted, carried and set down while its wheels turn no further (in the recorder a carry
+takes one action's second, during which odometry holds; a bag cut where the robot was carried skips
+the carry's time with odometry unmoved). A continuous drive has none, however slowly its keyframes
+come (the recorder's arcs of 15° actions: one every six to eight seconds). For ``lost_window``
+keyframes after a pause the robot may have been carried, as after losing track: a jump by appearance
+gets the lost prior and ceiling at once (one born while exploring is still confirmed twice), where a
+robot carried while it explored, never tracked, got the small prior until a chain of places singled
+out (``CHAIN_FOR_KIDNAP``) lifted it."""
 WELL_EXPLAINED = 0.5
 """A view the best leaf's predicted place fits at under this share of the new-place reference is
 explained: the index is not searched for a jump at that keyframe. A kidnap's first view fits the

@@ -24,7 +24,7 @@ from aslam.app.pipeline import (
 )
 from aslam.core import estimator as estimator_module
 from aslam.core import se2
-from aslam.core.estimator import Estimator, Keyframer
+from aslam.core.estimator import STILL_DEG_PER_S, STILL_M_PER_S, Estimator, Keyframer, StillClock
 from aslam.data_formats.pose_sync import Sample
 
 
@@ -40,7 +40,7 @@ def _poses(increments: list[tuple[float, float]]) -> list[np.ndarray]:
 
 def _frames(increments: list[tuple[float, float]]) -> list[Frame]:
     """Frames whose "view" is their own stamp: a chooser can tell them apart without images."""
-    return [Frame(i, pose, np.array([i], np.float32)) for i, pose in enumerate(_poses(increments))]
+    return [Frame(i, pose, np.array([i], np.float32), 0) for i, pose in enumerate(_poses(increments))]
 
 
 def _pose(frame: Frame) -> np.ndarray:
@@ -139,15 +139,52 @@ def test_a_taken_frame_moves_the_next_keyframe_and_its_action_with_it():
 
 def test_a_robot_standing_still_or_creeping_is_described_a_few_centimetres_apart():
     """Thousands of frames at one pose, then a creep of 1 mm a frame: only frames at least
-    ``FRAME_SPACING`` of the window apart are described, so a window stays small."""
+    ``FRAME_SPACING`` of the window apart are described, so a window stays small. The time stood
+    still is clocked on every frame, the skipped ones too."""
     poses = _poses([(1.0, 0.0)] + [(0.0, 0.0)] * 5000 + [(0.001, 0.0)] * 1000)
-    samples = [Sample(i, None, pose, None) for i, pose in enumerate(poses)]  # type: ignore[arg-type]
+    samples = [Sample(i * 5 * 10**7, None, pose, None) for i, pose in enumerate(poses)]  # type: ignore[arg-type]
     counts = PipelineCounts()
-    kept = list(dense_samples(samples, 0.35, counts))
+    clocked = list(dense_samples(samples, 0.35, counts))
+    kept = [sample for sample, _ in clocked]
+    assert [still_ns for _, still_ns in clocked[:3]] == [0, 0, 5000 * 5 * 10**7]
+    assert clocked[-1][1] == 5000 * 5 * 10**7  # a creep of 2 cm/s is no standing still
     assert counts.samples == len(samples)
-    assert [s.stamp_ns for s in kept[:2]] == [0, 1]
+    assert [s.stamp_ns for s in kept[:2]] == [0, 5 * 10**7]
     gaps = np.diff([float(s.odometry_pose[0]) for s in kept])
     assert gaps.min() >= FRAME_SPACING * 0.35 - 1e-9 and len(kept) == 2 + 1.0 // (FRAME_SPACING * 0.35)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.integers(1, 3 * 10**9),  # time to the next sample, ns
+            st.sampled_from([0.0, 0.3, 1.0]),  # speed, as a share of ``STILL_M_PER_S``…
+            st.sampled_from([0.0, 2.0, 50.0]),  # …or many times it
+            st.sampled_from([0.0, 0.5, 3.0]),  # turn rate, as a share of ``STILL_DEG_PER_S``
+        ),
+        max_size=40,
+    )
+)
+def test_the_still_clock_counts_exactly_the_intervals_below_both_speeds(steps):
+    """Whatever the stream, the clock counts an interval's time in full where odometry moved slower
+    than both thresholds and none of it elsewhere; a carry (no motion at all) is still time,
+    however long."""
+    clock, pose, stamp = StillClock(), np.zeros(3), 10**9
+    readings, expected = [clock.tick(stamp, pose)], 0
+    for elapsed, slow, fast, turn in steps:
+        seconds = elapsed * 1e-9
+        speed = (slow * 0.9 + fast) * STILL_M_PER_S  # 0.9: clear of the threshold's rounding
+        rate = (
+            math.radians(turn * 0.9 * STILL_DEG_PER_S) if turn < 1 else math.radians(turn * STILL_DEG_PER_S)
+        )
+        pose = se2.compose(pose, np.array([speed * seconds, 0.0, rate * seconds]))
+        stamp += elapsed
+        if fast == 0 and turn < 1:
+            expected += elapsed
+        readings.append(clock.tick(stamp, pose))
+    assert readings[-1] == expected
+    assert all(b >= a for a, b in itertools.pairwise(readings)) and readings[-1] <= stamp - 10**9
 
 
 def test_on_a_sparse_stream_the_frames_either_side_of_a_keyframe_are_its_alternatives():

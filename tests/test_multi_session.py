@@ -16,7 +16,7 @@ import pytest
 from conftest import one_error_line, square_route, write_square_bag, write_square_recording
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from test_core_tree import carried_stamp
+from test_core_tree import carried
 
 from aslam.cli.app import main
 from aslam.core.config import EstimatorConfig
@@ -475,8 +475,8 @@ def _random_run(
         if repeat and k in repeat:
             view = views[repeat[k]]
         views.append(view)
-        stamp = k if pause_at is None else carried_stamp(k, pause_at)
-        steps.append(estimator.add_keyframe(stamp, np.array([1.0, 0, 0]) if k else np.zeros(3), view))
+        stamp, still = carried(k, pause_at)
+        steps.append(estimator.add_keyframe(stamp, np.array([1.0, 0, 0]) if k else np.zeros(3), view, still))
     return steps
 
 

@@ -20,6 +20,7 @@ from conftest import one_error_line
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from aslam.app.pipeline import PipelineCounts, still_clocked
 from aslam.cli.app import main
 from aslam.core import se2
 from aslam.core.errors import ConfigError
@@ -27,7 +28,7 @@ from aslam.data_formats.recording import Recording
 from aslam.recorder import lighting, noise, routes
 from aslam.recorder.config import CameraSpec, NoiseModel, NoiseParams, RecordConfig
 from aslam.recorder.errors import RouteError, WorldError
-from aslam.recorder.record import plan
+from aslam.recorder.record import ACTION_DURATION_NS, plan
 from aslam.recorder.world import check_path_in_world, generate_world
 
 SMALL = CameraSpec(width_px=64, height_px=48)
@@ -674,6 +675,26 @@ def test_kidnap_jumps_the_truth_while_the_odometry_sees_nothing(tmp_path):
     carved = generate_world(commanded, seed=31)
     kidnapped = generate_world(commanded, seed=31, connected=route.connected)
     assert kidnapped.free.sum() < carved.free.sum()
+
+
+@pytest.mark.parametrize("fps", [None, 3.0])
+def test_a_carry_is_still_time_and_a_drive_is_none(tmp_path, fps):
+    """Read back from a recording, the stream's still clock (what tells the estimator a robot may have
+    been carried) counts the carry's second and nothing else: not the drive, its turns or their noise."""
+    loop = routes.parse_route(LOOP)
+    carried = routes.kidnapped(loop, 2, 5)
+    route = _write_json(tmp_path / "carried.json", json.loads(carried.to_json()))
+    args = ["record", "--route", str(route), "--laps", "2", "--size", "32x24", "--seed", "3"]
+    args += ["--noise", "0.05", "--jitter-m", "0.1", "--jitter-deg", "3"]
+    assert main([*args, *(["--fps", str(fps)] if fps else []), "-o", str(tmp_path / "a.mcap")]) == 0
+    counts = PipelineCounts()
+    clock = [still_ns for _, still_ns in still_clocked(_samples(tmp_path / "a.mcap"), counts)]
+    assert counts.samples == len(clock)
+    laps_carried = 2  # the route, carried once a lap
+    assert clock[-1] == laps_carried * ACTION_DURATION_NS
+    rising = np.flatnonzero(np.diff(clock))  # the carries: one action each, its frames held
+    assert len(rising) == laps_carried * (fps or 1) and np.all(np.diff(clock) >= 0)
+    assert np.count_nonzero(np.diff(rising) > 1) == laps_carried - 1
 
 
 def test_odometry_reset_restarts_from_zero_and_keeps_the_motion(tmp_path, capsys):
