@@ -62,6 +62,11 @@ FAMILIES: dict[str, dict[str, Any]] = {
     "reset": {},
 }
 
+STOP_SHARES = (0.3, 0.55, 0.8)
+"""``stop``: where in the run the robot stands still, camera on (shares of its frames)."""
+STOP_SECONDS = 5
+"""...and for how long: a stop looks like a carry to odometry, and must not be taken for one."""
+
 #: Mixes of knobs the matrix varies one at a time, each within the range its family's targets
 #: cover: a held-out check that the defaults were not fitted to one knob at a time; and frame rates
 #: between the matrix's (1.5 per metre, 0.67 m apart, where the keyframe rule is a coin toss; 3,
@@ -116,6 +121,11 @@ EVENT_MIXES = (
     "reset@fps1p5",
     "kidnap@fps3",
     "reset@fps3",
+    "stop",
+    "stop@alias50",
+    "stop@alias100",
+    "stop@lighting50",
+    "stop@fps5",
 )
 
 
@@ -135,8 +145,8 @@ def kidnap_window(family: str) -> tuple[float, float] | None:
 
 
 def is_derived(family: str) -> bool:
-    """Made from another family's render of its route and seed (a kidnap, an odometry reset)."""
-    return family.partition("@")[0] == "reset" or kidnap_window(family) is not None
+    """Made from another family's render of its route and seed (a kidnap, an odometry reset, stops)."""
+    return family.partition("@")[0] in ("reset", "stop") or kidnap_window(family) is not None
 
 
 ROUTES = ("paper", "figure8", "grid")
@@ -258,7 +268,7 @@ def recording(scenario: Scenario, cache: Path, log=print) -> Path:
     path = cache / f"{scenario.name}.mcap"
     if is_derived(scenario.family) and not path.exists():
         window = kidnap_window(scenario.family)
-        kind = "reset" if window is None else "kidnap"
+        kind = scenario.family.partition("@")[0] if window is None else "kidnap"
         derive(recording(scenario.base, cache, log), kind, path, window or (0.6, 0.8))
         log(f"  derived {path.name}")
     if not path.exists():
@@ -270,13 +280,15 @@ def recording(scenario: Scenario, cache: Path, log=print) -> Path:
 
 
 def derive(source: Path, kind: str, output: Path, window: tuple[float, float] = (0.6, 0.8)) -> None:
-    """A kidnap or an odometry reset made from a rendered recording (images and truth untouched).
+    """A kidnap, an odometry reset or stops made from a rendered recording (images and truth untouched).
 
     ``kidnap``: the frames from ``window[0]`` to ``window[1]`` of the run (60 % to 80 %: from one
     place of the second lap to another) are dropped — the robot is carried — and odometry sees
     nothing (it continues from where it was, then integrates the motion after the jump).
-    ``reset``: at 70 % of the run odometry restarts from zero (x = y = yaw = 0). Written with the
-    project's recording writer.
+    ``reset``: at 70 % of the run odometry restarts from zero (x = y = yaw = 0). ``stop``: at each of
+    ``STOP_SHARES`` of the run the robot stands still ``STOP_SECONDS`` with its camera on (that frame
+    again once a second, the later stamps shifted): no event, and no claim should change. Written
+    with the project's recording writer.
     """
     from contextlib import closing
 
@@ -293,6 +305,8 @@ def derive(source: Path, kind: str, output: Path, window: tuple[float, float] = 
     jump_from, jump_to, reset_at = int(window[0] * total), int(window[1] * total), int(0.7 * total)
     metadata = dict(source_recording.metadata())
     camera = source_recording.camera()
+    stops = {int(share * total) for share in STOP_SHARES} if kind == "stop" else set()
+    stood_ns = 0  # time stood still so far: the later stamps come that much later
     anchor = None  # odometry pose the later poses are re-expressed from
     previous = last = None
     with (
@@ -317,7 +331,11 @@ def derive(source: Path, kind: str, output: Path, window: tuple[float, float] = 
             previous = odometry
             fmt = ImageFormat.PNG if sample.image.encoding == "png" else ImageFormat.JPEG
             image = EncodedImage(fmt, bytes(sample.image.data))
-            writer.write(sample.stamp_ns, image, odometry, sample.ground_truth_pose)
+            writer.write(sample.stamp_ns + stood_ns, image, odometry, sample.ground_truth_pose)
+            if index in stops:
+                for _ in range(STOP_SECONDS):
+                    stood_ns += 10**9
+                    writer.write(sample.stamp_ns + stood_ns, image, odometry, sample.ground_truth_pose)
 
 
 def estimator_config(name: str, scenario: Scenario, overrides: dict[str, Any]):  # -> EstimatorConfig

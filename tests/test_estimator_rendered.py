@@ -96,28 +96,6 @@ def test_off_pose_revisits_are_better_recognised_than_by_the_previous_defaults(r
     assert new.recall >= 0.7
 
 
-def _with_a_stop(source: Path, output: Path, at_sample: int, seconds: int) -> None:
-    """``source`` with the robot standing ``seconds`` at sample ``at_sample``, its camera on: the
-    sample repeated once a second (the same image, odometry and truth), later stamps shifted."""
-    from contextlib import closing
-
-    from aslam.data_formats.images import EncodedImage, ImageFormat
-    from aslam.data_formats.recording_writer import RecordingWriter
-
-    recording = Recording(source)
-    with (
-        RecordingWriter(output, camera=recording.camera(), metadata=dict(recording.metadata())) as writer,
-        closing(recording.samples()) as samples,
-    ):
-        for index, sample in enumerate(samples):
-            image = EncodedImage(ImageFormat.PNG, bytes(sample.image.data))
-            shift = seconds * 10**9 if index > at_sample else 0
-            copies = seconds + 1 if index == at_sample else 1
-            for copy in range(copies):
-                stamp = sample.stamp_ns + shift + copy * 10**9
-                writer.write(stamp, image, sample.odometry_pose, sample.ground_truth_pose)
-
-
 def _scored(recording: Path, folder: Path):
     """The estimate of ``recording`` as ``aslam estimate`` makes it (the pipeline, its still clock
     included), scored as ``aslam report`` scores it."""
@@ -129,11 +107,10 @@ def _scored(recording: Path, folder: Path):
     return score(out, recording=recording)
 
 
-def test_a_carry_relocalises_at_once_and_a_stop_changes_no_claim(recordings, tmp_path):
+def test_a_carry_relocalises_at_the_next_keyframe(tmp_path):
     """Rendered and read back through the pipeline: a robot carried back half a lap (the recorder's
-    kidnap: odometry holds for the carry's second) names a right place at the keyframe after the
-    carry's and nothing wrong after it; a robot that stands 5 s on its second lap, camera on, is not
-    taken for carried: every claim is the one it makes without the stop."""
+    kidnap: odometry holds for the carry's second, a pause) names a right place at the keyframe
+    after the carry's and nothing wrong after it. (A stop is no carry: ``test_robust_matrix``.)"""
     from aslam.recorder import routes
 
     route = routes.kidnapped(routes.preset("paper").repeated(2), 44, 20)
@@ -149,10 +126,3 @@ def test_a_carry_relocalises_at_once_and_a_stop_changes_no_claim(recordings, tmp
     assert evaluation.correct[
         carry : carry + 2
     ].any()  # at the next keyframe (after 4 before a pause counted)
-
-    stopped = tmp_path / "stopped.mcap"
-    _with_a_stop(recordings["paper"], stopped, at_sample=LAP + 10, seconds=5)
-    plain, stop = _scored(recordings["paper"], tmp_path).evaluation, _scored(stopped, tmp_path).evaluation
-    assert stop.precision == 1.0 and stop.claims.sum() >= LAP - 5
-    np.testing.assert_array_equal(stop.claims, plain.claims)
-    np.testing.assert_array_equal(stop.correct, plain.correct)

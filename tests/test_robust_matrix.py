@@ -10,8 +10,9 @@ import pytest
 BENCH = Path(__file__).resolve().parents[1] / "bench"
 sys.path.insert(0, str(BENCH))
 
-from robust_matrix import HELD_OUT_ROUTES, Scenario, main  # noqa: E402
+from robust_matrix import HELD_OUT_ROUTES, STOP_SECONDS, STOP_SHARES, Scenario, main, run_one  # noqa: E402
 
+from aslam.data_formats.recording import Recording  # noqa: E402
 from aslam.recorder.config import RecordConfig  # noqa: E402
 from aslam.recorder.record import plan  # noqa: E402
 from aslam.recorder.routes import resolve_route  # noqa: E402
@@ -72,3 +73,15 @@ def test_recorder_settings_families_set_the_camera_and_their_command_says_so():
     assert Scenario("laps3", route, 25).record_config().laps == 3
     assert "--laps 3" in Scenario("laps3", route, 25).command()
     assert "--laps 2" not in Scenario("laps3", route, 25).command()
+
+
+def test_stops_derived_from_a_render_change_no_claim(tmp_path):
+    """The robot standing still 5 s at three points of the run, camera on (``stop``, derived from
+    the default render): odometry stands still as while carried, but the views go on fitting the
+    track, so every figure of the estimate is the one without the stops."""
+    plain = run_one(Scenario("default", "paper", 4), "default", tmp_path, {})
+    stopped = run_one(Scenario("stop", "paper", 4), "default", tmp_path, {})
+    frames = [Recording(tmp_path / f"{name}-paper-seed4.mcap").image_count() for name in ("default", "stop")]
+    assert frames[1] == frames[0] + len(STOP_SHARES) * STOP_SECONDS
+    assert stopped.summary["loop_closure"] == plain.summary["loop_closure"]
+    assert stopped.summary["keyframes"] == plain.summary["keyframes"] and stopped.event_delay is None
