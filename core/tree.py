@@ -44,6 +44,7 @@ class Node:
     """One tree node: keyframe t was at ``state``; ``rel`` is the link from the parent's state."""
 
     __slots__ = (
+        "carried_at",
         "doubted",
         "id",
         "inverse_rel",
@@ -84,6 +85,16 @@ class Node:
         # out. Its jump is confirmed whatever the other lines predict, and until it settles it is no
         # proof the robot was ever on the map.
         self.doubted: bool = parent is not None and parent.doubted
+        # A line that began with a jump soon after a pause: the keyframe the pause ended (a carry's
+        # far end, if the jump is believed), else None.
+        self.carried_at: int | None = None if parent is None else parent.carried_at
+
+    def unlink(self) -> None:
+        """Odometry did not measure the motion into this node's place (a carry): no prediction
+        crosses its link."""
+        self.rel = self.rel[:3] + _UNKNOWN_LINK
+        self.inverse_rel = inverse_rel(self.rel)
+        self.weight = link_weight(self.rel)
 
 
 @dataclass(frozen=True)
@@ -266,6 +277,7 @@ class HypothesisTree:
         """The keyframe odometry last jumped (a reset): no track leads past it."""
         self._paused_at = -math.inf
         """The keyframe that last came after a pause (``PAUSE_SHARE``): time for a carry."""
+
         self._intervals = WindowMedian(JUMP_WINDOW)
         """Recent times between keyframes, nanoseconds."""
         self._best_in_map = True
@@ -505,6 +517,8 @@ class HypothesisTree:
                     ruled_out or (best.is_new and not lost_track) or self._unsettled(best, keyframe)
                 )
                 node.settled_at = keyframe + (DOUBTED_CONFIRMATIONS if ruled_out else JUMP_CONFIRMATIONS)
+                if not drove_on:
+                    node.carried_at = int(self._paused_at)
             leaves.append(node)
         was_best = self.leaves[0]
         # The end of an unsettled doubted line is no loss of track: the robot was never shown to be there.
@@ -518,6 +532,12 @@ class HypothesisTree:
         if not leaves[0].is_new:
             self._tracked_at = keyframe
         self.leaves = leaves
+        carried_at = leaves[0].carried_at
+        if (
+            carried_at is not None
+            and leaves[0].settled_at <= keyframe <= carried_at + 2 * self.config.lost_window
+        ):
+            self._unlink_carry(leaves[0], carried_at)
         self._commit_shared_history()
         self._record_count(len(leaves))
         return self.hypotheses()
@@ -532,6 +552,29 @@ class HypothesisTree:
         pose, covariance = np.array([rel[:3]]), rel_covariance(rel)[None]
         mahalanobis2 = float(self._transition(pose, covariance, action, action_cov)[1][0])
         return mahalanobis2 > RULED_OUT_SIGMA**2
+
+    def _unlink_carry(self, leaf: Node, carried_at: int) -> None:
+        """The best line relocalised by a jump soon after the pause that ended at keyframe
+        ``carried_at``: the robot was carried. If that keyframe made a new place, odometry linked it
+        to the place before as if the robot had driven a step; the link is cut, so that no later
+        lap predicts the carry's far end from its near end (held out: a zigzag's kidnap, seed 69,
+        claimed it 6 m off on the next lap). Committed already, only a link no other pass has
+        measured is cut."""
+        node = leaf
+        while node is not self.commit_root and node.keyframe > carried_at:
+            node = node.parent  # type: ignore[assignment]  # commit_root is an ancestor of every leaf
+        if node is not self.commit_root:
+            if node.keyframe == carried_at and node.is_new and node.rel[3:] != _UNKNOWN_LINK:
+                node.unlink()
+            return
+        states = self.committed_state_of_keyframe.view
+        if not 0 < carried_at < len(states) or int(states[carried_at]) != carried_at:
+            return  # not a place made at that keyframe
+        before = int(states[carried_at - 1])
+        link = self.shared.links.get((min(before, carried_at), max(before, carried_at)))
+        if link is not None and link.count == 1 and link.rel[3:] != _UNKNOWN_LINK:
+            self.shared.add_link(link.from_state, link.to_state, link.rel[:3] + _UNKNOWN_LINK, 1)
+            self.committed_rel_of_keyframe.view[carried_at, 3:] = _UNKNOWN_LINK
 
     def _unsettled(self, leaf: Node, keyframe: int) -> bool:
         """Whether ``leaf``'s line began with a doubted jump that settled under ``lost_window``

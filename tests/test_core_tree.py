@@ -437,10 +437,12 @@ def test_a_robot_carried_as_odometry_leaves_the_map_relocalises_on_a_chain_of_pl
     assert _carried_off_the_map(synthetic_config(relocalisation_lost_prior=0.0)) is None
 
 
-def _carried_while_exploring(pause: bool) -> int | None:
+def _carried_while_exploring(pause: bool, blank_at_carry: bool = False) -> tuple[int | None, Estimator, int]:
     """Exploring the first lap (no place mapped where it drives), the robot is carried from the top
-    side back to the first lap's place 1 and drives the bottom side again under another light.
-    Keyframes from the carry to the first claim (None: never); every claim must be right."""
+    side back to the first lap's place 1 and drives the bottom side again under another light
+    (``blank_at_carry``: the first view after the carry matches nothing). Keyframes from the carry
+    to the first claim (None: never; every claim must be right), the estimator, and the first
+    keyframe after the carry."""
     world = SyntheticWorld(3)
     lap = first_lap_poses()
     estimator = Estimator(synthetic_config())
@@ -458,11 +460,29 @@ def _carried_while_exploring(pause: bool) -> int | None:
         truths.append(lap[k])
         measured = actions[k - 1] * (1 + 0.03 * rng.standard_normal(3))
         stamp, still = carried(len(results), carried_at if pause else None)
-        results.append(estimator.add_keyframe(stamp, measured, world.observe(lap[k]), still))
+        view = world.observe(lap[k])
+        if blank_at_carry and k == 1:
+            view = np.random.default_rng(k).dirichlet(np.ones(BINS)).astype(np.float32)
+        results.append(estimator.add_keyframe(stamp, measured, view, still))
     claims = [t for t in range(carried_at, len(results)) if not results[t].best.is_new_state]
     for t in claims:
         assert math.hypot(*(truths[t][:2] - truths[results[t].best.state][:2])) < 0.5
-    return claims[0] - carried_at if claims else None
+    return (claims[0] - carried_at if claims else None), estimator, carried_at
+
+
+def test_a_carry_leaves_no_odometry_link_across_it_once_the_robot_relocalised():
+    """The robot's first view after a carry matches nothing, so that keyframe makes a new place,
+    linked by odometry to the place before the carry as if the robot had driven a step. Once a jump
+    after the pause is believed, that link is cut: no later lap predicts the carry's far end from
+    its near end. The link driven just before the carry keeps its measured uncertainty."""
+    delay, estimator, carried_at = _carried_while_exploring(pause=True, blank_at_carry=True)
+    assert delay is not None and delay > 0
+    mapped = estimator.result()
+    place_of = {k: state.id for state in mapped.states for k in state.keyframes}
+    assert place_of[carried_at] == carried_at  # the carry's keyframe made a new place
+    links = {(link.from_state, link.to_state): link for link in mapped.links}
+    assert links[(place_of[carried_at - 1], carried_at)].covariance[0][0] > 1e5  # unknown
+    assert links[(place_of[carried_at - 2], place_of[carried_at - 1])].covariance[0][0] < 1.0
 
 
 def test_a_robot_carried_while_exploring_relocalises_soon_after_the_pause():
@@ -472,9 +492,9 @@ def test_a_robot_carried_while_exploring_relocalises_soon_after_the_pause():
     (odometry standing still) means it may have been carried: the lost prior at once, relocalised
     after 2 keyframes, the jump's birth and its confirmation (after 4, on a chain of places, until
     the pause counted so)."""
-    delay = _carried_while_exploring(pause=True)
+    delay = _carried_while_exploring(pause=True)[0]
     assert delay is not None and delay <= 2
-    assert _carried_while_exploring(pause=False) is None
+    assert _carried_while_exploring(pause=False)[0] is None
 
 
 class ThumbnailWorld:
