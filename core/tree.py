@@ -277,7 +277,6 @@ class HypothesisTree:
         """The keyframe odometry last jumped (a reset): no track leads past it."""
         self._paused_at = -math.inf
         """The keyframe that last came after a pause (``PAUSE_SHARE``): time for a carry."""
-
         self._intervals = WindowMedian(JUMP_WINDOW)
         """Recent times between keyframes, nanoseconds."""
         self._best_in_map = True
