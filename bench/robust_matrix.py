@@ -144,9 +144,14 @@ def kidnap_window(family: str) -> tuple[float, float] | None:
     return (int(match[1]) / 100, int(match[2]) / 100) if match else None
 
 
+def is_event(family: str) -> bool:
+    """A kidnap or an odometry reset: an event the estimate must recover from (a stop is none)."""
+    return family.partition("@")[0] == "reset" or kidnap_window(family) is not None
+
+
 def is_derived(family: str) -> bool:
     """Made from another family's render of its route and seed (a kidnap, an odometry reset, stops)."""
-    return family.partition("@")[0] in ("reset", "stop") or kidnap_window(family) is not None
+    return is_event(family) or family.partition("@")[0] == "stop"
 
 
 ROUTES = ("paper", "figure8", "grid")
@@ -376,7 +381,7 @@ def run_one(
     distance = np.hypot(evaluation.best_error[:, 0], evaluation.best_error[:, 1])
     near = int((wrong & (distance < 1.0)).sum()) if evaluation.has_ground_truth else None
     row = Row(scenario, estimator, report.summary, wall, near)
-    if is_derived(scenario.family) and report.true_poses is not None:
+    if is_event(scenario.family) and report.true_poses is not None:
         event = _event_keyframe(report.actions, report.true_poses)
         if event is not None:
             hits = np.flatnonzero(evaluation.correct[event:])
@@ -589,7 +594,7 @@ def family_table(rows: list[Row], estimators: list[str]) -> str:
                 f"{wrong:.0f} ({sum(near)})" if near else f"{wrong:.0f}",
             ]
         lines.append(f"| {family} | {runs} | " + " | ".join(cells) + " |")
-    events = [r for r in rows if is_derived(r.scenario.family) and r.estimator == "default"]
+    events = [r for r in rows if is_event(r.scenario.family) and r.estimator == "default"]
     if events:
         lines += [
             "",

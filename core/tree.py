@@ -277,6 +277,8 @@ class HypothesisTree:
         """The keyframe odometry last jumped (a reset): no track leads past it."""
         self._paused_at = -math.inf
         """The keyframe that last came after a pause (``PAUSE_SHARE``): time for a carry."""
+        self._paused_tracked = False
+        """Whether the best hypothesis named a mapped place when that pause began."""
         self._intervals = WindowMedian(JUMP_WINDOW)
         """Recent times between keyframes, nanoseconds."""
         self._best_in_map = True
@@ -369,6 +371,7 @@ class HypothesisTree:
         if elapsed_ns is not None:
             if len(self._intervals) >= JUMP_WARMUP and still_ns >= PAUSE_SHARE * self._intervals.median:
                 self._paused_at = keyframe
+                self._paused_tracked = bool(self.leaves) and not self.leaves[0].is_new
             self._intervals.append(float(elapsed_ns))
         previous, self._previous_view = self._previous_view, np.array(observation, dtype=np.float32)
         if keyframe == 0:
@@ -703,7 +706,8 @@ class HypothesisTree:
             last_keyframe, last_place, length = self._alarm_chain
             length = length + 1 if own and (last_keyframe, last_place) == (keyframe - 1, own[0] - 1) else 1
             self._alarm_chain = (keyframe, own[0], length) if own else (-1, -1, 0)
-            chained = length >= CHAIN_FOR_KIDNAP and keyframe - self._tracked_at <= self.config.lost_window
+            recent = min(keyframe - self._tracked_at, keyframe - self._paused_at)
+            chained = length >= CHAIN_FOR_KIDNAP and recent <= self.config.lost_window
             log_prior = self._log_relocalise_lost if lost or chained else self._log_relocalise
             log_prior += self._log_alarm_scale()
             priors += [log_prior] * len(own)
@@ -720,10 +724,16 @@ class HypothesisTree:
         return self._maybe_carried(len(self.views))
 
     def _maybe_carried(self, keyframe: int) -> bool:
-        """Whether ``keyframe`` comes within ``lost_window`` keyframes of losing track or of a pause
-        (``PAUSE_SHARE``): what the track predicts is then no proof of where the robot is, and a jump
-        by appearance gets the lost prior and ceiling."""
-        return keyframe - max(self._lost_at, self._paused_at) <= self.config.lost_window
+        """Whether ``keyframe`` comes within ``lost_window`` keyframes of losing track, or of a pause
+        (``PAUSE_SHARE``) that began while the robot was tracked: what the track predicts is then no
+        proof of where the robot is, and a jump by appearance gets the lost prior and ceiling. A
+        pause while exploring is not enough: a robot that stopped on new ground sees look-alikes as a
+        carried one sees the map (held out: a stop on the figure-8's first lap, seed 71, believed a
+        three-keyframe look-alike stretch and lost the second lap's start)."""
+        window = self.config.lost_window
+        return keyframe - self._lost_at <= window or (
+            self._paused_tracked and keyframe - self._paused_at <= window
+        )
 
     def nearest_mapped_distance(self, observation: np.ndarray) -> float:
         """Distance from ``observation`` to the most alike committed place the relocalisation index
@@ -1205,8 +1215,8 @@ kidnap, a turn the map never saw from there); one stepping a whole step past its
 is exploring (docs/estimator.md, "Leaving the map is not losing track")."""
 CHAIN_FOR_KIDNAP = 3
 """Places singled out at this many keyframes in a row, each the place after the last, soon after the
-robot was tracked, are taken as a kidnap's sign even where odometry says it left the map: their jump
-gets the lost prior (``relocalisation_lost_prior``)."""
+robot was tracked or paused, are taken as a kidnap's sign even where odometry says it left the map
+or explored: their jump gets the lost prior (``relocalisation_lost_prior``)."""
 
 JUMP_CONFIRMATIONS = 2
 """Keyframes a jump's line stays under the ceiling while the track it left still explains the view
@@ -1231,10 +1241,10 @@ robot is lifted, carried and set down while its wheels turn no further (in the r
 takes one action's second, during which odometry holds; a bag cut where the robot was carried skips
 the carry's time with odometry unmoved). A continuous drive has none, however slowly its keyframes
 come (the recorder's arcs of 15° actions: one every six to eight seconds). For ``lost_window``
-keyframes after a pause the robot may have been carried, as after losing track: a jump by appearance
-gets the lost prior and ceiling at once (one born while exploring is still confirmed twice), where a
-robot carried while it explored, never tracked, got the small prior until a chain of places singled
-out (``CHAIN_FOR_KIDNAP``) lifted it."""
+keyframes after a pause that began while the robot was tracked, it may have been carried, as after
+losing track: a jump by appearance gets the lost prior and ceiling at once (``_maybe_carried``).
+After one that began while it explored, a chain of places singled out (``CHAIN_FOR_KIDNAP``) must
+lift the prior: a robot that stopped on new ground sees look-alikes as a carried one sees the map."""
 WELL_EXPLAINED = 0.5
 """A view the best leaf's predicted place fits at under this share of the new-place reference is
 explained: the index is not searched for a jump at that keyframe. A kidnap's first view fits the
