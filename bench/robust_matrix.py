@@ -98,8 +98,9 @@ MIXES: dict[str, dict[str, Any]] = {
 
 
 #: A kidnap or a reset made from another family's renders (``EVENT@FAMILY``): the events where the
-#: lap is lit differently, the stream is dense, the world aliased or the odometry noisier. Held out
-#: as the mixes are; not in the default ``--families``.
+#: lap is lit differently, the stream is dense, the world aliased or the odometry noisier; and stops
+#: (``stop``, ``stop@FAMILY``: ``STOP_SHARES``), which are no events. Held out as the mixes are; not
+#: in the default ``--families``.
 EVENT_MIXES = (
     "kidnap@lighting50",
     "kidnap@fps5",
