@@ -197,8 +197,9 @@ class EstimatorConfig:
     revisit_radius_m: float = _param(
         0.5,
         "A revisit stands within this distance of the place (the score's radius). From a new place,"
-        " where odometry puts the robot to within its own noise, a place farther than this by over"
-        " gate_sigma σ of the chain and odometry is unreachable; 0: no such bound.",
+        " where odometry puts the robot to within its own noise, and after a turn in place (under half"
+        " a step), a place farther than this by over gate_sigma σ of the chain and odometry is"
+        " unreachable; 0: no such bound.",
     )
     revisit_prior: float = _param(
         0.5, "Prior probability that a keyframe revisits some place rather than finding a new one."

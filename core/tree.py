@@ -879,7 +879,7 @@ class HypothesisTree:
         covs = table[:, [3, 4, 5, 4, 6, 7, 5, 7, 8]].reshape(-1, 3, 3)
         log_transition, mahalanobis2, beyond = self._transition(poses, covs, first, first_cov)
         keep = mahalanobis2 <= self._gate
-        if leaf.is_new:
+        if self._within_radius_only(leaf, first):
             keep &= ~beyond
         if self._moved(first):
             keep &= np.asarray(states, np.int64) != leaf.state
@@ -898,7 +898,8 @@ class HypothesisTree:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``log P(x = k | x', u)`` of candidates at ``poses`` (with ``covariances``) seen from the
         previous state, their squared Mahalanobis distances (which the gate tests), and whether each
-        is beyond the revisit radius (which bounds the proposals of a new place's leaf).
+        is beyond the revisit radius (which bounds the proposals of a new place's leaf, and of any
+        leaf after a turn in place: :meth:`_within_radius_only`).
 
         The place term is a Gaussian, whose tail lets appearance claim a place a metre from where
         odometry puts the robot. From a new place that is no revisit: the robot stood at that place,
@@ -923,6 +924,15 @@ class HypothesisTree:
         return math.hypot(action[0], action[1]) >= 0.5 * self.config.step_m or abs(action[2]) >= 0.5 * (
             math.radians(self.config.turn_deg)
         )
+
+    def _within_radius_only(self, leaf: Node, action: np.ndarray) -> bool:
+        """Whether ``leaf`` may propose only places within the revisit radius of where odometry puts
+        the robot (``beyond`` of :meth:`_transition`): from a new place, where the robot stood at the
+        place; and after a turn in place (under half a step), which leaves the robot where it stood
+        at its place and brings into view places a lap before saw from elsewhere: on a zigzag, the
+        corner a metre back that faced the same way (docs/estimator.md, "A turn in place stays
+        within reach")."""
+        return leaf.is_new or math.hypot(action[0], action[1]) < 0.5 * self.config.step_m
 
     def _propose(
         self, leaves: list[Node], action: np.ndarray, action_cov: np.ndarray
@@ -952,7 +962,7 @@ class HypothesisTree:
         start = 0
         for leaf, (states, _), size in zip(leaves, searches, sizes, strict=True):
             keep = reachable[start : start + size]
-            if leaf.is_new:
+            if self._within_radius_only(leaf, action):
                 keep = keep & ~beyond[start : start + size]
             if moved:
                 keep = keep & (np.asarray(states, np.int64) != leaf.state)

@@ -172,6 +172,42 @@ def test_from_a_new_place_a_look_alike_a_metre_away_is_no_revisit(radius_m):
         assert result.best.state == 0
 
 
+@pytest.mark.parametrize("radius_m", [0.5, 0.0])
+def test_after_a_turn_in_place_a_look_alike_a_metre_away_is_no_revisit(radius_m):
+    """A zigzag's second lap turns in place at a corner where the first lap did not. Tracked at
+    that corner's place, the robot now faces the way the place a metre back faced, and the view is
+    the same; but a turn in place leaves it where it stood, a metre from that place: beyond the
+    revisit radius. (0 turns the bound off, and the Gaussian place term lets the view claim it.)"""
+    estimator = Estimator(synthetic_config(revisit_radius_m=radius_m))
+    world = SyntheticWorld(5)
+    corner, turned, zig, back, returned = (world.observe(np.array([x, 0.0, 0.0])) for x in range(5))
+    step, zag = np.array([1.0, 0.0, 0.0]), math.radians(60)
+    # Lap 1: at the corner, turn in place and zig a step; turn about, step back, face the way it began.
+    first_lap = [
+        (np.zeros(3), corner),
+        (np.array([0.0, 0.0, -zag]), turned),
+        (step, zig),
+        (np.array([0.0, 0.0, math.pi]), back),
+        (step, returned),
+    ]
+    for keyframe, (action, view) in enumerate(first_lap):
+        estimator.add_keyframe(keyframe, action, view)
+    # Lap 2: the same corner, turn and zig, tracked; then at the zig's end a turn in place back to
+    # the corner's heading, which the corner's view matches.
+    lap_two = [
+        (np.array([0.0, 0.0, -2 * zag]), corner, 0),
+        (np.array([0.0, 0.0, -zag]), turned, 1),
+        (step, zig, 2),
+    ]
+    for keyframe, (action, view, place) in enumerate(lap_two, start=len(first_lap)):
+        assert estimator.add_keyframe(keyframe, action, view).best.state == place
+    result = estimator.add_keyframe(8, np.array([0.0, 0.0, zag]), corner)
+    if radius_m > 0:
+        assert result.best.is_new_state
+    else:
+        assert result.best.state == 0
+
+
 @settings(max_examples=30, deadline=None)
 @given(
     seed=st.integers(0, 10_000),
