@@ -25,6 +25,7 @@ from aslam.data_formats.files import check_output_path, full_path, source_files
 from aslam.data_formats.sources import Input, TopicChoice, open_input
 
 if TYPE_CHECKING:
+    from aslam.core.geometry import PinholeCamera
     from aslam.core.mapgraph import PriorMap
     from aslam.data_formats.estimate import MapIdentity
 
@@ -141,7 +142,8 @@ def estimate(
             " --candidate-search graph to track the map"
         )
     source = open_input(recording, topics, on_warning=warn)
-    estimator = Estimator(config, start_map, odometry_known=source.odometry_known)
+    camera = geometry_camera(source, recording) if config.geometric_check_m > 0 else None
+    estimator = Estimator(config, start_map, odometry_known=source.odometry_known, camera=camera)
     counts = PipelineCounts()
     start = time.perf_counter()
 
@@ -240,6 +242,21 @@ def estimate(
         slam_s=counts.slam_s,
         embed_s=embed_s,
     )
+
+
+def geometry_camera(source: Input, recording: Path) -> PinholeCamera:
+    """The pinhole camera of ``source``'s images, which ``--geometric-check-m`` needs (InputError,
+    naming the file, where no camera info gives it)."""
+    from aslam.core.geometry import PinholeCamera
+
+    intrinsics = source.camera()
+    if intrinsics is None:
+        raise InputError(
+            "--geometric-check-m needs the camera's intrinsics, and this input has no camera info"
+            " (a sensor_msgs/CameraInfo topic); leave the check off (0)",
+            path=recording,
+        )
+    return PinholeCamera(intrinsics.fx, intrinsics.cx, intrinsics.cy)
 
 
 def load_prior_map(path: Path, config: EstimatorConfig) -> tuple[PriorMap, MapIdentity]:

@@ -33,6 +33,7 @@ import numpy as np
 from aslam.core import se2
 from aslam.core.errors import AslamError
 from aslam.core.estimator import Estimator, Keyframer, StepResult, StillClock
+from aslam.core.geometry import ViewFeatures, view_features
 from aslam.core.observation import ObservationModel
 from aslam.data_formats.images import LazyImage
 from aslam.data_formats.pose_sync import Sample
@@ -49,6 +50,8 @@ class Frame(NamedTuple):
     view: np.ndarray
     still_ns: int
     """The stream's :class:`StillClock` at this frame."""
+    features: ViewFeatures | None = None
+    """The image's features, for the geometric check (``geometric_check_m``); None without it."""
 
 
 class Keyframe(NamedTuple):
@@ -58,6 +61,8 @@ class Keyframe(NamedTuple):
     view: np.ndarray
     still_ns: int
     """The stream's :class:`StillClock` at this keyframe."""
+    features: ViewFeatures | None = None
+    """The image's features, for the geometric check (``geometric_check_m``); None without it."""
 
 
 def still_clocked(samples: Iterable[Sample], counts: PipelineCounts) -> Iterator[tuple[Sample, int]]:
@@ -190,8 +195,13 @@ def keyframes_taken(
         previous = taken
 
 
-def _describe(image: LazyImage, model: ObservationModel) -> np.ndarray:
-    return model.describe(image.decode_gray())
+Described = tuple[np.ndarray, ViewFeatures | None]
+"""An image's observation vector, and its features where the geometric check wants them."""
+
+
+def _describe(image: LazyImage, model: ObservationModel, with_features: bool) -> Described:
+    gray = image.decode_gray()
+    return model.describe(gray), (view_features(gray) if with_features else None)
 
 
 def _described(
@@ -199,20 +209,21 @@ def _described(
     model: ObservationModel,
     workers: int,
     depth: int,
-) -> Iterator[tuple[Sample, Any, np.ndarray]]:
-    """``(sample, tag, view)`` for each ``(sample, tag)``, in order, computed ``workers`` at a
-    time with at most ``depth`` waiting. Stopping early (an exception, KeyboardInterrupt, the
+    with_features: bool = False,
+) -> Iterator[tuple[Sample, Any, Described]]:
+    """``(sample, tag, (view, features))`` for each ``(sample, tag)``, in order, computed ``workers``
+    at a time with at most ``depth`` waiting. Stopping early (an exception, KeyboardInterrupt, the
     consumer closing the generator) cancels the queued work and joins the pool. ``workers=0``
     describes each image in the calling thread: a sweep runs one task per core, and a second
     thread per task there only adds hand-offs."""
-    pending: deque[tuple[Sample, Any, Future[np.ndarray]]] = deque()
+    pending: deque[tuple[Sample, Any, Future[Described]]] = deque()
     pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="aslam-describe") if workers else None
     try:
         for sample, tag in items:
             if pool is not None:
-                future = pool.submit(_describe, sample.image, model)
+                future = pool.submit(_describe, sample.image, model, with_features)
             else:
-                future = _computed(_describe, sample.image, model)
+                future = _computed(_describe, sample.image, model, with_features)
             pending.append((sample, tag, future))
             while pending and (len(pending) >= depth or pending[0][2].done()):
                 first, first_tag, done = pending.popleft()
@@ -235,16 +246,20 @@ def keyframe_views(
     counts: PipelineCounts | None = None,
     workers: int = DEFAULT_WORKERS,
     depth: int = DEFAULT_DEPTH,
+    with_features: bool = False,
 ) -> Iterator[Keyframe]:
     """The keyframes of ``samples`` with their views, in order (only keyframes are decoded).
 
-    ``keyframer`` decides from each sample's odometry pose.
+    ``keyframer`` decides from each sample's odometry pose; ``with_features``: each image's
+    features too (the geometric check).
     """
     counts = counts if counts is not None else PipelineCounts()
     keyframes = keyframer.keyframes(still_clocked(samples, counts), lambda clocked: clocked[0].odometry_pose)
     items = ((sample, (action, still_ns)) for (sample, still_ns), action in keyframes)
-    for sample, (action, still_ns), vector in _described(items, model, workers, depth):
-        yield Keyframe(sample.stamp_ns, action, vector, still_ns)
+    for sample, (action, still_ns), (vector, features) in _described(
+        items, model, workers, depth, with_features
+    ):
+        yield Keyframe(sample.stamp_ns, action, vector, still_ns, features)
 
 
 def frame_views(
@@ -255,17 +270,20 @@ def frame_views(
     counts: PipelineCounts | None = None,
     workers: int = DEFAULT_WORKERS,
     depth: int = DEFAULT_DEPTH,
+    with_features: bool = False,
 ) -> Iterator[Frame]:
-    """Every frame of a dense stream worth describing (:func:`dense_samples`), with its view."""
+    """Every frame of a dense stream worth describing (:func:`dense_samples`), with its view (and
+    features, ``with_features``)."""
     counts = counts if counts is not None else PipelineCounts()
     items = dense_samples(samples, window_m, counts)
-    for sample, still_ns, vector in _described(items, model, workers, depth):
-        yield Frame(sample.stamp_ns, np.asarray(sample.odometry_pose, dtype=float), vector, still_ns)
+    for sample, still_ns, (vector, features) in _described(items, model, workers, depth, with_features):
+        pose = np.asarray(sample.odometry_pose, dtype=float)
+        yield Frame(sample.stamp_ns, pose, vector, still_ns, features)
 
 
-def _computed(function: Callable[..., np.ndarray], *args: Any) -> Future[np.ndarray]:
+def _computed(function: Callable[..., Described], *args: Any) -> Future[Described]:
     """``function(*args)`` run now, as a finished future (an error is raised where the pool's is)."""
-    future: Future[np.ndarray] = Future()
+    future: Future[Described] = Future()
     try:
         future.set_result(function(*args))
     except Exception as err:
@@ -400,7 +418,9 @@ class EstimateSteps:
         try:
             for frame, action in taken:
                 start = time.perf_counter()
-                step = estimator.add_keyframe(frame.stamp_ns, action, frame.view, frame.still_ns)
+                step = estimator.add_keyframe(
+                    frame.stamp_ns, action, frame.view, frame.still_ns, frame.features
+                )
                 counts.slam_s += time.perf_counter() - start
                 counts.keyframes += 1
                 yield step
@@ -433,14 +453,27 @@ def run_estimate(
     counts = counts if counts is not None else PipelineCounts()
     describe = estimator.observation_model
     window_m = estimator.config.keyframe_window_m
+    with_features = estimator.config.geometric_check_m > 0
 
     def produce(reader_counts: PipelineCounts) -> Iterator[Keyframe] | Iterator[Frame]:
         if window_m > 0:
             return frame_views(
-                samples, describe, window_m, counts=reader_counts, workers=workers, depth=depth
+                samples,
+                describe,
+                window_m,
+                counts=reader_counts,
+                workers=workers,
+                depth=depth,
+                with_features=with_features,
             )
         return keyframe_views(
-            samples, estimator.keyframer, describe, counts=reader_counts, workers=workers, depth=depth
+            samples,
+            estimator.keyframer,
+            describe,
+            counts=reader_counts,
+            workers=workers,
+            depth=depth,
+            with_features=with_features,
         )
 
     if reader_process and can_fork():

@@ -201,6 +201,14 @@ class EstimatorConfig:
         " a step), a place farther than this by over gate_sigma σ of the chain and odometry is"
         " unreachable; 0: no such bound.",
     )
+    geometric_check_m: float = _param(
+        0.0,
+        "A place is no revisit when two-view geometry puts the view farther than this from it (ORB"
+        " features of the place and a linked neighbour triangulated along their link, the view's pose"
+        " by PnP; needs the camera's intrinsics). At 0.45 the matrix's off-pose families (jitter, wander,"
+        " the paper's noise model) made 46 % fewer wrong claims and 3 % fewer right ones, and an"
+        " estimate took 2.5–3 times as long; 0 (default): no check.",
+    )
     revisit_prior: float = _param(
         0.5, "Prior probability that a keyframe revisits some place rather than finding a new one."
     )
@@ -420,6 +428,7 @@ RANGES: dict[str, Bounds] = {
     "visit_sigma_deg": Bounds(0, 180),
     "gate_sigma": Bounds(1e-3, 100),
     "revisit_radius_m": Bounds(0, 100),
+    "geometric_check_m": Bounds(0, 100),
     "revisit_prior": Bounds(1e-6, 1 - 1e-6),
     "search_sigma_m": Bounds(1e-3, 10_000),
     "search_nearness": Bounds(0, 1000),

@@ -11,6 +11,7 @@ import numpy as np
 
 from aslam.core import se2
 from aslam.core.config import EstimatorConfig
+from aslam.core.geometry import PinholeCamera, ViewFeatures
 from aslam.core.mapgraph import PriorMap, SharedMap
 from aslam.core.motion import rel_covariance
 from aslam.core.observation import ObservationModel, observation_model
@@ -255,17 +256,19 @@ class Estimator:
         prior: PriorMap | None = None,
         *,
         odometry_known: bool = True,
+        camera: PinholeCamera | None = None,
     ) -> None:
         """``odometry_known=False``: the actions are the equal steps assumed for frames without
         odometry (``aslam import`` of a bare image folder: one pass along a route, SeqSLAM's
         assumption). With no odometry to fail and no loop in one pass, a jump by appearance to a
         place of this run could only be a look-alike, so none is proposed; a prior map's places
-        still are (``--map``)."""
+        still are (``--map``). ``camera``: the images' intrinsics, which
+        ``geometric_check_m`` needs."""
         self.config = config or EstimatorConfig()
         self.observation_model: ObservationModel = observation_model(self.config)
         self._keyframer = keyframer(self.config)
         self._tree = HypothesisTree(
-            self.config, self.observation_model, prior, relocalise_within=odometry_known
+            self.config, self.observation_model, prior, relocalise_within=odometry_known, camera=camera
         )
         self._first_keyframe = 0 if prior is None else prior.keyframes
         self._stamps: list[int] = []
@@ -354,16 +357,22 @@ class Estimator:
         return best
 
     def add_keyframe(
-        self, stamp_ns: int, action: np.ndarray, observation: np.ndarray, still_ns: int = 0
+        self,
+        stamp_ns: int,
+        action: np.ndarray,
+        observation: np.ndarray,
+        still_ns: int = 0,
+        features: ViewFeatures | None = None,
     ) -> StepResult:
         """The SLAM step proper, on an observation vector (``observation_model.describe`` of the image).
 
         ``still_ns``: the stream's :class:`StillClock` at this keyframe (the time its odometry had
         stood still so far), which tells a robot that may have been carried from one that drove on.
+        ``features``: the image's (:func:`aslam.core.geometry.view_features`), for ``geometric_check_m``.
         """
         elapsed = int(stamp_ns) - self._stamps[-1] if self._stamps else None
         still = int(still_ns) - self._still_ns
-        hypotheses = self._tree.add_keyframe(action, observation, elapsed, still)
+        hypotheses = self._tree.add_keyframe(action, observation, elapsed, still, features)
         self._stamps.append(int(stamp_ns))
         self._still_ns = int(still_ns)
         a = tuple(float(v) for v in action)

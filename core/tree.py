@@ -23,6 +23,7 @@ import numpy as np
 
 from aslam.core import portable_math
 from aslam.core.config import EstimatorConfig
+from aslam.core.geometry import GeometricCheck, PinholeCamera, ViewFeatures
 from aslam.core.mapgraph import GrowableArray, KeyframeViews, PriorMap, SharedMap
 from aslam.core.motion import (
     IDENTITY_REL,
@@ -223,10 +224,21 @@ class HypothesisTree:
         prior: PriorMap | None = None,
         *,
         relocalise_within: bool = True,
+        camera: PinholeCamera | None = None,
     ) -> None:
         """``relocalise_within=False``: no jumps by appearance to this run's own places (see
-        :class:`aslam.core.estimator.Estimator`'s ``odometry_known``); a prior map's still."""
+        :class:`aslam.core.estimator.Estimator`'s ``odometry_known``); a prior map's still.
+        ``camera``: the images' intrinsics, which ``geometric_check_m`` needs (ValueError without)."""
         self.config = config
+        self._geometry: GeometricCheck | None = None
+        if config.geometric_check_m > 0:
+            if camera is None:
+                raise ValueError("geometric_check_m needs the camera's intrinsics")
+            self._geometry = GeometricCheck(camera)
+        self._features: dict[int, ViewFeatures] = {}
+        """Each keyframe's features, while the geometric check is on: any may become a place."""
+        self._offsets: dict[int, float | None] = {}
+        """The current keyframe's geometric checks so far, by place."""
         self.model = model if model is not None else observation_model(config)
         observation_length = self.model.length
         self.shared = SharedMap()
@@ -360,14 +372,21 @@ class HypothesisTree:
         observation: np.ndarray,
         elapsed_ns: int | None = None,
         still_ns: int = 0,
+        features: ViewFeatures | None = None,
     ) -> list[Hypothesis]:
         """Advance every hypothesis by one keyframe; returns the surviving leaves, best first.
 
         ``elapsed_ns``: the time since the keyframe before (None: unknown, as at a session's first);
         ``still_ns``: how much of it odometry stood still. Together they tell a robot that may have
-        been carried from one that drove on (``PAUSE_SHARE``).
+        been carried from one that drove on (``PAUSE_SHARE``). ``features``: the image's, for the
+        geometric check (``geometric_check_m``); without them this keyframe is not checked.
         """
         keyframe = self.views.append(observation)
+        self._offsets = {}
+        if self._geometry is None:
+            features = None
+        elif features is not None:
+            self._features[keyframe] = features
         if elapsed_ns is not None:
             if len(self._intervals) >= JUMP_WARMUP and still_ns >= PAUSE_SHARE * self._intervals.median:
                 self._paused_at = keyframe
@@ -402,7 +421,7 @@ class HypothesisTree:
             proposals = self._propose(self.leaves, action, action_cov)
 
         relocalisation, relocalisation_priors, distinctive, elsewhere = self._relocalisation_candidates(
-            observation, keyframe, proposals[0][0], untested=jumped
+            observation, keyframe, proposals[0][0], untested=jumped, features=features
         )
         # Sorted and unique, as np.unique would give (which imports numpy.ma on first use: 10 ms).
         candidate_ids = np.array(
@@ -413,7 +432,7 @@ class HypothesisTree:
         unvetoed_of: dict[int, float] | None = None  # before the contradiction veto, where it applies
         distances = np.zeros(0)
         if len(candidate_ids):
-            distances = self._distances(observation, candidate_ids)
+            distances = self._distances(observation, candidate_ids, features)
             log_obs = self.model.log_likelihood(distances)
             if self.config.appearance_veto > 0:
                 # A view as unlike the place as views a step apart are is no revisit, whatever
@@ -639,6 +658,7 @@ class HypothesisTree:
         proposed: np.ndarray,
         *,
         untested: bool = False,
+        features: ViewFeatures | None = None,
     ) -> tuple[np.ndarray, list[float], int | None, float]:
         """Committed places that look like ``observation``, found over the whole map at bounded cost,
         with the log prior of a jump to each, which of them appearance alone singled out (or None),
@@ -663,7 +683,7 @@ class HypothesisTree:
         if not self.leaves or (appearance_off and not untested):
             return none
         # How well the best leaf's motion model explains the view: its most alike proposed place.
-        fit = float(self._distances(observation, proposed).min()) if len(proposed) else math.inf
+        fit = float(self._distances(observation, proposed, features).min()) if len(proposed) else math.inf
         if not untested and not len(self._map_states) and fit < WELL_EXPLAINED * self.reference.value:
             # Tracked this well, the robot was not carried: nothing to look for elsewhere (and the
             # index's query, the part of a step that grows with the map, is spared). The run's
@@ -680,7 +700,7 @@ class HypothesisTree:
         top = top[[state not in excluded for state in top.tolist()]]
         if not len(top):
             return none
-        distances = self._distances(observation, top)
+        distances = self._distances(observation, top, features)
         order = np.lexsort((top, distances))
         elsewhere = float(distances[order[0]])
         if untested:
@@ -789,10 +809,15 @@ class HypothesisTree:
             return []
         return [best]
 
-    def _distances(self, observation: np.ndarray, states: np.ndarray) -> np.ndarray:
+    def _distances(
+        self, observation: np.ndarray, states: np.ndarray, features: ViewFeatures | None = None
+    ) -> np.ndarray:
         """Distances of ``observation`` to ``states``' views; a prior map's judged across sessions
-        when ``map_reference_scale`` is set (:meth:`_across_sessions`)."""
+        when ``map_reference_scale`` is set (:meth:`_across_sessions`). With the view's ``features``
+        (the geometric check on), a place two-view geometry puts out of reach is infinitely unlike."""
         distances = self.model.distances(observation, self.views[states])
+        if features is not None:
+            distances = self._out_of_reach(features, states, distances)
         if not len(self._map_states):
             return distances
         in_map = states < self._first_keyframe
@@ -800,6 +825,31 @@ class HypothesisTree:
             distances = distances.copy()
             distances[in_map] = self._across_sessions(observation, states[in_map], distances[in_map])
         return distances
+
+    def _out_of_reach(self, features: ViewFeatures, states: np.ndarray, distances: np.ndarray) -> np.ndarray:
+        """``distances`` with inf for each place that looks like a revisit (under the new-place
+        reference) but whose images put the view over ``geometric_check_m`` from it: appearance
+        cannot tell a view at the place from one half a metre off its line, the map's scale can
+        (:mod:`aslam.core.geometry`; docs/estimator.md, "Two views measure the offset"). Places
+        whose images cannot say (too few matches, no linked neighbour in the shared map) keep theirs."""
+        assert self._geometry is not None  # features are kept only while the check is on
+        out = distances.copy()
+        reference = self.reference.value
+        for i, state in enumerate(states.tolist()):
+            place = self._features.get(state)
+            if distances[i] >= reference or place is None:
+                continue
+            neighbours = [
+                (other, self._features[other], rel[:3])
+                for other, (rel, _weight) in self.shared.adjacency.get(state, {}).items()
+                if other in self._features
+            ]
+            if state not in self._offsets:
+                self._offsets[state] = self._geometry.offset_m(state, place, neighbours, features)
+            offset = self._offsets[state]
+            if offset is not None and offset > self.config.geometric_check_m:
+                out[i] = math.inf
+        return out
 
     def _across_sessions(
         self, observation: np.ndarray, states: np.ndarray, distances: np.ndarray
@@ -1152,6 +1202,7 @@ class HypothesisTree:
             self.committed_rel_of_keyframe.append(node.rel)
             if not node.is_new and node.state != SESSION_START:
                 self.views.release(node.keyframe)
+                self._features.pop(node.keyframe, None)  # a revisit's keyframe is no place
         if path:
             ancestor.parent = None  # frees the committed nodes
             self.commit_root = ancestor

@@ -642,6 +642,12 @@ def describe_bag(
     )
 
 
+def bag_camera(path: Path) -> CameraIntrinsics | None:
+    """The intrinsics of the bag's only CameraInfo topic, or None."""
+    with _open_reader(Path(path)) as reader:
+        return _camera_intrinsics(Path(path), reader)
+
+
 def _camera_intrinsics(path: Path, reader: Any) -> CameraIntrinsics | None:
     """The intrinsics of the first message of the bag's only CameraInfo topic, or None."""
     infos = [t for t, datatype in _topic_types(reader).items() if datatype == ros_msgs.CAMERA_INFO]

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aslam.data_formats.camera import CameraIntrinsics
 from aslam.data_formats.files import source_sha256, source_size_bytes
 from aslam.data_formats.pose_sync import Sample
 from aslam.data_formats.recording import Recording, RecordingTopics
@@ -28,6 +29,7 @@ from aslam.data_formats.rosbag_source import (
     BagError,
     BagTopics,
     SourceKind,
+    bag_camera,
     classify,
     describe_bag,
     iter_bag_ground_truth,
@@ -98,6 +100,10 @@ class RecordingInput:
     def ground_truth(self) -> Generator[tuple[int, np.ndarray], None, None]:
         return self.recording.ground_truth(self.topics)
 
+    def camera(self) -> CameraIntrinsics | None:
+        """The intrinsics its camera-info topic gives, or None."""
+        return self.recording.camera(self.topics)
+
     def has_topic(self, topic: str) -> bool:
         """Whether the file has ``topic`` (True where its summary is lost: known only by reading)."""
         file = self.recording.file
@@ -156,6 +162,10 @@ class BagInput:
                 path=self.path,
             )
         return iter_bag_ground_truth(self.path, self.choice.ground_truth, on_warning=self._warnings)
+
+    def camera(self) -> CameraIntrinsics | None:
+        """The intrinsics of the bag's only CameraInfo topic, or None (the bag opened to read them)."""
+        return bag_camera(self.path)
 
     def has_topic(self, topic: str) -> bool:
         """Whether the bag has ``topic`` (its index says; no message read)."""
