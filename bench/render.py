@@ -57,6 +57,7 @@ ROBUST_TABLES = {
     "robust_seeds_73_74": "robust_matrix_seeds_73_74.md",
     "robust_seeds_75_76": "robust_matrix_seeds_75_76.md",
     "robust_seeds_79_81": "robust_matrix_seeds_79_81.md",
+    "robust_geometric_check": "robust_matrix_geometric_check.md",
     "robust_recorder_settings": "robust_matrix_recorder_settings.md",
 }
 """The robust-revisit matrix's tables (``bench/robust_matrix.py --markdown``), beside the results,
@@ -73,8 +74,9 @@ session later again, 35–36 with two more mixes; 41–42 and 43–44 on nine ro
 the look-alike rule, with kidnaps at three points of the run, the figure-8 at aliasing 1.0 and its
 kidnaps on seeds 47–66; seeds 67–68 after both; 69–70 after a pause counted as a possible carry;
 71–72 with stops; 73–74 after its final form; 75–76 after the turn-in-place rule; 79–81 on two route
-shapes made after it); stops derived from the matrix's renders; recorder settings the families never
-vary (image size, JPEG, lens, laps, camera height). A table not made is left out of the page."""
+shapes made after it); stops derived from the matrix's renders; the matrix with the geometric check
+on; recorder settings the families never vary (image size, JPEG, lens, laps, camera height). A table
+not made is left out of the page."""
 TEMPLATES = Path(__file__).resolve().parent / "templates"
 DRIFT_PLOT = "long-run-drift.png"
 
