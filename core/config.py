@@ -207,7 +207,7 @@ class EstimatorConfig:
         " features of the place and a linked neighbour triangulated along their link, the view's pose"
         " by PnP; needs the camera's intrinsics). At 0.45 the matrix's off-pose families (jitter, wander,"
         " the paper's noise model) made 46 % fewer wrong claims and 3 % fewer right ones, and an"
-        " estimate took 2.5–3 times as long; 0 (default): no check.",
+        " estimate took 2–2.4 times as long; 0 (default): no check.",
     )
     revisit_prior: float = _param(
         0.5, "Prior probability that a keyframe revisits some place rather than finding a new one."

@@ -116,13 +116,16 @@ class GeometricCheck:
         import cv2
 
         best: tuple[int, float] | None = None
+        matched: tuple[np.ndarray, np.ndarray] | None = None  # place to view, whichever neighbour
         for neighbour_id, neighbour, rel in neighbours:
             if math.hypot(rel[0], rel[1]) < MIN_BASELINE_M:
                 continue
             indices, points = self._points(place_id, place, neighbour_id, neighbour, rel)
             if len(indices) < MIN_INLIERS:
                 continue
-            in_place, in_view = _matches(place, view)
+            if matched is None:
+                matched = _matches(place, view)
+            in_place, in_view = matched
             known = np.isin(in_place, indices)
             if known.sum() < MIN_INLIERS:
                 continue
