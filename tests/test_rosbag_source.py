@@ -1084,3 +1084,22 @@ def test_a_ros1_bag_whose_drivers_restarted_reads_as_one(tmp_path):
     warnings: list[str] = []
     assert_driver_samples(list(iter_bag_samples(path, on_warning=warnings.append)), ground_truth=False)
     assert warnings == []
+
+
+@pytest.mark.parametrize("kind", ["rosbag2-mcap", "rosbag1"])
+def test_the_geometric_check_reads_a_bags_camera_info(bags, tmp_path, kind):
+    """``--geometric-check-m`` scales pixels by the bag's CameraInfo: with one, the estimate runs and
+    records the setting; without, one error naming the bag (exit 2's InputError)."""
+    from aslam.app.estimate import estimate
+    from aslam.core.config import EstimatorConfig
+    from aslam.core.errors import InputError
+    from aslam.data_formats.estimate import read_estimate
+
+    config = EstimatorConfig(geometric_check_m=0.45)
+    summary = estimate(bags[kind], tmp_path / "estimate.mcap", config)
+    assert summary.samples == N_IMAGES
+    assert read_estimate(tmp_path / "estimate.mcap").metadata.config["geometric_check_m"] == 0.45
+    blind = write_rosbag1(tmp_path / "blind.bag", Options(camera_info=False))
+    with pytest.raises(InputError, match="camera") as raised:
+        estimate(blind, tmp_path / "blind-estimate.mcap", config)
+    assert raised.value.path == str(blind) and not (tmp_path / "blind-estimate.mcap").exists()
