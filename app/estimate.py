@@ -256,7 +256,9 @@ def geometry_camera(source: Input, recording: Path) -> PinholeCamera:
             " (a sensor_msgs/CameraInfo topic); leave the check off (0)",
             path=recording,
         )
-    return PinholeCamera(intrinsics.fx, intrinsics.cx, intrinsics.cy)
+    return PinholeCamera(
+        intrinsics.fx, intrinsics.cx, intrinsics.cy, intrinsics.width_px, intrinsics.height_px
+    )
 
 
 def load_prior_map(path: Path, config: EstimatorConfig) -> tuple[PriorMap, MapIdentity]:

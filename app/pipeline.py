@@ -31,9 +31,9 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from aslam.core import se2
-from aslam.core.errors import AslamError
+from aslam.core.errors import AslamError, InputError
 from aslam.core.estimator import Estimator, Keyframer, StepResult, StillClock
-from aslam.core.geometry import ViewFeatures, view_features
+from aslam.core.geometry import PinholeCamera, ViewFeatures, view_features
 from aslam.core.observation import ObservationModel
 from aslam.data_formats.images import LazyImage
 from aslam.data_formats.pose_sync import Sample
@@ -199,9 +199,22 @@ Described = tuple[np.ndarray, ViewFeatures | None]
 """An image's observation vector, and its features where the geometric check wants them."""
 
 
-def _describe(image: LazyImage, model: ObservationModel, with_features: bool) -> Described:
+def _describe(image: LazyImage, model: ObservationModel, camera: PinholeCamera | None) -> Described:
+    """The image's vector, and its features where ``camera`` (the geometric check's) is given: for
+    images of the camera's size only, since its intrinsics are in their pixels."""
     gray = image.decode_gray()
-    return model.describe(gray), (view_features(gray) if with_features else None)
+    if camera is None:
+        return model.describe(gray), None
+    height, width = gray.shape
+    if (width, height) != (camera.width_px, camera.height_px):
+        where = f"{image.where}: " if image.where else ""
+        raise InputError(
+            f"{where}the image is {width}×{height} but the camera info is for"
+            f" {camera.width_px}×{camera.height_px} images; --geometric-check-m needs the intrinsics"
+            " of the images themselves",
+            path=image.path,
+        )
+    return model.describe(gray), view_features(gray)
 
 
 def _described(
@@ -209,7 +222,7 @@ def _described(
     model: ObservationModel,
     workers: int,
     depth: int,
-    with_features: bool = False,
+    camera: PinholeCamera | None = None,
 ) -> Iterator[tuple[Sample, Any, Described]]:
     """``(sample, tag, (view, features))`` for each ``(sample, tag)``, in order, computed ``workers``
     at a time with at most ``depth`` waiting. Stopping early (an exception, KeyboardInterrupt, the
@@ -221,9 +234,9 @@ def _described(
     try:
         for sample, tag in items:
             if pool is not None:
-                future = pool.submit(_describe, sample.image, model, with_features)
+                future = pool.submit(_describe, sample.image, model, camera)
             else:
-                future = _computed(_describe, sample.image, model, with_features)
+                future = _computed(_describe, sample.image, model, camera)
             pending.append((sample, tag, future))
             while pending and (len(pending) >= depth or pending[0][2].done()):
                 first, first_tag, done = pending.popleft()
@@ -246,19 +259,17 @@ def keyframe_views(
     counts: PipelineCounts | None = None,
     workers: int = DEFAULT_WORKERS,
     depth: int = DEFAULT_DEPTH,
-    with_features: bool = False,
+    camera: PinholeCamera | None = None,
 ) -> Iterator[Keyframe]:
     """The keyframes of ``samples`` with their views, in order (only keyframes are decoded).
 
-    ``keyframer`` decides from each sample's odometry pose; ``with_features``: each image's
-    features too (the geometric check).
+    ``keyframer`` decides from each sample's odometry pose; with ``camera``, each image's
+    features too (the geometric check's camera).
     """
     counts = counts if counts is not None else PipelineCounts()
     keyframes = keyframer.keyframes(still_clocked(samples, counts), lambda clocked: clocked[0].odometry_pose)
     items = ((sample, (action, still_ns)) for (sample, still_ns), action in keyframes)
-    for sample, (action, still_ns), (vector, features) in _described(
-        items, model, workers, depth, with_features
-    ):
+    for sample, (action, still_ns), (vector, features) in _described(items, model, workers, depth, camera):
         yield Keyframe(sample.stamp_ns, action, vector, still_ns, features)
 
 
@@ -270,13 +281,13 @@ def frame_views(
     counts: PipelineCounts | None = None,
     workers: int = DEFAULT_WORKERS,
     depth: int = DEFAULT_DEPTH,
-    with_features: bool = False,
+    camera: PinholeCamera | None = None,
 ) -> Iterator[Frame]:
     """Every frame of a dense stream worth describing (:func:`dense_samples`), with its view (and
-    features, ``with_features``)."""
+    features, with ``camera``)."""
     counts = counts if counts is not None else PipelineCounts()
     items = dense_samples(samples, window_m, counts)
-    for sample, still_ns, (vector, features) in _described(items, model, workers, depth, with_features):
+    for sample, still_ns, (vector, features) in _described(items, model, workers, depth, camera):
         pose = np.asarray(sample.odometry_pose, dtype=float)
         yield Frame(sample.stamp_ns, pose, vector, still_ns, features)
 
@@ -453,7 +464,7 @@ def run_estimate(
     counts = counts if counts is not None else PipelineCounts()
     describe = estimator.observation_model
     window_m = estimator.config.keyframe_window_m
-    with_features = estimator.config.geometric_check_m > 0
+    camera = estimator.camera
 
     def produce(reader_counts: PipelineCounts) -> Iterator[Keyframe] | Iterator[Frame]:
         if window_m > 0:
@@ -464,7 +475,7 @@ def run_estimate(
                 counts=reader_counts,
                 workers=workers,
                 depth=depth,
-                with_features=with_features,
+                camera=camera,
             )
         return keyframe_views(
             samples,
@@ -473,7 +484,7 @@ def run_estimate(
             counts=reader_counts,
             workers=workers,
             depth=depth,
-            with_features=with_features,
+            camera=camera,
         )
 
     if reader_process and can_fork():

@@ -265,6 +265,8 @@ class Estimator:
         still are (``--map``). ``camera``: the images' intrinsics, which
         ``geometric_check_m`` needs."""
         self.config = config or EstimatorConfig()
+        self.camera = camera if self.config.geometric_check_m > 0 else None
+        """The images' intrinsics where the geometric check needs features of them (None: no features)."""
         self.observation_model: ObservationModel = observation_model(self.config)
         self._keyframer = keyframer(self.config)
         self._tree = HypothesisTree(

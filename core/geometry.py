@@ -45,11 +45,13 @@ _ROBOT_TO_CAMERA = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]
 
 @dataclass(frozen=True)
 class PinholeCamera:
-    """The focal length and principal point, in pixels, of the images the features come from."""
+    """The focal length and principal point, in pixels, of images of ``width_px`` × ``height_px``."""
 
     fx: float
     cx: float
     cy: float
+    width_px: int
+    height_px: int
 
     @property
     def matrix(self) -> np.ndarray:

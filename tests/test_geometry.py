@@ -15,7 +15,7 @@ from aslam.core.geometry import GeometricCheck, PinholeCamera, ViewFeatures, _ca
 
 WIDTH, HEIGHT, FOV_DEG = 320, 240, 60.0
 FX = (WIDTH / 2) / math.tan(math.radians(FOV_DEG) / 2)
-CAMERA = PinholeCamera(FX, (WIDTH - 1) / 2, (HEIGHT - 1) / 2)
+CAMERA = PinholeCamera(FX, (WIDTH - 1) / 2, (HEIGHT - 1) / 2, WIDTH, HEIGHT)
 
 
 def _corridor_points(rng: np.random.Generator) -> np.ndarray:
@@ -162,3 +162,31 @@ def test_on_an_off_pose_revisit_the_check_removes_a_wrong_claim(tmp_path: Path) 
     assert claims["off.mcap"][1] >= 1
     assert claims["on.mcap"][1] == 0 and claims["on.mcap"][0] >= claims["off.mcap"][0]
     assert (tmp_path / "on.mcap").read_bytes() == (tmp_path / "again.mcap").read_bytes()
+
+
+def test_camera_info_for_other_images_is_one_error_naming_the_file(tmp_path: Path) -> None:
+    """Intrinsics are in pixels of the images they were made for: camera info for 640 × 480 with
+    320 × 240 images would scale every offset by half. One line naming the file and the image."""
+    import subprocess
+    import sys
+
+    from conftest import random_frames
+
+    from aslam.data_formats.camera import CameraIntrinsics
+    from aslam.data_formats.images import encode_image
+    from aslam.data_formats.recording_writer import RecordingWriter
+
+    path = tmp_path / "other-size.mcap"
+    with RecordingWriter(path, camera=CameraIntrinsics(640, 480, 60.0), metadata={}) as writer:
+        for stamp_ns, rgb, odometry, truth in random_frames(3):
+            writer.write(stamp_ns, encode_image(rgb), odometry, truth)
+    aslam = Path(sys.executable).with_name("aslam")
+    done = subprocess.run(
+        [str(aslam), "estimate", str(path), "-o", str(tmp_path / "e.mcap"), "--geometric-check-m", "0.45"],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and str(path) in lines[0] and "640×480" in lines[0], lines
+    assert not (tmp_path / "e.mcap").exists()
