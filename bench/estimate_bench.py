@@ -10,6 +10,7 @@ breakdown of the estimate (in-process, each stage alone) says where the time goe
 start-up costs are measured as processes too (`aslam --help`; `estimate` on a one-image recording).
 
     python bench/estimate_bench.py [--recording R.mcap] [--route grid] [--size 320x240] [--repeats 5]
+    python bench/estimate_bench.py --laps 8 --config bench/configs/geometric-check.toml   # a setting's cost
 
 Without --recording it renders (once, cached in bench/.cache/) a recording with one image per
 keyframe, so the floor decodes exactly the images the estimate decodes.
@@ -30,9 +31,12 @@ from pathlib import Path
 
 import numpy as np
 
+from aslam.app.config_file import build_config
+from aslam.app.estimate import geometry_camera
 from aslam.app.metric_view import embed_run, metric_scene, preload
 from aslam.core.config import EstimatorConfig
 from aslam.core.estimator import Estimator, keyframer
+from aslam.core.geometry import ViewFeatures, view_features
 from aslam.core.observation import observation_model
 from aslam.data_formats.camera import CameraIntrinsics
 from aslam.data_formats.estimate import EstimateWriter
@@ -40,6 +44,7 @@ from aslam.data_formats.foxglove import write_scene
 from aslam.data_formats.images import encode_image
 from aslam.data_formats.recording import Recording
 from aslam.data_formats.recording_writer import RecordingWriter
+from aslam.data_formats.sources import open_input
 from aslam.recorder.config import CameraSpec, RecordConfig, parse_size
 from aslam.recorder.record import record
 
@@ -87,11 +92,18 @@ def stages(recording: Path, config: EstimatorConfig, output: Path) -> dict[str, 
     model = observation_model(config)
     observations = [model.describe(gray) for gray in grays]
     timings["describe_s"] = time.perf_counter() - start
-    estimator = Estimator(config)
+    camera = None
+    features: list[ViewFeatures | None] = [None] * len(grays)
+    if config.geometric_check_m > 0:  # the geometric check's features, and its camera
+        camera = geometry_camera(open_input(recording), recording)
+        start = time.perf_counter()
+        features = [view_features(gray) for gray in grays]
+        timings["features_s"] = time.perf_counter() - start
+    estimator = Estimator(config, camera=camera)
     start = time.perf_counter()
     steps = [
-        estimator.add_keyframe(stamp, action, observation)
-        for (stamp, action, _), observation in zip(keyframes, observations, strict=True)
+        estimator.add_keyframe(stamp, action, observation, features=view)
+        for (stamp, action, _), observation, view in zip(keyframes, observations, features, strict=True)
     ]
     result = estimator.result()
     timings["slam_s"] = time.perf_counter() - start
@@ -140,7 +152,13 @@ def main() -> None:
     parser.add_argument("--laps", type=int)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--json", action="store_true", help="one line of JSON (for bench/speed.py)")
+    parser.add_argument(
+        "--config",
+        type=Path,
+        help="an estimator config file (TOML, as `aslam estimate --config`) for the estimate and the stages",
+    )
     args = parser.parse_args()
+    config = build_config(paper_faithful=False, config_file=args.config, options={})
     recording = args.recording or recording_for(args.route, args.size, args.laps)
     # What a (non-editable) install does: the processes below then load bytecode, as a user's do,
     # even where PYTHONDONTWRITEBYTECODE is set (as in many CI images).
@@ -160,6 +178,7 @@ def main() -> None:
             "--force",
             "--no-timing",
             "-q",
+            *(["--config", str(args.config)] if args.config is not None else []),
         ]
         startup_cmd = [str(ASLAM), "estimate", str(one), "-o", str(output), "--force", "--no-timing", "-q"]
         wall(floor_cmd), wall(estimate_cmd)  # warm the page cache and the interpreter's files
@@ -169,7 +188,7 @@ def main() -> None:
             ratios.append(estimates[-1] / floors[-1])
             helps.append(wall([str(ASLAM), "--help"]))
             startups.append(wall(startup_cmd))
-        parts = stages(recording, EstimatorConfig(), output)
+        parts = stages(recording, config, output)
     result = {
         "recording": str(recording),
         "size_mb": recording.stat().st_size / 1e6,
