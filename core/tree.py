@@ -839,12 +839,12 @@ class HypothesisTree:
             place = self._features.get(state)
             if distances[i] >= reference or place is None:
                 continue
-            neighbours = [
-                (other, self._features[other], rel[:3])
-                for other, (rel, _weight) in self.shared.adjacency.get(state, {}).items()
-                if other in self._features
-            ]
             if state not in self._offsets:
+                neighbours = [
+                    (other, self._features[other], rel[:3])
+                    for other, (rel, _weight) in self.shared.adjacency.get(state, {}).items()
+                    if other in self._features
+                ]
                 self._offsets[state] = self._geometry.offset_m(state, place, neighbours, features)
             offset = self._offsets[state]
             if offset is not None and offset > self.config.geometric_check_m:
