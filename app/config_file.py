@@ -66,8 +66,9 @@ def type_problem(where: str, value: Any, kind: type) -> str | None:
     return None if ok else f"{where} must be {want}, got {value!r}"
 
 
-def read_config_file(path: Path) -> dict[str, Any]:
-    """The ``[estimator]`` table of a TOML file, checked: every unknown key and wrong type at once."""
+def read_config_file(path: Path) -> tuple[dict[str, Any], list[str]]:
+    """The well-typed values of a TOML file's ``[estimator]`` table, and every unknown key and wrong
+    type in it; the values' ranges are checked with the rest of the configuration (:func:`build_config`)."""
     document = read_toml(path, what="a TOML file")
     unknown = [key for key in document if key != CONFIG_TABLE]
     table = document.get(CONFIG_TABLE, {})
@@ -75,40 +76,44 @@ def read_config_file(path: Path) -> dict[str, Any]:
         raise ConfigError(f"'{CONFIG_TABLE}' must be a table ([{CONFIG_TABLE}])", path=path)
     types = {name: kind for name, kind, _default, _help in EstimatorConfig.parameters()}
     unknown += [f"{CONFIG_TABLE}.{key}" for key in table if key not in types]
-    if unknown:
-        known = ", ".join(types)
-        raise ConfigError(
-            f"unknown key{'s' if len(unknown) > 1 else ''} {', '.join(unknown)} "
-            f"(keys go in an [{CONFIG_TABLE}] table; known: {known})",
-            path=path,
-        )
     problems = []
+    if unknown:
+        problems.append(
+            f"unknown key{'s' if len(unknown) > 1 else ''} {', '.join(unknown)} "
+            f"(keys go in an [{CONFIG_TABLE}] table; known: {', '.join(types)})"
+        )
     values: dict[str, Any] = {}
-    for key, value in table.items():  # allowed values are checked with the rest of the configuration
+    for key, value in table.items():
+        if key not in types:
+            continue
         problem = type_problem(key, value, types[key])
         if problem is None:
             values[key] = types[key](value)
         else:
             problems.append(problem)
-    if problems:
-        raise ConfigError("; ".join(problems), path=path)
-    return values
+    return values, problems
 
 
 def build_config(
     *, paper_faithful: bool, config_file: Path | None, options: dict[str, Any]
 ) -> EstimatorConfig:
-    """Defaults, then ``--paper-faithful``, then the file, then the options that were given."""
+    """Defaults, then ``--paper-faithful``, then the file, then the options that were given. Every
+    problem at once: the file's unknown keys and wrong types beside the values out of range."""
     values: dict[str, Any] = {}
     if paper_faithful:
         base = EstimatorConfig.paper_faithful()
         values.update({name: getattr(base, name) for name, *_ in EstimatorConfig.parameters()})
-    from_file = read_config_file(config_file) if config_file is not None else {}
+    from_file, file_problems = read_config_file(config_file) if config_file is not None else ({}, [])
     values.update(from_file)
     values.update({k: v for k, v in options.items() if v is not None})
+    problems = list(file_problems)
     try:
-        return EstimatorConfig(**values)
+        config = EstimatorConfig(**values)
     except ConfigError as err:
+        problems.append(err.problem)
+    if problems:
+        named = from_file or file_problems  # an option's bad value alone is not the file's
         raise ConfigError(
-            f"bad estimator configuration: {err}", path=config_file if from_file else None
-        ) from err
+            f"bad estimator configuration: {'; '.join(problems)}", path=config_file if named else None
+        )
+    return config

@@ -179,9 +179,7 @@ def _renders(value: Any, base: Path, problems: list[str]) -> tuple[RecordConfig,
     configs: dict[RecordConfig, None] = {}
     for number, raw in enumerate(value, start=1):
         where = f"render #{number}"
-        lists = _typed_lists(_table(raw, "render", RENDER_KEYS, problems), RENDER_KEYS, where, problems)
-        if lists is None:
-            continue
+        lists, bad = _typed_lists(_table(raw, "render", RENDER_KEYS, problems), RENDER_KEYS, where, problems)
         lists.setdefault("route", ["paper"])
         lists.setdefault("seeds", [0])
         if (count := math.prod(len(values) for values in lists.values())) > MAX_COMBINATIONS:
@@ -190,30 +188,28 @@ def _renders(value: Any, base: Path, problems: list[str]) -> tuple[RecordConfig,
         names = list(lists)
         for combination in itertools.product(*(lists[name] for name in names)):
             config = _record_config(dict(zip(names, combination, strict=True)), base, where, problems)
-            if config is not None:
+            if config is not None and not bad:
                 configs[config] = None
     return tuple(configs)
 
 
 def _typed_lists(
     table: dict[str, Any], types: dict[str, Any], where: str, problems: list[str]
-) -> dict[str, list[Any]] | None:
-    """Each key's value as a list (a scalar is a list of one), every item of its key's type; None
-    (the problems noted) if a list is empty or an item is mistyped, so no combination is made."""
+) -> tuple[dict[str, list[Any]], bool]:
+    """Each key's value as a list (a scalar is a list of one) whose every item is of its key's type,
+    and whether any key was left out (an empty list, a mistyped item: the problems noted). The keys
+    kept are still checked, so one mistyped key does not hide another's values out of range."""
     lists: dict[str, list[Any]] = {}
     bad = False
     for key, item in table.items():
         items = _as_list(item)
-        if not items:
-            problems.append(f"{where}: {key} is an empty list")
-            bad = True
-        for one in items:
-            problem = type_problem(f"{where}: {key}", one, types[key])
-            if problem:
-                problems.append(problem)
-                bad = True
-        lists[key] = items
-    return None if bad else lists
+        found = [] if items else [f"{where}: {key} is an empty list"]
+        found += [p for one in items if (p := type_problem(f"{where}: {key}", one, types[key]))]
+        problems += found
+        bad = bad or bool(found)
+        if not found:
+            lists[key] = items
+    return lists, bad
 
 
 def _record_config(knobs: dict[str, Any], base: Path, where: str, problems: list[str]) -> RecordConfig | None:
@@ -310,9 +306,7 @@ def _as_kind(kind: type, value: Any) -> Any:
 def _grid(value: dict[str, Any], where: str, problems: list[str]) -> Grid:
     types = {name: kind for name, kind, _default, _help in EstimatorConfig.parameters()}
     types["paper_faithful"] = bool
-    lists = _typed_lists(_table(value, "grid", types, problems), types, where, problems)
-    if lists is None:  # the problems are raised before any grid is used
-        return ()
+    lists, bad = _typed_lists(_table(value, "grid", types, problems), types, where, problems)
     # A value listed twice (``[1, 1.0]``) is one value: every combination runs once.
     grid = [
         (key, tuple(dict.fromkeys(_as_kind(types[key], v) for v in values))) for key, values in lists.items()
@@ -325,8 +319,8 @@ def _grid(value: dict[str, Any], where: str, problems: list[str]) -> Grid:
         try:
             estimator_config(zip(names, combination, strict=True))
         except ConfigError as err:
-            problems.append(f"{where}: {err.problem}")
-    return tuple(grid)
+            problems += [f"{where}: {one}" for one in err.problem.split("; ")]
+    return () if bad else tuple(grid)  # a bad grid's problems are raised before any grid is used
 
 
 def _figures(value: Any, problems: list[str]) -> tuple[str, ...]:

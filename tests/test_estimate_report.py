@@ -226,6 +226,23 @@ def test_bad_config_files_are_one_line_exit_2(recording: Path, tmp_path: Path, c
     assert needle in err
 
 
+def test_a_config_files_problems_are_reported_together(recording: Path, tmp_path: Path, capsys):
+    """An unknown key or a wrong type does not hide another key's value out of range."""
+    config = tmp_path / "c.toml"
+    config.write_text('[estimator]\nbogus = 1\nbeta = "x"\nmax_hypotheses = 0\nthumbnail_beta = -2\n')
+    assert main(["estimate", str(recording), "-o", str(tmp_path / "e.mcap"), "--config", str(config)]) == 2
+    err = capsys.readouterr().err
+    one_error_line(err)
+    assert err.startswith(f"aslam: error: {config}: bad estimator configuration: ")
+    for needle in [
+        "unknown key estimator.bogus",
+        "beta must be a number, got 'x'",
+        "max_hypotheses must be a whole number in [1, 10000], got 0",
+        "thumbnail_beta must be a number in [0.001, 50], got -2.0",
+    ]:
+        assert needle in err
+
+
 def test_bad_recordings_are_one_line_exit_2(tmp_path: Path, capsys):
     text = tmp_path / "notes.mcap"
     text.write_text("not an mcap file\n")

@@ -684,7 +684,8 @@ def test_sweep_file_problems_are_one_line_exit_2_naming_the_file(tmp_path, capsy
     bad = tmp_path / "bad.toml"
     bad.write_text(
         'bogus = 1\nfigures = ["loop_closure.nope"]\n[recordings]\npaths = ["*.nothing"]\n'
-        '[grid]\nbeta = ["x"]\nmax_hypotheses = 2.5\nwhat = 3\n[[render]]\nseeds = [-1]\ncolour = "red"\n'
+        '[grid]\nbeta = ["x"]\nmax_hypotheses = 2.5\nwhat = 3\ncells_x = [2, 0]\nthumbnail_beta = -2\n'
+        '[[render]]\nseeds = [-1]\ncolour = "red"\nlaps = "two"\n'
     )
     assert main(["sweep", str(bad), "-o", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
@@ -698,6 +699,10 @@ def test_sweep_file_problems_are_one_line_exit_2_naming_the_file(tmp_path, capsy
         "unknown key 'grid.what'",
         "seed must be ≥ 0, got -1",
         "unknown key 'render.colour'",
+        # a mistyped key does not hide the others' values out of range
+        "grid: cells_x must be a whole number in [1, 32], got 0",
+        "grid: thumbnail_beta must be a number in [0.001, 50], got -2.0",
+        "render #1: laps must be a whole number, got 'two'",
     ]:
         assert needle in err
     assert not (tmp_path / "out").exists()
