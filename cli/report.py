@@ -118,7 +118,7 @@ def report(
     if plots is not None:
         from aslam.data_formats.files import check_output_folder
 
-        check_output_folder(plots, what="plots folder")
+        check_output_folder(plots, what="plots folder", outputs=outputs)
     if plots is not None and plots.is_dir():
         from aslam.app.plots import PLOT_NAMES
 

@@ -465,12 +465,16 @@ def full_path(path: Path | str) -> Path:
     return Path(os.path.abspath(path))
 
 
-def check_output_folder(path: Path, *, what: str = "folder") -> None:
-    """Fail before any work when ``path`` cannot be an output folder: a file, or a folder to be made
-    under a file or in a folder that cannot be written (the folder itself is made by whoever
-    writes into it). An existing folder may be read-only: whether a file must be written in it is
-    for its writer to say (a finished sweep's results are only read)."""
+def check_output_folder(path: Path, *, what: str = "folder", outputs: Iterable[Path] = ()) -> None:
+    """Fail before any work when ``path`` cannot be an output folder: a file, one of the command's
+    other ``outputs``, or a folder to be made under a file or in a folder that cannot be written (the
+    folder itself is made by whoever writes into it). An existing folder may be read-only: whether a
+    file must be written in it is for its writer to say (a finished sweep's results are only read)."""
     path = Path(path)
+    real = real_path(path)
+    for given in outputs:
+        if not is_stream_output(given) and real_path(given) == real:
+            raise InputError(_output_conflict(Path(given)), path=path)
     if path.exists() and not path.is_dir():
         raise InputError(f"is a file, not a {what}", path=path)
     if not path.exists():

@@ -95,6 +95,8 @@ def test_report_output_that_is_its_estimate_is_refused_and_writes_nothing(
     [
         (["--graph", "out.json", "--json", "sub/../out.json"], "another output of this command"),
         (["--json", "run.odometry.tum", "--trajectory", "run.tum"], "another output of this command"),
+        (["--trajectory", "run.tum", "--plots", "run.truth.tum"], "another output of this command"),
+        (["--graph", "g.json", "--plots", "./g.json"], "another output of this command"),
         (["--trajectory", "missing/run.tum"], "folder missing does not exist"),
         (["--trajectory", "sub/file/run.tum"], "sub/file is not a folder"),
     ],
