@@ -110,7 +110,7 @@ def build_summary(
             "final": int(counts[-1]) if counts.size else 0,
         },
         "relocalisation": {
-            "episodes": len(evaluation.episodes),
+            "episodes": len(evaluation.episodes) if has_truth else None,  # runs of true revisits
             "first_delay_keyframes": evaluation.first_delay,
             "mean_delay_keyframes": evaluation.mean_delay,
         },
@@ -375,17 +375,16 @@ def score(
             metric = score_trajectories(embedding, run_truth, stamps)
         except ValueError as err:
             warn(f"{estimate}: no trajectory scores: {err}")
-    committed = None
-    if true_poses is not None:
-        assignment = map_assignment(info.graph.states, first + len(stamps))
-        committed = score_assignment(
-            assignment,
-            true_poses,
-            radius_m=radius_m,
-            heading_deg=heading_deg,
-            first_keyframe=first,
-            worlds=worlds,
-        )
+    # The map's claims need no truth: without it none is judged (its correct, precision, recall null).
+    assignment = map_assignment(info.graph.states, first + len(stamps))
+    committed = score_assignment(
+        assignment,
+        np.full((len(assignment), 3), np.nan) if true_poses is None else true_poses,
+        radius_m=radius_m,
+        heading_deg=heading_deg,
+        first_keyframe=first,
+        worlds=worlds,
+    )
     summary = build_summary(
         evaluation,
         states=len(info.graph.states),
