@@ -104,7 +104,12 @@ def report(
     terminal = Terminal(quiet=quiet, verbose=verbose)
     keys = summary_keys()
     conditions = [parse_condition(text, keys) for text in fail_on or []]
-    if graph == "-" and json_out == "-":
+    from aslam.data_formats.files import is_stdout
+
+    to_stdout = [
+        name for name, target in (("--graph", graph), ("--json", json_out)) if target and is_stdout(target)
+    ]
+    if len(to_stdout) > 1:
         raise InputError("--graph and --json cannot both write to stdout")
     outputs = [Path(p) for p in (graph, json_out) if p not in (None, "-")]
     if trajectory is not None:
@@ -140,7 +145,7 @@ def report(
             on_warning=terminal.warning,
             on_stage=on_stage,
         )
-    stdout_taken = "-" in (graph, json_out)
+    stdout_taken = bool(to_stdout)  # the tables go to stderr, the document alone to stdout
     if not quiet or not stdout_taken:
         _print_tables(table_console(stderr=stdout_taken), result)
     written: list[Path] = []

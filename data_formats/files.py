@@ -29,6 +29,7 @@ import fcntl
 import functools
 import glob
 import hashlib
+import io
 import os
 import socket
 import stat
@@ -37,7 +38,7 @@ import threading
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO
+from typing import IO, cast
 
 from aslam.core.errors import InputError
 
@@ -115,6 +116,52 @@ def is_stream_output(path: Path | str) -> bool:
     except OSError:
         return False
     return stat.S_ISCHR(mode) or stat.S_ISFIFO(mode) or stat.S_ISSOCK(mode)
+
+
+def is_stdout(target: Path | str) -> bool:
+    """``-``, or a stream name for this process's stdout (``/dev/stdout``, ``/dev/fd/1``, the pipe
+    itself): a result for it goes through ``sys.stdout``, after what the command printed there, and
+    adds to a file stdout was sent to (``>> log``) where opening the name would have truncated it."""
+    if str(target) == "-":
+        return True
+    if not is_stream_output(target):
+        return False
+    try:
+        return os.path.samestat(os.stat(target), os.fstat(1))
+    except OSError:
+        return False
+
+
+class _CountedStream(io.BufferedIOBase):
+    """A stream output that tells how much was written to it: the MCAP writer asks ``tell()`` for
+    the offsets it indexes, and a pipe has no position (``Illegal seek``). The offsets count from the
+    MCAP's first byte, which is what a reader of the stream sees first."""
+
+    def __init__(self, raw: IO[bytes]) -> None:
+        super().__init__()
+        self._raw = raw
+        self._written = 0
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, data: bytes | bytearray | memoryview, /) -> int:  # type: ignore[override]
+        self._raw.write(data)
+        self._written += memoryview(data).nbytes
+        return memoryview(data).nbytes
+
+    def tell(self) -> int:
+        return self._written
+
+    def flush(self) -> None:
+        self._raw.flush()
+
+    def close(self) -> None:
+        if not self.closed:
+            try:
+                super().close()  # flushes
+            finally:
+                self._raw.close()
 
 
 # --- one command's files ----------------------------------------------------------------------
@@ -650,9 +697,11 @@ class AtomicFile:
             _claim_output(self.path, self.target, error)
             _warn_stale(self.target)
         try:
-            if not self.direct:
+            if self.direct:  # appended to: a file stdout was sent to with ``>> log`` keeps its lines
+                self.file: IO[bytes] = cast(IO[bytes], _CountedStream(open(self.path, "ab")))  # noqa: SIM115
+            else:
                 self.partial_path = _temporary(self.target)
-            self.file: IO[bytes] = open(self.partial_path, "wb")  # noqa: SIM115 (closed by commit/abort)
+                self.file = open(self.partial_path, "wb")  # noqa: SIM115 (closed by commit/abort)
         except BaseException as err:  # an interrupt between creating the file and holding it too
             if self.partial_path != self.path:
                 _discard(self.partial_path)
@@ -762,12 +811,15 @@ def write_text_output(
     Inside :func:`command_files` a document for stdout or another stream (``/dev/stdout``, a pipe)
     waits in :attr:`CommandFiles.results` until every file output is in place.
     """
-    if str(target) == "-":
-        path, write = None, functools.partial(_write_stdout, text)
+    path = None if str(target) == "-" else Path(target)
+    if is_stdout(target):
+        if path is not None:
+            check_output_path(path, force=force, error=error)
+        write: Callable[[], object] = functools.partial(_write_stdout, text)
     else:
-        path = Path(target)
+        assert path is not None
         write = functools.partial(
-            write_atomically, path, lambda p: p.write_text(text, encoding="utf-8"), error=error, force=force
+            write_atomically, path, functools.partial(_write_text, text=text), error=error, force=force
         )
     files = current()
     if files is not None and (path is None or is_stream_output(path)):
@@ -775,6 +827,13 @@ def write_text_output(
     else:
         write()
     return path
+
+
+def _write_text(path: Path, text: str) -> None:
+    """``text`` into a new temporary file, or appended to a stream (``/dev/stderr`` sent to a file
+    with ``2>> log`` is added to, not truncated)."""
+    with open(path, "a" if is_stream_output(path) else "w", encoding="utf-8") as file:
+        file.write(text)
 
 
 def _write_stdout(text: str) -> None:

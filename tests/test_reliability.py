@@ -161,6 +161,39 @@ def test_a_fifo_output_is_written_directly(estimate_file: Path, tmp_path: Path):
     assert fifo.is_fifo()
 
 
+def test_an_mcap_output_through_a_pipe_is_the_file_it_would_have_been(recording: Path, tmp_path: Path):
+    """A pipe has no position; the MCAP writer asks one for its index offsets (``Illegal seek``, exit
+    70 from ``import``/``record``, half a file and exit 2 from ``estimate``). The stream counts them."""
+    out = tmp_path / "e.mcap"
+    assert main(["estimate", str(recording), "-o", str(out), "-q", "--no-timing"]) == 0
+    piped = subprocess.run(
+        f"{ASLAM} estimate {recording} -o /dev/stdout -q --no-timing | cat",
+        shell=True,
+        capture_output=True,
+        timeout=120,
+    )
+    assert piped.returncode == 0 and piped.stderr == b""
+    assert piped.stdout == out.read_bytes()
+
+
+def test_a_result_for_stdout_by_name_adds_to_a_redirected_log(estimate_file: Path, tmp_path: Path):
+    """``--json /dev/stdout >> log`` opened the name and truncated the log; ``report``'s tables went
+    to stdout too, before the document, so ``| jq`` read both. Now as with ``-``: appended, alone."""
+    log = tmp_path / "log"
+    log.write_text("earlier line\n")
+    with log.open("a") as stdout:
+        done = subprocess.run(
+            [str(ASLAM), "report", str(estimate_file), "--json", "/dev/stdout"], stdout=stdout, timeout=120
+        )
+    assert done.returncode == 0
+    text = log.read_text()
+    assert text.startswith("earlier line\n")
+    assert json.loads(text.removeprefix("earlier line\n"))["keyframes"] > 0  # the document alone
+    both = ["report", str(estimate_file), "--json", "/dev/stdout", "--graph", "/dev/fd/1"]
+    done = subprocess.run([str(ASLAM), *both], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and "cannot both write to stdout" in done.stderr
+
+
 def test_a_symlink_output_is_followed_and_its_target_replaced(estimate_file: Path, tmp_path: Path):
     target = tmp_path / "target.json"
     target.write_text("old")
