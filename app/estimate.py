@@ -252,8 +252,9 @@ def geometry_camera(source: Input, recording: Path) -> PinholeCamera:
     intrinsics = source.camera()
     if intrinsics is None:
         raise InputError(
-            "--geometric-check-m needs the camera's intrinsics, and this input has no camera info"
-            " (a sensor_msgs/CameraInfo topic); leave the check off (0)",
+            "--geometric-check-m needs the camera's intrinsics, and this input gives none: it needs"
+            " one sensor_msgs/CameraInfo topic whose K has a focal length above 0 and whose image size"
+            " is set (an uncalibrated driver publishes K = 0); leave the check off (0)",
             path=recording,
         )
     return PinholeCamera(
