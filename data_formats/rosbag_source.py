@@ -97,6 +97,11 @@ def classify(
     if head.startswith(MCAP_MAGIC):
         from aslam.data_formats.recording import METADATA_NAME, RecordingTopics
 
+        if len(head) <= len(MCAP_MAGIC):  # rosbags then fails inside its parser (a TypeError)
+            raise BagError(
+                f"an MCAP file of {len(head)} bytes, its magic alone: cut short, nothing to read", path=path
+            )
+
         mcap = McapFile(path, on_warning=on_warning)
         ours = RecordingTopics()
         # Our own recordings, and MCAP files laid out as ours (the same image and odometry topics),

@@ -270,6 +270,21 @@ def test_any_cut_reads_a_prefix_or_fails_cleanly(small_recording, fraction):
             code = main(["info", str(path), "--json", "-"])
         assert code in (0, 2), err.getvalue()
         assert "Traceback" not in err.getvalue() and "internal error" not in err.getvalue()
+        # a library's own failure is not an explanation (the magic alone gave ``TypeError: ord() …``)
+        assert not any(
+            name in err.getvalue() for name in ("TypeError", "ValueError", "IndexError", "KeyError")
+        )
+
+
+@pytest.mark.parametrize("cut_at", [8, 9, 17, 100])
+def test_a_recording_cut_in_its_first_records_is_one_clear_line(small_recording, tmp_path, capsys, cut_at):
+    """Cut to its magic (8 bytes) it was ``cannot open the bag: TypeError: ord() expected …``."""
+    path = tmp_path / "cut.mcap"
+    path.write_bytes(small_recording[0][:cut_at])
+    assert main(["info", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"aslam: error: {path}: ") and err.count("\n") == 1
+    assert not any(name in err for name in ("TypeError", "ValueError", "IndexError", "KeyError"))
 
 
 def test_an_image_stamped_before_the_one_logged_before_it_is_dropped_and_said(tmp_path: Path):
