@@ -1142,7 +1142,10 @@ def rows(
             "render": "" if task.source.render is None else render_text(task.source.render),
             "same_as": task.same_as,
         }
-        row.update({f"param.{name}": getattr(task.config, name) for name in sweep.parameter_names()})
+        given = dict(task.parameters)
+        row.update(
+            {f"param.{name}": _effective(name, given, task.config) for name in sweep.parameter_names()}
+        )
         row.update({key: summary.get(key) for key in figures})
         row.update(
             {
@@ -1199,6 +1202,14 @@ def _setting_text(value: Any) -> str:
     if isinstance(value, float) and float(f"{value:g}") == value:
         return f"{value:g}"
     return str(value)
+
+
+def _effective(name: str, given: dict[str, Any], config: EstimatorConfig) -> Any:
+    """A parameter's value in a task: the configuration's, whichever grid named it; for
+    ``paper_faithful``, which is no field of the configuration, whether its grid started from it."""
+    if name == "paper_faithful":
+        return bool(given.get(name, False))
+    return getattr(config, name)
 
 
 def arrow_table(

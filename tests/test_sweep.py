@@ -30,6 +30,7 @@ from aslam.app.sweep import (
     VARYING_COLUMNS,
     Objective,
     TaskResult,
+    arrow_table,
     distinct_names,
     open_client,
     pareto_front,
@@ -1063,6 +1064,17 @@ def test_several_grids_run_in_turn_and_every_row_shows_the_effective_values(tmp_
         {"param.beta": 3.0, "param.cells_x": 2, "param.candidate_search": "graph"},
         {"param.beta": 3.0, "param.cells_x": 1, "param.candidate_search": "path"},
     ]
+    # ``paper_faithful`` is a grid key, no field of the configuration: its column says which grid
+    # started from the paper's estimator (it held the classmethod, and the tables failed: exit 70).
+    path.write_text(
+        f'[recordings]\npaths = ["{recordings / "good.mcap"}"]\n'
+        "[[grid]]\nbeta = 2.0\n[[grid]]\npaper_faithful = true\n"
+    )
+    sweep = read_sweep_file(path)
+    tasks = plan_tasks(sweep, tmp_path)
+    results = [TaskResult(t.index, t.key, {}, None, (), 1.0, 1.0, "w") for t in tasks]
+    assert [row["param.paper_faithful"] for row in rows(sweep, tasks, results)] == [False, True]
+    assert arrow_table(sweep, tasks, results).column("param.paper_faithful").to_pylist() == [False, True]
     bad = tmp_path / "bad.toml"
     bad.write_text("[[render]]\n[[grid]]\nbeta = 1.0\n[[grid]]\nbeta = -1.0\n")
     with pytest.raises(ConfigError, match=r"grid #2: beta must be a number in \[0\.001, 50\]"):
