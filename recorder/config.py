@@ -168,10 +168,17 @@ class RecordConfig:
         cam = self.camera
         if (problem := fov_option_problem(cam.fov_deg)) is not None:
             out.append(problem)
+        from aslam.data_formats.images import MAX_PIXELS  # here: it imports OpenCV (0.1 s of --help)
+
         if not (8 <= cam.width_px <= MAX_SIZE_PX and 8 <= cam.height_px <= MAX_SIZE_PX):
             out.append(
                 f"--size must be between 8x8 and {MAX_SIZE_PX}x{MAX_SIZE_PX}, "
                 f"got {cam.width_px}x{cam.height_px}"
+            )
+        elif cam.width_px * cam.height_px > MAX_PIXELS:  # a recording `info` and `estimate` refuse
+            out.append(
+                f"--size {cam.width_px}x{cam.height_px} is {cam.width_px * cam.height_px:,} pixels;"
+                f" at most {MAX_PIXELS:,} (2048x2048), the largest image aslam reads"
             )
         if not (math.isfinite(cam.height_m) and cam.height_m > 0):
             out.append(f"--camera-height-m must be a positive number of metres, got {cam.height_m}")

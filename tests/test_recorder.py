@@ -401,6 +401,7 @@ def test_bad_scene_file_is_one_line(tmp_path, capsys):
         (["--jitter-m", "1e300"], "--jitter-m must be at most 10 m"),
         (["--wander-deg", "1e9"], "--wander-deg must be at most 180"),
         (["--size", "100000x1"], "between 8x8 and 4096x4096"),
+        (["--size", "2049x2048"], "at most 4,194,304 (2048x2048), the largest image aslam reads"),
     ],
 )
 def test_bad_options_exit_2_with_one_line(tmp_path, capsys, option, needle):
