@@ -505,8 +505,9 @@ def check_route_in_scene(
 
     Each driven segment at camera height is ray-tested against the mesh (plus ``clearance_m`` so
     the jittered true pose and the near clip plane stay clear), and every pose needs floor below.
-    A kidnap (``connected[i]`` False) is not driven, so it is not ray-tested.  ``what`` names the
-    path in the message (the commanded route, or the true path with :data:`TRUE_PATH`).
+    A pose not driven to (the start, a kidnap's landing: ``connected[i - 1]`` False) is ray-tested
+    in eight directions around it instead: one set down inside a wall would render the wall's inside.
+    ``what`` names the path in the message (the commanded route, or the true path with :data:`TRUE_PATH`).
     """
     triangles = np.asarray(world.mesh.triangles, dtype=float)
     points = np.asarray(commanded, dtype=float)
@@ -522,6 +523,16 @@ def check_route_in_scene(
         driven = i > 0 and (connected is None or bool(connected[i - 1]))
         d = origins[i] - origins[i - 1] if driven else np.zeros(3)
         length = float(np.linalg.norm(d))
+        if not driven:
+            for angle in np.arange(8) * (np.pi / 4):
+                ray = np.array([math.cos(angle), math.sin(angle), 0.0])
+                if ray_distance(triangles, origins[i], ray) <= clearance_m:
+                    x, y = points[i, :2]
+                    raise WorldError(
+                        f"{what} is within {clearance_m:g} m of the scene's geometry at ({x:.2f}, {y:.2f}) m"
+                        f" at {_where(i, actions_json)}",
+                        path=world.path,
+                    )
         if length > 1e-9:
             dist = ray_distance(triangles, origins[i - 1], d / length)
             if dist <= length + clearance_m:

@@ -374,6 +374,25 @@ def test_scene_file_world_renders_and_a_route_through_a_wall_is_refused(tmp_path
     assert not bad_out.exists()
 
 
+@pytest.mark.parametrize(
+    ("route", "where"),
+    [
+        ({"start": {"x_m": 2.9}, "actions": [{"turn_deg": 90}]}, "the start pose"),
+        ({"actions": [{"forward_m": 1}, {"kidnap": {"x_m": -2.95, "y_m": 1}}, {"turn_deg": 90}]}, "kidnap"),
+    ],
+)
+def test_a_pose_set_down_against_a_scenes_wall_is_refused(tmp_path, capsys, route, where):
+    """A start or a kidnap's landing is not driven to, so no segment's ray met the wall it stands
+    in: it rendered the wall's inside (nearly uniform frames) and exited 0."""
+    scene = _box_room(tmp_path / "room.glb")
+    out = tmp_path / "r.mcap"
+    args = ["record", "--world", str(scene), "--route", str(_write_json(tmp_path / "r.json", route))]
+    assert main([*args, "--size", "32x24", "-o", str(out)]) == 2
+    err = one_error_line(capsys.readouterr().err)
+    assert "within 0.15 m of the scene's geometry" in err and where in err
+    assert not out.exists()
+
+
 def test_bad_scene_file_is_one_line(tmp_path, capsys):
     bad = tmp_path / "broken.glb"
     bad.write_bytes(b"not a gltf at all")
