@@ -161,6 +161,8 @@ class RecordConfig:
         out.extend(self.noise.problems())
         if not (math.isfinite(self.aliasing) and 0.0 <= self.aliasing <= 1.0):
             out.append(f"--aliasing must be between 0 and 1, got {self.aliasing}")
+        if self.world is not None and self.aliasing != 0.0:
+            out.append("--aliasing chooses a generated world's surfaces; a --world scene file has its own")
         if not (math.isfinite(self.lighting_change) and 0.0 <= self.lighting_change <= 1.0):
             out.append(f"--lighting-change must be between 0 and 1, got {self.lighting_change}")
         if self.odometry_reset_at is not None and self.odometry_reset_at < 0:

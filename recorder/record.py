@@ -207,6 +207,8 @@ def plan(config: RecordConfig) -> Plan:
 
 def metadata(config: RecordConfig, p: Plan) -> dict[str, str]:
     camera = {**asdict(config.camera), "frames_per_action": p.frames_per_action}
+    if config.jpeg_quality is not None:  # PNG recordings keep the bytes they had
+        camera["jpeg_quality"] = config.jpeg_quality
     return {
         "world": p.world.describe(),
         "seed": str(config.seed),

@@ -393,6 +393,30 @@ def test_a_pose_set_down_against_a_scenes_wall_is_refused(tmp_path, capsys, rout
     assert not out.exists()
 
 
+def test_aliasing_with_a_scene_file_is_refused_and_a_jpeg_quality_is_recorded(tmp_path, capsys):
+    """``--aliasing`` left a scene file's images as they were, silently; ``--jpeg-quality`` was in no
+    metadata (only the images' format said JPEG)."""
+    scene = _box_room(tmp_path / "room.glb")
+    args = ["record", "--world", str(scene), "--aliasing", "0.5", "-o", str(tmp_path / "a.mcap")]
+    assert main(args) == 2
+    assert "--aliasing" in one_error_line(capsys.readouterr().err)
+    inside = _write_json(tmp_path / "inside.json", {"start": {"x_m": -1}, "actions": [{"forward_m": 1}]})
+    out = tmp_path / "j.mcap"
+    args = [
+        "record",
+        "--world",
+        str(scene),
+        "--route",
+        str(inside),
+        "--size",
+        "32x24",
+        "--jpeg-quality",
+        "85",
+    ]
+    assert main([*args, "-o", str(out)]) == 0
+    assert json.loads(Recording(out).metadata()["camera"])["jpeg_quality"] == 85
+
+
 def test_bad_scene_file_is_one_line(tmp_path, capsys):
     bad = tmp_path / "broken.glb"
     bad.write_bytes(b"not a gltf at all")
