@@ -22,6 +22,7 @@ from aslam.core.errors import ConfigError, InputError
 from aslam.data_formats.provenance import tool_version
 from aslam.recorder import noise, routes
 from aslam.recorder.config import NoiseModel, RecordConfig
+from aslam.recorder.errors import RouteError
 from aslam.recorder.lighting import DEFAULT as DEFAULT_LIGHTING
 from aslam.recorder.lighting import Lighting, lap_lighting, lighting_json
 from aslam.recorder.world import (
@@ -135,7 +136,12 @@ def plan(config: RecordConfig) -> Plan:
     laps = config.laps
     if laps is None:
         laps = routes.DEFAULT_PRESET_LAPS if config.route in routes.PRESETS else 1
-    route = base.repeated(laps)
+    try:
+        route = base.repeated(laps)
+    except RouteError as err:  # the file named, not only the route's name (its stem)
+        if err.path is not None or config.route in routes.PRESETS:
+            raise
+        raise RouteError(err.problem, path=config.route) from err
     commanded = route.poses()
     connected = route.connected
     actions_json = [a.to_json() for a in route.actions]

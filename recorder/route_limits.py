@@ -32,6 +32,21 @@ _STRING = re.compile(r'"(?:[^"\\]|\\.)*"', re.DOTALL)
 _BRACKET = re.compile(r"[\[\]{}]")
 
 
+class _DuplicateKey(Exception):
+    pass
+
+
+def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """A JSON object, refused when a key repeats: ``json`` would keep the last in silence (a route
+    whose second ``"actions"`` list replaced the first)."""
+    doc: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in doc:
+            raise _DuplicateKey(key)
+        doc[key] = value
+    return doc
+
+
 def read_route_document(path: Path | str) -> Any:
     """The JSON document of a route file, refused (RouteError naming the file and the bound) beyond
     the bounds above or when it is not JSON.
@@ -56,10 +71,14 @@ def read_route_document(path: Path | str) -> Any:
         if deepest > MAX_DEPTH:
             raise RouteError(f"JSON nested deeper than {MAX_DEPTH} levels", path=path)
     try:
-        doc = json.loads(text)  # no RecursionError: the nesting is bounded above
+        doc = json.loads(text, object_pairs_hook=_no_duplicates)  # nesting bounded above: no RecursionError
     except json.JSONDecodeError as err:
         raise RouteError(
             f"invalid JSON at line {err.lineno} column {err.colno}: {err.msg}", path=path
+        ) from err
+    except _DuplicateKey as err:
+        raise RouteError(
+            f"key {err.args[0]!r} given twice in one object (JSON keeps the last)", path=path
         ) from err
     except ValueError as err:  # Python refuses to read an integer of thousands of digits
         raise RouteError(f"a number of more than {sys.get_int_max_str_digits():,} digits", path=path) from err

@@ -250,7 +250,11 @@ def parse_route(doc: Any, *, name: str = "route", path: Path | str | None = None
         raise RouteError("a route must be a JSON object with 'start' and 'actions'", path=path)
     unknown = sorted(set(doc) - {"start", "actions", "name"})
     if unknown:
-        problems.append(f"unknown key(s) {', '.join(map(repr, unknown))} (expected 'start', 'actions')")
+        problems.append(
+            f"unknown key(s) {', '.join(map(repr, unknown))} (expected 'start', 'actions', 'name')"
+        )
+    if "name" in doc and not isinstance(doc["name"], str):
+        problems.append(f"'name' must be a string, got {doc['name']!r}")
     start_pose = _pose(doc.get("start", {"x_m": 0, "y_m": 0, "yaw_deg": 0}), "start", problems)
     start_pose = start_pose or (0.0, 0.0, 0.0)
     actions_doc = doc.get("actions")

@@ -98,6 +98,8 @@ def test_route_json_round_trips(tmp_path):
         ({"actions": [{"kidnap": 3}]}, "actions[0]: kidnap"),
         ({"actions": [{"kidnap": {"x_m": 1, "z_m": 2}}]}, "unknown key(s) 'z_m'"),
         ([1, 2], "JSON object"),
+        ({"name": 5, "actions": [{"turn_deg": 1}]}, "'name' must be a string, got 5"),
+        ({"route": 1, "actions": [{"turn_deg": 1}]}, "(expected 'start', 'actions', 'name')"),
     ],
 )
 def test_bad_route_files_name_the_file_and_the_entry(tmp_path, doc, needle):
@@ -106,6 +108,15 @@ def test_bad_route_files_name_the_file_and_the_entry(tmp_path, doc, needle):
         routes.load_route_file(path)
     message = str(info.value)
     assert message.startswith(str(path)) and needle in message and "\n" not in message
+
+
+def test_a_key_given_twice_in_a_route_file_is_refused(tmp_path):
+    """JSON keeps the last of two equal keys: a second "start" replaced the first in silence."""
+    path = tmp_path / "twice.json"
+    path.write_text('{"start": {"x_m": 0}, "actions": [{"forward_m": 1}], "start": {"x_m": 5}}')
+    with pytest.raises(RouteError, match="key 'start' given twice") as info:
+        routes.load_route_file(path)
+    assert str(info.value).startswith(str(path))
 
 
 def test_laps_on_an_open_route_are_refused():
@@ -457,7 +468,8 @@ def test_bad_options_exit_2_with_one_line(tmp_path, capsys, option, needle):
 def test_laps_on_an_open_route_file_exit_2(tmp_path, capsys):
     route = _write_json(tmp_path / "open.json", {"actions": [{"forward_m": 1}]})
     assert main(["record", "-o", str(tmp_path / "x.mcap"), "--route", str(route), "--laps", "2"]) == 2
-    assert "open" in one_error_line(capsys.readouterr().err)
+    err = one_error_line(capsys.readouterr().err)
+    assert "open" in err and err.startswith(f"aslam: error: {route}: ")  # the file, not only its stem
 
 
 def test_existing_output_is_refused_without_force(tmp_path, capsys):
