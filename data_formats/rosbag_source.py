@@ -269,7 +269,10 @@ def _open_reader(path: Path) -> Iterator[Any]:
     except BagError as err:
         if not any(sign in str(err) for sign in _NO_INDEX_SIGNS):
             raise
-        raise BagError(f"{err.problem}; {_REINDEX_HINT}", path=path) from err
+        hint = _REINDEX_HINT
+        if path.is_file() and path.suffix.lower() == ".mcap":  # ours and a rosbag2 file look alike cut
+            hint += "; an aslam recording cut short that early holds nothing to read: record it again"
+        raise BagError(f"{err.problem}; {hint}", path=path) from err
     try:
         yield reader
     finally:
