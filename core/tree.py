@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import heapq
 import math
+import sys
 from bisect import bisect_left, insort
 from collections import deque
 from collections.abc import Callable
@@ -537,7 +538,12 @@ class HypothesisTree:
                 node.doubted = (
                     ruled_out or (best.is_new and not lost_track) or self._unsettled(best, keyframe)
                 )
-                node.settled_at = keyframe + (DOUBTED_CONFIRMATIONS if ruled_out else JUMP_CONFIRMATIONS)
+                if ruled_out and self._tracked_at == -math.inf:
+                    # No place was ever revisited: the map is one odometry chain, and a place it
+                    # rules out, unpaused, is no place the robot can be however long the views fit.
+                    node.settled_at = NEVER_SETTLED
+                else:
+                    node.settled_at = keyframe + (DOUBTED_CONFIRMATIONS if ruled_out else JUMP_CONFIRMATIONS)
                 if not drove_on:
                     node.carried_at = int(self._paused_at)
             leaves.append(node)
@@ -1291,6 +1297,14 @@ ceiling when no pause came before it: the robot drove on, so it was not carried,
 look-alike stretch until it outlasts one. The figure-8's two lobes, every wall from one set of
 textures, fit a look-alike track five keyframes in a row (docs/estimator.md, "Where two
 confirmations are not enough")."""
+NEVER_SETTLED = sys.maxsize
+"""``settled_at`` of a jump's line that stays under the ceiling for good: one to a place odometry
+rules out, with no pause before it, while the robot has never revisited a place. Its map is then one
+odometry chain, which can be wrong only by odometry's own noise (``RULED_OUT_SIGMA`` allows for it),
+so only a carry could have brought the robot there, and a carry takes a pause. A rectangle walked
+at aliasing 1.0 (bench/routes/longsteps.json, seed 84) shows its far half as the near half turned
+round: seven keyframes in a row fitted the first lap's start, more than any count of
+confirmations would wait (docs/estimator.md, "A look-alike before any revisit")."""
 RULED_OUT_SIGMA = 8.0
 """A place whose pose through the best leaf's map is this many σ from where odometry puts the robot
 is ruled out by odometry: the figure-8's look-alike lobe at aliasing 1.0 was 12–26 σ away (seeds 35,
