@@ -57,6 +57,7 @@ ROBUST_TABLES = {
     "robust_seeds_73_74": "robust_matrix_seeds_73_74.md",
     "robust_seeds_75_76": "robust_matrix_seeds_75_76.md",
     "robust_seeds_79_81": "robust_matrix_seeds_79_81.md",
+    "robust_seeds_84_85": "robust_matrix_seeds_84_85.md",
     "robust_geometric_check": "robust_matrix_geometric_check.md",
     "robust_recorder_settings": "robust_matrix_recorder_settings.md",
 }
