@@ -685,7 +685,20 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     scenarios = [Scenario(f, r, s) for f in args.families for r in args.routes for s in args.seeds]
     if args.cached_only:
-        scenarios = [s for s in scenarios if (args.cache / f"{s.base.name}.mcap").exists()]
+        cached = [s for s in scenarios if (args.cache / f"{s.base.name}.mcap").exists()]
+        if not cached:  # a table of nothing, exit 0, was what an empty or wrong cache gave
+            print(
+                f"robust_matrix: none of the {len(scenarios)} scenarios is rendered in {args.cache}",
+                file=sys.stderr,
+            )
+            return 2
+        if len(cached) < len(scenarios):
+            print(
+                f"robust_matrix: {len(scenarios) - len(cached)} of {len(scenarios)} scenarios not rendered"
+                f" in {args.cache}: skipped (--cached-only)",
+                file=sys.stderr,
+            )
+        scenarios = cached
     if args.render_only:
         for scenario in scenarios:
             recording(scenario, args.cache)
