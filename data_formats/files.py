@@ -815,7 +815,7 @@ def write_text_output(
     if is_stdout(target):
         if path is not None:
             check_output_path(path, force=force, error=error)
-        write: Callable[[], object] = functools.partial(_write_stdout, text)
+        write: Callable[[], None] = functools.partial(_write_stdout, text)
     else:
         assert path is not None
         write = functools.partial(
