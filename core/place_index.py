@@ -25,7 +25,8 @@ from __future__ import annotations
 import itertools
 import math
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -103,21 +104,22 @@ class PlaceIndex:
                 vectors.append(part)
                 batch.append(part)
             self._states.append(state)
-        if self._cells is not None and arriving[0]:
-            for cells, batch in zip(self._cells, arriving, strict=True):
-                cells.add(np.stack(batch))  # one call per part: a faiss call costs more than a place
         searchable = len(self._states)
         if not searchable:
             return np.zeros(0, np.int64)
         count = min(count, searchable)
         query = self._key_of(observation)
         found: set[int] = set()
-        if searchable <= self._exact_limit:
+        if searchable <= self._exact_limit:  # (cells, once made, only come with more places)
             for vectors, part in zip(self._vectors, query, strict=True):
                 # einsum, not BLAS: single-threaded and summed in a fixed order (same bytes every run).
                 similarity = np.einsum("ij,j->i", vectors.view, part)
                 found.update(self._states.view[np.argpartition(-similarity, count - 1)[:count]].tolist())
-        else:
+            return np.array(sorted(found), dtype=np.int64)
+        with _one_faiss_thread():
+            if self._cells is not None and arriving[0]:
+                for cells, batch in zip(self._cells, arriving, strict=True):
+                    cells.add(np.stack(batch))  # one call per part: a faiss call costs more than a place
             if self._cells is None or searchable >= REFIT_GROWTH * self._fitted_at:
                 self._cells = [_cells_of(vectors.view) for vectors in self._vectors]
                 self._fitted_at = searchable
@@ -137,14 +139,26 @@ class PlaceIndex:
         return parts
 
 
+@contextmanager
+def _one_faiss_thread() -> Iterator[None]:
+    """faiss on one OpenMP thread, its count put back after (a setting of the whole process: a
+    caller's own faiss work stays as it was). One query and one insertion at a time: OpenMP's
+    threads only add hand-offs (measured with the earlier HNSW index, a query and an insertion a
+    step at 40,000 places: 0.32 ms with two threads, 0.24 ms with one)."""
+    import faiss
+
+    before = faiss.omp_get_max_threads()
+    faiss.omp_set_num_threads(1)
+    try:
+        yield
+    finally:
+        faiss.omp_set_num_threads(before)
+
+
 def _cells_of(vectors: np.ndarray) -> Any:
     """An inverted file (inner product) holding ``vectors`` in √(``CELLS_SEARCHED`` × places) cells."""
     import faiss
 
-    # One query and one insertion at a time: OpenMP's threads only add hand-offs (measured with
-    # the earlier HNSW index, a query and an insertion a step at 40,000 places: 0.32 ms with two
-    # threads, 0.24 ms with one).
-    faiss.omp_set_num_threads(1)
     dimensions = vectors.shape[1]
     cells = max(1, min(len(vectors), round(math.sqrt(CELLS_SEARCHED * len(vectors)))))
     quantiser = faiss.IndexFlatIP(dimensions)  # the inverted file keeps a reference to it

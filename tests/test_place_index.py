@@ -88,3 +88,18 @@ def test_a_large_map_moves_into_cells_and_answers_the_same_every_time():
     # most of the exact shortlist, and always the place itself.
     assert np.mean(overlap) >= 0.75
     assert all(i in row for row, i in zip(first, queries, strict=True))
+
+
+def test_the_cells_leave_faiss_s_thread_count_as_it_was():
+    """faiss's OpenMP thread count is the whole process's: the index sets one thread for its own
+    calls and puts the count back (it was left at one: a caller's faiss work after an estimate ran
+    on one thread)."""
+    import faiss
+
+    faiss.omp_set_num_threads(3)
+    index = PlaceIndex((8,), skip=0, exact_limit=16)
+    rng = np.random.default_rng(0)
+    for state in range(40):
+        index.add(state, rng.random(8).astype(np.float32))
+    assert len(index.search(rng.random(8).astype(np.float32), 40, 3)) == 3 and index.approximate
+    assert faiss.omp_get_max_threads() == 3
