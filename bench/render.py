@@ -59,6 +59,8 @@ ROBUST_TABLES = {
     "robust_seeds_79_81": "robust_matrix_seeds_79_81.md",
     "robust_seeds_84_85": "robust_matrix_seeds_84_85.md",
     "robust_geometric_check": "robust_matrix_geometric_check.md",
+    "robust_seeds_82_83": "robust_matrix_seeds_82_83.md",
+    "robust_seeds_82_83_geometric_check": "robust_matrix_seeds_82_83_geometric_check.md",
     "robust_recorder_settings": "robust_matrix_recorder_settings.md",
 }
 """The robust-revisit matrix's tables (``bench/robust_matrix.py --markdown``), beside the results,
