@@ -5,14 +5,12 @@ option > ``--config`` file (TOML, an ``[estimator]`` table) > ``--paper-faithful
 
 from __future__ import annotations
 
-import codecs
-import sys
-import tomllib
 from pathlib import Path
 from typing import Any
 
 from aslam.core.config import EstimatorConfig
 from aslam.core.errors import ConfigError
+from aslam.data_formats.toml_files import read_toml
 
 CONFIG_TABLE = "estimator"
 
@@ -29,26 +27,6 @@ def estimator_options_markdown() -> str:
         meaning = help_text.replace("|", "/")
         rows.append(f"| `{option_name(name)}` | `{name}` | {kind.__name__} | {default} | {meaning} |")
     return "\n".join(rows) + "\n"
-
-
-def read_toml(path: Path, *, what: str) -> dict[str, Any]:
-    """The TOML document at ``path``; ConfigError naming the file on any read or parse problem. A
-    UTF-8 byte-order mark (Windows editors write one) is skipped, as in pose files: it was refused
-    as "Invalid statement (at line 1, column 1)", a line the file seems not to have."""
-    try:
-        return tomllib.loads(Path(path).read_bytes().removeprefix(codecs.BOM_UTF8).decode("utf-8"))
-    except FileNotFoundError as err:
-        raise ConfigError("no such file", path=path) from err
-    except IsADirectoryError as err:
-        raise ConfigError(f"is a directory, not {what}", path=path) from err
-    except OSError as err:
-        raise ConfigError(f"cannot read: {err.strerror or err}", path=path) from err
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
-        raise ConfigError(f"not valid TOML ({err})", path=path) from err
-    except ValueError as err:  # Python refuses to read an integer of thousands of digits
-        raise ConfigError(
-            f"a number of more than {sys.get_int_max_str_digits():,} digits", path=path
-        ) from err
 
 
 def type_problem(where: str, value: Any, kind: type) -> str | None:

@@ -23,7 +23,6 @@ the same sweep gives the same rows, except the timing and worker columns.
 from __future__ import annotations
 
 import contextlib
-import functools
 import gc
 import hashlib
 import json
@@ -50,16 +49,23 @@ from aslam.data_formats.files import (
     remove_stale_partials,
     source_sha256,
     utf8_text,
-    write_atomically,
     write_problem,
 )
 from aslam.data_formats.provenance import code_version, library_versions
+from aslam.data_formats.sweep_files import (
+    HASHES_FILE,
+    RESULTS_CSV,
+    RESULTS_PARQUET,
+    TASKS_FOLDER,
+    holds,
+    read_json_document,
+    table_file_bytes,
+    task_file,
+    write_json_document,
+    write_table_file,
+)
 from aslam.recorder.config import NoiseParams, RecordConfig
 
-RESULTS_PARQUET = "results.parquet"
-RESULTS_CSV = "results.csv"
-TASKS_FOLDER = "tasks"
-HASHES_FILE = "hashes.json"
 ESTIMATES_FOLDER = "estimates"
 RENDERS_FOLDER = "recordings"
 #: Dask settings of the local cluster :func:`open_client` starts (a cluster at ``--scheduler`` keeps
@@ -209,11 +215,8 @@ class HashCache:
         self.path = path
         self.entries: dict[str, dict[str, Any]] = {}
         if path is not None and use:
-            try:
-                loaded = json.loads(path.read_text())
-                self.entries = loaded if isinstance(loaded, dict) else {}
-            except (OSError, ValueError):
-                self.entries = {}
+            loaded = read_json_document(path)
+            self.entries = loaded if isinstance(loaded, dict) else {}
         self.changed = False
 
     def sha256(self, recording: Path) -> str:
@@ -234,8 +237,7 @@ class HashCache:
 
     def save(self) -> None:
         if self.path is not None and self.changed:
-            text = json.dumps(self.entries, sort_keys=True, indent=1) + "\n"
-            write_atomically(self.path, lambda temporary: temporary.write_text(text))
+            write_json_document(self.path, self.entries)
 
 
 def plan_tasks(sweep: Sweep, results_dir: Path, *, hashes: HashCache | None = None) -> list[Task]:
@@ -407,24 +409,17 @@ def run_task(task: Task, rendered: Rendered | None = None) -> TaskResult:
 # --- saved results ---------------------------------------------------------------------------------
 
 
-def _task_file(results_dir: Path, key: str) -> Path:
-    return results_dir / TASKS_FOLDER / f"{key[:16]}.json"
-
-
 def save_result(results_dir: Path, result: TaskResult) -> None:
     """Keep a finished task's result (atomically), so that a re-run can skip it."""
-    path = _task_file(results_dir, result.key)
-    text = json.dumps(asdict(result), sort_keys=True, indent=1) + "\n"
-    write_atomically(path, lambda temporary: temporary.write_text(text))
+    write_json_document(task_file(results_dir, result.key), asdict(result))
 
 
 def load_result(results_dir: Path, task: Task) -> TaskResult | None:
     """The saved successful result of ``task``, or None (absent, failed, unreadable or another task's)."""
-    path = _task_file(results_dir, task.key)
+    data = read_json_document(task_file(results_dir, task.key))
     try:
-        data = json.loads(path.read_text())
         result = TaskResult(**{**data, "index": task.index, "warnings": tuple(data["warnings"])})
-    except (OSError, ValueError, TypeError, KeyError):
+    except (ValueError, TypeError, KeyError):
         return None
     return result if result.ok and result.key == task.key else None
 
@@ -1259,15 +1254,7 @@ def table_bytes(
     extra_figures: Iterable[str] = (),
 ) -> dict[str, bytes]:
     """``results.parquet`` and ``results.csv`` as they should read, by file name."""
-    import pyarrow as pa
-    import pyarrow.csv
-    import pyarrow.parquet
-
-    table = arrow_table(sweep, tasks, results, extra_figures)
-    parquet, csv = pa.BufferOutputStream(), pa.BufferOutputStream()
-    pyarrow.parquet.write_table(table, parquet)
-    pyarrow.csv.write_csv(table, csv)
-    return {RESULTS_PARQUET: parquet.getvalue().to_pybytes(), RESULTS_CSV: csv.getvalue().to_pybytes()}
+    return table_file_bytes(arrow_table(sweep, tasks, results, extra_figures))
 
 
 def write_tables(
@@ -1284,7 +1271,7 @@ def write_tables(
     cannot be written, tables out of date (another ``--pareto``'s columns, recordings moved) are
     left as they are, with a warning."""
     tables = table_bytes(sweep, tasks, results, extra_figures)
-    stale = {name: data for name, data in tables.items() if not _holds(results_dir / name, data)}
+    stale = {name: data for name, data in tables.items() if not holds(results_dir / name, data)}
     if not stale:
         return False
     problem = write_problem(results_dir)
@@ -1296,15 +1283,8 @@ def write_tables(
             )
         return False
     for name, data in stale.items():
-        write_atomically(results_dir / name, functools.partial(Path.write_bytes, data=data))
+        write_table_file(results_dir / name, data)
     return True
-
-
-def _holds(path: Path, data: bytes) -> bool:
-    try:
-        return path.stat().st_size == len(data) and path.read_bytes() == data
-    except OSError:
-        return False
 
 
 # --- selection -------------------------------------------------------------------------------------

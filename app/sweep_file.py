@@ -19,10 +19,11 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from aslam.app.config_file import read_toml, type_problem
+from aslam.app.config_file import type_problem
 from aslam.core.config import REPORT_RANGES, REVISIT_HEADING_DEG, REVISIT_RADIUS_M, EstimatorConfig
 from aslam.core.errors import ConfigError
 from aslam.data_formats.files import file_name_from_utf8, full_path
+from aslam.data_formats.toml_files import read_toml
 from aslam.recorder.config import CameraSpec, NoiseModel, NoiseParams, RecordConfig, parse_size
 
 DEFAULT_FIGURES = (

@@ -1,0 +1,36 @@
+"""TOML files the tool reads: an estimator configuration (``estimate --config``), a sweep file.
+
+Read whole, a UTF-8 byte-order mark skipped; every read or parse problem one ConfigError naming
+the file. What the document must hold is checked by its reader (``aslam.app.config_file``,
+``aslam.app.sweep_file``).
+"""
+
+from __future__ import annotations
+
+import codecs
+import sys
+import tomllib
+from pathlib import Path
+from typing import Any
+
+from aslam.core.errors import ConfigError
+
+
+def read_toml(path: Path, *, what: str) -> dict[str, Any]:
+    """The TOML document at ``path``; ConfigError naming the file on any read or parse problem. A
+    UTF-8 byte-order mark (Windows editors write one) is skipped, as in pose files: it was refused
+    as "Invalid statement (at line 1, column 1)", a line the file seems not to have."""
+    try:
+        return tomllib.loads(Path(path).read_bytes().removeprefix(codecs.BOM_UTF8).decode("utf-8"))
+    except FileNotFoundError as err:
+        raise ConfigError("no such file", path=path) from err
+    except IsADirectoryError as err:
+        raise ConfigError(f"is a directory, not {what}", path=path) from err
+    except OSError as err:
+        raise ConfigError(f"cannot read: {err.strerror or err}", path=path) from err
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise ConfigError(f"not valid TOML ({err})", path=path) from err
+    except ValueError as err:  # Python refuses to read an integer of thousands of digits
+        raise ConfigError(
+            f"a number of more than {sys.get_int_max_str_digits():,} digits", path=path
+        ) from err
