@@ -506,9 +506,12 @@ class HypothesisTree:
                     if leaf.settled_at <= keyframe
                 )
             )
+            # A line that never settles stays under the ceiling through its new places too: its
+            # history (the look-alike's claims) must never become the best map after the stretch.
             children = [
                 (min(log_belief, ceiling), parent, state, is_new)
-                if not is_new and parent.settled_at > keyframe and (parent.doubted or explained - {state})
+                if (not is_new and parent.settled_at > keyframe and (parent.doubted or explained - {state}))
+                or parent.settled_at == NEVER_SETTLED
                 else (log_belief, parent, state, is_new)
                 for log_belief, parent, state, is_new in children
             ]
@@ -538,9 +541,9 @@ class HypothesisTree:
                 node.doubted = (
                     ruled_out or (best.is_new and not lost_track) or self._unsettled(best, keyframe)
                 )
-                if ruled_out and self._tracked_at == -math.inf:
-                    # No place was ever revisited: the map is one odometry chain, and a place it
-                    # rules out, unpaused, is no place the robot can be however long the views fit.
+                if ruled_out and self._map_is_one_chain():
+                    # A place one odometry chain rules out, unpaused, is no place the robot can be
+                    # however long the views fit.
                     node.settled_at = NEVER_SETTLED
                 else:
                     node.settled_at = keyframe + (DOUBTED_CONFIRMATIONS if ruled_out else JUMP_CONFIRMATIONS)
@@ -568,6 +571,11 @@ class HypothesisTree:
         self._commit_shared_history()
         self._record_count(len(leaves))
         return self.hypotheses()
+
+    def _map_is_one_chain(self) -> bool:
+        """Whether the best hypothesis has never named a mapped place: its map is then one odometry
+        chain, wrong only by odometry's own noise (``NEVER_SETTLED``)."""
+        return self._tracked_at == -math.inf
 
     def _ruled_out_by_odometry(self, state: int, action: np.ndarray, action_cov: np.ndarray) -> bool:
         """Whether the best leaf's map puts ``state`` so far from where odometry says the robot is
@@ -1301,7 +1309,8 @@ NEVER_SETTLED = sys.maxsize
 """``settled_at`` of a jump's line that stays under the ceiling for good: one to a place odometry
 rules out, with no pause before it, while the robot has never revisited a place. Its map is then one
 odometry chain, which can be wrong only by odometry's own noise (``RULED_OUT_SIGMA`` allows for it),
-so only a carry could have brought the robot there, and a carry takes a pause. A rectangle walked
+so only a carry could have brought the robot there, and a carry takes a pause. The line's new
+places stay under the ceiling too, so its history never becomes the best map. A rectangle walked
 at aliasing 1.0 (bench/routes/longsteps.json, seed 84) shows its far half as the near half turned
 round: seven keyframes in a row fitted the first lap's start, more than any count of
 confirmations would wait (docs/estimator.md, "A look-alike before any revisit")."""
