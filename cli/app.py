@@ -26,7 +26,8 @@ if TYPE_CHECKING:
     from aslam.data_formats.files import CommandFiles
 
 EXIT_OK = 0
-EXIT_BAD_INPUT = 2  # exit 1, 3: an AslamError's own exit_code (a --fail-on gate; sweep tasks that failed)
+EXIT_BAD_INPUT = 2
+EXIT_TASKS_FAILED = 3  # `aslam sweep`: some tasks failed (app.sweep.TasksFailed); --help lists each EXIT_
 EXIT_INTERNAL = 70
 EXIT_INTERRUPTED = 130
 EXIT_CLOSED_PIPE = 141  # 128 + SIGPIPE, what a shell reports for a tool killed by a closed pipe
