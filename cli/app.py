@@ -342,6 +342,8 @@ def _dispatch(argv: list[str] | None, files: CommandFiles | None) -> int:
         interrupt = _interrupt_behind(err)  # a library swallowed the signal, then failed for it
         if interrupt is not None:
             raise interrupt from err
+        if _is_closed_pipe(err):  # an output written to a pipe whose reader left (`-o /dev/stdout | head`)
+            raise _Failed(EXIT_CLOSED_PIPE) from err
         error_line(str(err))
         raise _Failed(err.exit_code) from err
     except typer.Abort as err:

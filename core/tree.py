@@ -573,9 +573,10 @@ class HypothesisTree:
         return self.hypotheses()
 
     def _map_is_one_chain(self) -> bool:
-        """Whether the best hypothesis has never named a mapped place: its map is then one odometry
-        chain, wrong only by odometry's own noise (``NEVER_SETTLED``)."""
-        return self._tracked_at == -math.inf
+        """Whether the best hypothesis has never named a mapped place, in a run with no prior map
+        (``--map``, whose links another session measured): its map is then one odometry chain,
+        wrong only by odometry's own noise (``NEVER_SETTLED``)."""
+        return self._tracked_at == -math.inf and not len(self._map_states)
 
     def _ruled_out_by_odometry(self, state: int, action: np.ndarray, action_cov: np.ndarray) -> bool:
         """Whether the best leaf's map puts ``state`` so far from where odometry says the robot is

@@ -118,18 +118,32 @@ def is_stream_output(path: Path | str) -> bool:
     return stat.S_ISCHR(mode) or stat.S_ISFIFO(mode) or stat.S_ISSOCK(mode)
 
 
+_STDOUT_NAMES = ("-", "/dev/stdout", "/dev/fd/1", "/proc/self/fd/1")
+_STDERR_NAMES = ("/dev/stderr", "/dev/fd/2", "/proc/self/fd/2")
+
+
 def is_stdout(target: Path | str) -> bool:
-    """``-``, or a stream name for this process's stdout (``/dev/stdout``, ``/dev/fd/1``, the pipe
-    itself): a result for it goes through ``sys.stdout``, after what the command printed there, and
-    adds to a file stdout was sent to (``>> log``) where opening the name would have truncated it."""
-    if str(target) == "-":
-        return True
-    if not is_stream_output(target):
-        return False
-    try:
-        return os.path.samestat(os.stat(target), os.fstat(1))
-    except OSError:
-        return False
+    """``-`` or a name of this process's stdout (``/dev/stdout``, ``/dev/fd/1``): a result for it goes
+    through ``sys.stdout``, after what the command printed there, and adds to a file stdout was sent
+    to (``>> log``) where opening the name would have truncated it. Names only: ``/dev/null`` is no
+    stdout even when stdout was sent there."""
+    return str(target) in _STDOUT_NAMES
+
+
+def is_stderr(target: Path | str) -> bool:
+    """A name of this process's stderr (``/dev/stderr``, ``/dev/fd/2``). While a command runs,
+    descriptor 2 points at /dev/null (C libraries' own warnings, ``aslam.cli.app``) and ``sys.stderr``
+    at the real stderr: a result for it is written there, not to the name."""
+    return str(target) in _STDERR_NAMES
+
+
+def _open_stream(path: Path) -> IO[bytes]:
+    """A stream output opened for appending (a log stdout or stderr was sent to with ``>>`` keeps its
+    lines); stderr's names open the real stderr (see :func:`is_stderr`)."""
+    if is_stderr(path):
+        with contextlib.suppress(AttributeError, ValueError, io.UnsupportedOperation):
+            return os.fdopen(os.dup(sys.stderr.fileno()), "ab")
+    return open(path, "ab")
 
 
 class _CountedStream(io.BufferedIOBase):
@@ -698,7 +712,7 @@ class AtomicFile:
             _warn_stale(self.target)
         try:
             if self.direct:  # appended to: a file stdout was sent to with ``>> log`` keeps its lines
-                self.file: IO[bytes] = cast(IO[bytes], _CountedStream(open(self.path, "ab")))  # noqa: SIM115
+                self.file: IO[bytes] = cast(IO[bytes], _CountedStream(_open_stream(self.path)))
             else:
                 self.partial_path = _temporary(self.target)
                 self.file = open(self.partial_path, "wb")  # noqa: SIM115 (closed by commit/abort)
@@ -812,10 +826,10 @@ def write_text_output(
     waits in :attr:`CommandFiles.results` until every file output is in place.
     """
     path = None if str(target) == "-" else Path(target)
-    if is_stdout(target):
+    if is_stdout(target) or is_stderr(target):
         if path is not None:
             check_output_path(path, force=force, error=error)
-        write: Callable[[], None] = functools.partial(_write_stdout, text)
+        write: Callable[[], None] = functools.partial(_write_stdout, text, to_stderr=is_stderr(target))
     else:
         assert path is not None
         write = functools.partial(
@@ -830,22 +844,27 @@ def write_text_output(
 
 
 def _write_text(path: Path, text: str) -> None:
-    """``text`` into a new temporary file, or appended to a stream (``/dev/stderr`` sent to a file
-    with ``2>> log`` is added to, not truncated)."""
-    with open(path, "a" if is_stream_output(path) else "w", encoding="utf-8") as file:
+    """``text`` into a new temporary file, or appended to a stream (a FIFO, ``/dev/fd/3`` sent to a
+    file with ``3>> log``, which keeps its lines)."""
+    if is_stream_output(path):
+        with _open_stream(path) as stream:
+            stream.write(text.encode("utf-8"))
+        return
+    with open(path, "w", encoding="utf-8") as file:
         file.write(text)
 
 
-def _write_stdout(text: str) -> None:
-    """``text`` on stdout; a failure other than a closed pipe (the CLI's exit 141) names stdout,
-    also where the command's outputs are committed, after the command's own code has returned."""
+def _write_stdout(text: str, *, to_stderr: bool = False) -> None:
+    """``text`` on stdout (or stderr); a failure other than a closed pipe (the CLI's exit 141) names
+    the stream, also where the command's outputs are committed, after its own code has returned."""
+    stream = sys.stderr if to_stderr else sys.stdout
     try:
-        sys.stdout.write(text)
-        sys.stdout.flush()
+        stream.write(text)
+        stream.flush()
     except BrokenPipeError:
         raise
     except OSError as err:
-        raise InputError(err.strerror or str(err), path="stdout") from err
+        raise InputError(err.strerror or str(err), path="stderr" if to_stderr else "stdout") from err
 
 
 def open_mcap_input(path: Path, *, error: type[InputError], what: str) -> tuple[int, int]:

@@ -194,6 +194,40 @@ def test_a_result_for_stdout_by_name_adds_to_a_redirected_log(estimate_file: Pat
     assert done.returncode == 2 and "cannot both write to stdout" in done.stderr
 
 
+def test_stream_outputs_by_name_dev_null_stderr_and_a_closed_pipe(
+    recording: Path, estimate_file: Path, tmp_path
+):
+    """``/dev/null`` is no stdout even when stdout was sent there (two results into it were refused as
+    both on stdout); ``/dev/stderr`` reaches the real stderr (descriptor 2 points at /dev/null while a
+    command runs) and adds to a log; an MCAP output to a pipe whose reader left is exit 141, quietly
+    (it was exit 2, ``cannot write: Broken pipe``)."""
+    both = [str(ASLAM), "report", str(estimate_file), "--graph", "/dev/null", "--json", "/dev/null", "-q"]
+    assert subprocess.run(both, stdout=subprocess.DEVNULL, timeout=120).returncode == 0
+    log = tmp_path / "log"
+    log.write_text("earlier line\n")
+    with log.open("a") as stderr:
+        done = subprocess.run(
+            [str(ASLAM), "report", str(estimate_file), "--json", "/dev/stderr", "-q"],
+            stdout=subprocess.DEVNULL,
+            stderr=stderr,
+            timeout=120,
+        )
+    assert done.returncode == 0
+    text = log.read_text()
+    assert (
+        text.startswith("earlier line\n") and json.loads(text.removeprefix("earlier line\n"))["keyframes"] > 0
+    )
+    piped = subprocess.run(
+        f"{ASLAM} estimate {recording} -o /dev/stdout -q | head -c 10 > /dev/null; echo ${{PIPESTATUS[0]}}",
+        shell=True,
+        executable="/bin/bash",
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert piped.stdout.strip() == "141" and piped.stderr == ""
+
+
 def test_a_symlink_output_is_followed_and_its_target_replaced(estimate_file: Path, tmp_path: Path):
     target = tmp_path / "target.json"
     target.write_text("old")
