@@ -829,7 +829,8 @@ def write_text_output(
     if is_stdout(target) or is_stderr(target):
         if path is not None:
             check_output_path(path, force=force, error=error)
-        write: Callable[[], None] = functools.partial(_write_stdout, text, to_stderr=is_stderr(target))
+        stream = "stderr" if is_stderr(target) else "stdout"
+        write: Callable[[], None] = functools.partial(_write_standard_stream, text, stream)
     else:
         assert path is not None
         write = functools.partial(
@@ -854,17 +855,18 @@ def _write_text(path: Path, text: str) -> None:
         file.write(text)
 
 
-def _write_stdout(text: str, *, to_stderr: bool = False) -> None:
-    """``text`` on stdout (or stderr); a failure other than a closed pipe (the CLI's exit 141) names
-    the stream, also where the command's outputs are committed, after its own code has returned."""
-    stream = sys.stderr if to_stderr else sys.stdout
+def _write_standard_stream(text: str, name: str) -> None:
+    """``text`` on ``sys.stdout`` or ``sys.stderr`` (``name``); a failure other than a closed pipe
+    (the CLI's exit 141) names the stream, also where the command's outputs are committed, after
+    its own code has returned."""
+    stream = getattr(sys, name)
     try:
         stream.write(text)
         stream.flush()
     except BrokenPipeError:
         raise
     except OSError as err:
-        raise InputError(err.strerror or str(err), path="stderr" if to_stderr else "stdout") from err
+        raise InputError(err.strerror or str(err), path=name) from err
 
 
 def open_mcap_input(path: Path, *, error: type[InputError], what: str) -> tuple[int, int]:
