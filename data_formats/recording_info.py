@@ -52,7 +52,8 @@ class RecordingInfo:
             camera = {
                 "width_px": c.width_px,
                 "height_px": c.height_px,
-                "fov_deg": c.fov_deg,
+                # derived from the camera info's fx by an arctangent: 60° came back as 59.99999999999999
+                "fov_deg": round(c.fov_deg, 9),
                 "fx": c.fx,
                 "fy": c.fy,
                 "cx": c.cx,

@@ -74,10 +74,11 @@ def write_recording(
     metadata: dict[str, str] | None = None,
     with_ground_truth: bool = True,
     chunk_size_bytes: int = 1024 * 1024,
+    camera: CameraIntrinsics = CAMERA,
 ) -> Path:
     with RecordingWriter(
         path,
-        camera=CAMERA,
+        camera=camera,
         metadata=metadata if metadata is not None else {"seed": "7"},
         chunk_size_bytes=chunk_size_bytes,
     ) as writer:

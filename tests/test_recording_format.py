@@ -417,6 +417,14 @@ def test_info_json_describes_the_recording(tmp_path, capsys):
     assert report["truncated"] is False and report["warnings"] == []
 
 
+def test_info_json_gives_the_field_of_view_as_recorded(tmp_path, capsys):
+    """It comes back from fx through an arctangent: 60° was 59.99999999999999."""
+    camera = CameraIntrinsics(width_px=32, height_px=24, fov_deg=60.0)
+    path = write_recording(tmp_path / "r.mcap", random_frames(2), camera=camera)
+    assert main(["info", str(path), "--json", "-"]) == 0
+    assert json.loads(capsys.readouterr().out)["camera"]["fov_deg"] == 60.0
+
+
 def test_info_reports_progress_against_the_image_count(tmp_path):
     """The application function the command, bench and tests share: one call per image read."""
     from aslam.app.info import describe
