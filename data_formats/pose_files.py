@@ -29,6 +29,7 @@ import numpy as np
 
 from aslam.core.errors import InputError
 from aslam.data_formats import ros_msgs
+from aslam.data_formats.files import check_input_file
 from aslam.data_formats.format_names import PoseFormat, StampUnit
 from aslam.data_formats.pose_limits import implausible
 
@@ -43,11 +44,24 @@ class PoseRow(NamedTuple):
     pose: np.ndarray  # (x_m, y_m, yaw_rad)
 
 
+MAX_LINE_CHARS = 65_536
+"""A pose line is a few numbers; a longer one is no pose file (a binary file with no newline was read
+whole into one line)."""
+
+
 def _lines(path: Path) -> Iterator[tuple[int, str]]:
-    """``(line number, stripped text)`` of every line that is not blank or a comment."""
+    """``(line number, stripped text)`` of every line that is not blank or a comment.
+
+    Only a regular file is read (a FIFO was waited on for ever, ``/dev/zero`` read until memory ran
+    out), a line at a time, each bounded."""
+    check_input_file(path, error=PoseFileError, what="a pose file")
     try:
         with path.open(encoding="utf-8-sig") as f:  # a byte-order mark (Windows editors) is no text
-            for number, raw in enumerate(f, start=1):
+            for number, raw in enumerate(iter(lambda: f.readline(MAX_LINE_CHARS + 1), ""), start=1):
+                if len(raw) > MAX_LINE_CHARS:
+                    raise PoseFileError(
+                        f"line {number}: longer than {MAX_LINE_CHARS:,} characters", path=path
+                    )
                 text = raw.strip()
                 if text and not text.startswith("#"):
                     yield number, text

@@ -14,12 +14,22 @@ from pathlib import Path
 from typing import Any
 
 from aslam.core.errors import ConfigError
+from aslam.data_formats.files import check_input_file
+
+MAX_FILE_BYTES = 10_000_000
+"""A configuration or a sweep is a page of text; the bound keeps a wrong file (a recording given as
+``--config``) from being read whole before it is refused."""
 
 
 def read_toml(path: Path, *, what: str) -> dict[str, Any]:
     """The TOML document at ``path``; ConfigError naming the file on any read or parse problem. A
     UTF-8 byte-order mark (Windows editors write one) is skipped, as in pose files: it was refused
-    as "Invalid statement (at line 1, column 1)", a line the file seems not to have."""
+    as "Invalid statement (at line 1, column 1)", a line the file seems not to have.
+
+    Only a regular file is read: a FIFO was waited on for ever and ``/dev/zero`` read until the
+    machine ran out of memory."""
+    if check_input_file(Path(path), error=ConfigError, what=what) > MAX_FILE_BYTES:
+        raise ConfigError(f"is larger than {MAX_FILE_BYTES:,} bytes, not {what}", path=path)
     try:
         return tomllib.loads(Path(path).read_bytes().removeprefix(codecs.BOM_UTF8).decode("utf-8"))
     except FileNotFoundError as err:

@@ -255,6 +255,52 @@ def test_fifo_input_is_refused_at_once(tmp_path: Path):
     assert done.stderr.splitlines() == [f"aslam: error: {fifo}: {problem}"]
 
 
+@pytest.mark.parametrize(
+    "command, what",
+    [
+        (["estimate", "{recording}", "-o", "{tmp}/e.mcap", "--config", "{input}"], "a TOML file"),
+        (["sweep", "{input}", "-o", "{tmp}/sweep", "--dry-run"], "a sweep file"),
+        (["import", "{tmp}/images", "-o", "{tmp}/i.mcap", "--odometry", "{input}"], "a pose file"),
+        (["import", "{tmp}/images", "-o", "{tmp}/i.mcap", "--ground-truth", "{input}"], "a pose file"),
+    ],
+)
+@pytest.mark.parametrize("kind", ["fifo", "/dev/zero"])
+def test_text_inputs_must_be_regular_files(
+    recording: Path, tmp_path: Path, command: list[str], what: str, kind: str
+):
+    """A FIFO given as a configuration, a sweep or a pose file was waited on for ever, and
+    ``/dev/zero`` read until the machine ran out of memory (the kernel killed it at 24 GB)."""
+    source = tmp_path / "in.txt"
+    if kind == "fifo":
+        os.mkfifo(source)
+    else:
+        source = Path(kind)
+    (tmp_path / "images").mkdir()
+    (tmp_path / "images" / "0.png").write_bytes(
+        encode_image(np.zeros((8, 8, 3), np.uint8), ImageFormat.PNG).data
+    )
+    argv = [part.format(recording=recording, tmp=tmp_path, input=source) for part in command]
+    done = subprocess.run([str(ASLAM), *argv], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2
+    problem = f"is not a regular file (a FIFO, socket or device), not {what}"
+    assert done.stderr.splitlines() == [f"aslam: error: {source}: {problem}"]
+
+
+def test_a_pose_file_line_is_bounded(tmp_path: Path, capsys):
+    """A file with no newline (a binary file given as a pose file) was read whole as one line."""
+    (tmp_path / "images").mkdir()
+    (tmp_path / "images" / "0.png").write_bytes(
+        encode_image(np.zeros((8, 8, 3), np.uint8), ImageFormat.PNG).data
+    )
+    poses = tmp_path / "p.txt"
+    poses.write_text("1 " * 40_000)
+    assert (
+        main(["import", str(tmp_path / "images"), "-o", str(tmp_path / "i.mcap"), "--odometry", str(poses)])
+        == 2
+    )
+    one_error_line(capsys, f"{poses}: line 1: longer than 65,536 characters")
+
+
 def test_closed_stdout_ends_quietly_with_141(estimate_file: Path, tmp_path: Path):
     out = tmp_path / "s.json"
     process = subprocess.Popen(
