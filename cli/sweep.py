@@ -8,6 +8,7 @@ only when the command runs.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -111,17 +112,16 @@ def sweep(
     from aslam.app.sweep import resolve_objectives, run_sweep, scheduler_address
     from aslam.app.sweep_file import read_sweep_file
     from aslam.core.errors import InputError
-    from aslam.data_formats.files import check_output_path
 
     terminal = Terminal(quiet=quiet, verbose=verbose)
     if json_out is not None and not dry_run:
         raise InputError("--json writes the plan of --dry-run; give both")
-    if json_out is not None and json_out != "-":  # before the recordings are hashed
-        check_output_path(Path(json_out), force=True, inputs=[sweep_file])
     if scheduler_file is not None and scheduler is not None:
         raise InputError("--scheduler and --scheduler-file both name the cluster; give one")
     objectives = resolve_objectives(pareto) if pareto is not None else []
     spec = read_sweep_file(sweep_file)
+    if json_out is not None and json_out != "-":  # before the recordings are hashed
+        _check_plan_output(Path(json_out), sweep_file, spec.recordings, output, force=force)
     if scheduler_file is not None:
         scheduler = scheduler_address(scheduler_file)
     # what a run and a dry run both take, so that the dry run plans exactly what the run would do
@@ -158,6 +158,24 @@ def sweep(
     if objectives:
         _print_pareto(run, objectives)
     run.check()
+
+
+def _check_plan_output(
+    path: Path, sweep_file: Path, recordings: Sequence[Path], output: Path, *, force: bool
+) -> None:
+    """The plan's JSON replaces an existing file only with ``--force``, and never an input (the sweep
+    file, a recording, a file inside a bag folder) or a file of the results folder, which the dry
+    run reads: it replaced a recording the sweep reads, in silence."""
+    from aslam.core.errors import InputError
+    from aslam.data_formats.files import check_output_path, real_path
+
+    real = real_path(path)
+    for folder in (output, *(recording for recording in recordings if recording.is_dir())):
+        if real.is_relative_to(real_path(folder)):
+            raise InputError(
+                f"is inside {folder}, which this sweep reads; refusing to write there", path=path
+            )
+    check_output_path(path, force=force, inputs=[sweep_file, *recordings])
 
 
 def _dry_run(

@@ -22,6 +22,7 @@ import psutil
 import pyarrow.csv
 import pyarrow.parquet
 import pytest
+from conftest import random_frames, write_recording
 from distributed import Client
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -1523,3 +1524,24 @@ def test_the_live_table_shows_a_name_with_control_characters_escaped(tmp_path, r
     Console(file=screen, width=200, force_terminal=True).print(display._render())
     [row] = [line for line in screen.getvalue().splitlines() if "n\\n" in line]
     assert "n\\n\\x1b[31m.mcap" in row and "bad\\nline" in row
+
+
+def test_the_plan_json_replaces_no_input_and_no_file_without_force(tmp_path, capsys):
+    """``--dry-run --json REC.mcap`` replaced a recording the sweep reads with its plan, in silence,
+    and an existing file was replaced without ``--force``."""
+    recording = write_recording(tmp_path / "rec.mcap", random_frames(3))
+    before = recording.read_bytes()
+    sweep = tmp_path / "s.toml"
+    sweep.write_text('[recordings]\npaths = ["rec.mcap"]\n')
+    dry = ["sweep", str(sweep), "-o", str(tmp_path / "out"), "--dry-run", "-q", "--json"]
+    assert main([*dry, str(recording)]) == 2
+    assert "resolves to an input of this command" in capsys.readouterr().err
+    assert recording.read_bytes() == before
+    assert main([*dry, str(tmp_path / "out" / "plan.json")]) == 2
+    assert "which this sweep reads" in capsys.readouterr().err
+    plan = tmp_path / "plan.json"
+    assert main([*dry, str(plan)]) == 0
+    assert main([*dry, str(plan)]) == 2
+    assert "already exists" in capsys.readouterr().err
+    assert main([*dry, str(plan), "--force"]) == 0
+    assert json.loads(plan.read_text())["tasks"] == 1
