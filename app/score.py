@@ -642,6 +642,9 @@ def _find_recording(
     if given is not None:
         if not given.exists():
             raise InputError("no such recording", path=given)
+        # Given by name, it must be one: a FIFO, an empty or a non-MCAP file, an image folder was
+        # a warning and a report without truth, exit 0 (a FIFO's size said "0 bytes").
+        open_input(given)
         size = source_size_bytes(given)
         if size != info.metadata.recording.size_bytes:  # another file: a bag with the truth, or a mistake
             warn(

@@ -730,6 +730,27 @@ def test_report_refuses_a_trajectory_format_with_no_trajectory_and_a_stream_befo
     assert not Path("/dev/null.odometry").exists()
 
 
+@pytest.mark.parametrize("kind", ["fifo", "empty", "text", "folder", "estimate"])
+def test_report_refuses_a_recording_given_that_is_none(
+    estimate_file: Path, tmp_path: Path, capsys, kind: str
+):
+    """Given by name, ``--recording`` must be one: a FIFO, an empty or a text file, a folder, an
+    estimate were a warning and a report without truth, exit 0."""
+    given = {"fifo": tmp_path / "f.mcap", "empty": tmp_path / "e.mcap", "text": tmp_path / "t.mcap"}.get(kind)
+    if kind == "fifo":
+        os.mkfifo(given)
+    elif kind == "empty":
+        given.write_bytes(b"")
+    elif kind == "text":
+        given.write_text("not a recording\n")
+    elif kind == "folder":
+        given = tmp_path
+    else:
+        given = estimate_file
+    assert main(["report", str(estimate_file), "--recording", str(given), "--json", "-"]) == 2
+    assert one_error_line(capsys.readouterr().err).startswith(f"aslam: error: {given}: ")
+
+
 def test_report_against_another_recording_says_so(estimate_file: Path, tmp_path: Path, capsys):
     """A ground truth from another file is allowed (a bag with the truth beside an imported
     folder), but not silently: a different file is named in a warning."""
