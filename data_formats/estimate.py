@@ -654,18 +654,38 @@ def _graph(raw: Mapping[str, Any], path: Path) -> EstimateGraph:
 
 
 def _graph_reference_problem(graph: EstimateGraph) -> str | None:
-    """What a schema cannot say: links name states that exist, states name keyframes that exist."""
+    """What a schema cannot say: links name states that exist; every keyframe is in exactly one
+    state (so the count is the file's, never a number a map in ``--map`` allocates by: 10¹⁵ asked
+    for petabytes); each link's covariance is one (symmetric, positive definite: a zero one
+    divided by zero in the motion model)."""
     ids = {state.id for state in graph.states}
     if graph.first_keyframe > graph.keyframes:
         return f"first_keyframe {graph.first_keyframe} is beyond the {graph.keyframes} keyframes"
     if len(ids) != len(graph.states):
         return "two states share an id"
+    seen = 0
     for state in graph.states:
         if any(k >= graph.keyframes for k in state.keyframes):
             return f"state {state.id} names a keyframe beyond the {graph.keyframes} keyframes"
+        seen += len(state.keyframes)
+    if seen != graph.keyframes or len({k for state in graph.states for k in state.keyframes}) != seen:
+        return f"the states do not hold each of the {graph.keyframes} keyframes once"
     for link in graph.links:
         if link.from_state not in ids or link.to_state not in ids:
             return f"link {link.from_state} → {link.to_state} names a state that does not exist"
+    if graph.links:
+        covariances = np.array([link.covariance for link in graph.links], dtype=float)
+        symmetric = np.abs(covariances - covariances.transpose(0, 2, 1)) <= 1e-9 * np.abs(covariances).max(
+            initial=0.0
+        )
+        with np.errstate(all="ignore"):
+            definite = np.linalg.eigvalsh(covariances).min(axis=1) > 0
+        bad = np.flatnonzero(~(symmetric.all(axis=(1, 2)) & definite))
+        if len(bad):
+            link = graph.links[int(bad[0])]
+            return (
+                f"link {link.from_state} → {link.to_state}: its covariance is not symmetric positive definite"
+            )
     return None
 
 

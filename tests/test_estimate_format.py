@@ -45,12 +45,23 @@ def runs(draw):
         )
         for i in range(n)
     ]
-    ids = draw(st.lists(st.integers(0, keyframes - 1), min_size=1, max_size=keyframes, unique=True))
-    states = tuple(
-        MapState(i, tuple(draw(st.lists(st.integers(0, keyframes - 1), max_size=4, unique=True))))
-        for i in ids
+    # a map: every keyframe in exactly one state, each state named by one of its keyframes
+    owner = draw(st.lists(st.integers(0, keyframes - 1), min_size=keyframes, max_size=keyframes))
+    groups: dict[int, list[int]] = {}
+    for k in draw(st.permutations(range(keyframes))):
+        groups.setdefault(owner[k], []).append(k)
+    states = tuple(MapState(min(members), tuple(members)) for members in groups.values())
+    ids = [state.id for state in states]
+    # a covariance: symmetric positive definite, A Aᵀ + a floor, over many orders of magnitude
+    root = st.lists(st.floats(-1e3, 1e3, allow_nan=False), min_size=9, max_size=9)
+    covariance = st.builds(
+        lambda a, floor: tuple(
+            tuple(float(v) for v in row)
+            for row in (np.reshape(a, (3, 3)) @ np.reshape(a, (3, 3)).T + floor * np.eye(3))
+        ),
+        root,
+        st.floats(1e-6, 1e6),
     )
-    covariance = st.tuples(*[st.tuples(*[st.floats(-1e30, 1e30)] * 3)] * 3)
     links = tuple(
         draw(
             st.lists(

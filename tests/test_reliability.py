@@ -536,6 +536,23 @@ def _keyframe(change: Callable[[dict], None]) -> Callable[[str, dict], dict]:
         (_graph(lambda g: g.update(states={"0": [0]})), "states"),
         (_graph(lambda g: g["links"][0].update(to=10_000)), "does not exist"),
         (_graph(lambda g: g["links"][0].update(covariance=[[1.0]])), "covariance"),
+        (
+            _graph(lambda g: g["links"][0].update(covariance=[[0.0] * 3] * 3)),
+            "not symmetric positive definite",
+        ),
+        (
+            _graph(lambda g: g["links"][0]["covariance"][0].__setitem__(0, -1.0)),
+            "not symmetric positive definite",
+        ),
+        (
+            _graph(lambda g: g["links"][0]["covariance"][0].__setitem__(1, 0.5)),
+            "not symmetric positive definite",
+        ),
+        (_graph(lambda g: g.update(keyframes=10**15)), "do not hold each of the"),
+        (
+            _graph(lambda g: g["states"][0]["keyframes"].append(g["states"][1]["keyframes"][0])),
+            "do not hold each",
+        ),
         (_graph(lambda g: g["tree"].update(nodes_created=1e300)), "tree"),
         (_keyframe(lambda k: k.update(stamp_ns=math.inf)), "Infinity is not a number this format allows"),
         (_keyframe(lambda k: k.update(stamp_ns="__1e999__")), "stamp_ns must be integer"),
@@ -551,6 +568,25 @@ def test_well_formed_but_wrong_estimate_json_is_one_line(estimate_file: Path, tm
     assert main(["report", str(bad), "-q", "--json", str(tmp_path / "s.json")]) == 2
     one_error_line(capsys, str(bad), needle)
     assert not (tmp_path / "s.json").exists()
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        lambda g: g["links"][0].update(covariance=[[0.0] * 3] * 3),
+        lambda g: g["links"][0]["covariance"][2].__setitem__(2, -1e-6),
+        lambda g: g.update(keyframes=10**15),
+    ],
+)
+def test_a_map_with_a_wrong_graph_is_refused_by_estimate(recording: Path, estimate_file: Path, tmp_path: Path,
+                                                         capsys, change):  # fmt: skip
+    """``estimate --map`` divided by a zero covariance, took a square root of a negative one and
+    asked for petabytes for 10¹⁵ keyframes: exit 70, where ``report`` of the same file said nothing."""
+    bad = tmp_path / "map.mcap"
+    rewrite_estimate(estimate_file, bad, _graph(change))
+    assert main(["estimate", str(recording), "--map", str(bad), "-o", str(tmp_path / "e.mcap")]) == 2
+    one_error_line(capsys, str(bad), "inconsistent '/aslam/graph' message")
+    assert not (tmp_path / "e.mcap").exists()
 
 
 @pytest.mark.parametrize(
