@@ -28,6 +28,7 @@ from aslam.cli.output import (
     QuietOption,
     Terminal,
     VerboseOption,
+    output_file,
 )
 from aslam.core.config import EstimatorConfig
 
@@ -156,7 +157,7 @@ _FIXED: dict[str, tuple[Any, Any]] = {
     ),
     "output": (
         Annotated[
-            Path, typer.Option("-o", "--output", help="Estimate file (.mcap) to write.", dir_okay=False)
+            Path, typer.Option("-o", "--output", help="Estimate file (.mcap) to write.", parser=output_file)
         ],
         _MISSING,
     ),

@@ -11,7 +11,14 @@ from typing import Annotated
 import typer
 
 from aslam.cli.app import app
-from aslam.cli.output import ForceOption, QuietOption, Terminal, VerboseOption, counted_progress
+from aslam.cli.output import (
+    ForceOption,
+    QuietCommandVerboseOption,
+    QuietOption,
+    Terminal,
+    counted_progress,
+    output_file,
+)
 from aslam.data_formats.format_names import PoseFormat, StampUnit
 
 
@@ -21,7 +28,7 @@ def import_folder(
         Path, typer.Argument(help="Folder of .png/.jpg images, read in file-name order.", show_default=False)
     ],
     output: Annotated[
-        Path, typer.Option("-o", "--output", help="Recording (.mcap) to write.", dir_okay=False)
+        Path, typer.Option("-o", "--output", help="Recording (.mcap) to write.", parser=output_file)
     ],
     ground_truth: Annotated[
         Path | None, typer.Option(help="Pose file with the true poses (TUM, KITTI or CSV t,x,y,yaw).")
@@ -54,7 +61,7 @@ def import_folder(
     ] = None,
     force: ForceOption = False,
     quiet: QuietOption = False,
-    verbose: VerboseOption = False,
+    verbose: QuietCommandVerboseOption = False,
 ) -> None:
     """Import an image-folder dataset (Nordland, KITTI, TUM RGB-D, St Lucia…) as a recording."""
     from aslam.app.importer import import_image_folder

@@ -24,14 +24,19 @@ def info(
         ),
     ],
     json_out: Annotated[
-        str | None, typer.Option("--json", help="Write the description as one JSON object here; '-': stdout.")
+        str | None,
+        typer.Option(
+            "--json",
+            help="Write the description as one JSON object here; '-': stdout.",
+            parser=output.output_name,
+        ),
     ] = None,
     image_topic: output.ImageTopicOption = None,
     odometry_topic: output.OdometryTopicOption = None,
     ground_truth_topic: output.GroundTruthTopicOption = None,
     force: output.ForceOption = False,
     quiet: output.QuietOption = False,
-    verbose: output.VerboseOption = False,
+    verbose: output.QuietCommandVerboseOption = False,
 ) -> None:
     """Read a recording or a ROS bag, decoding every image; print its topics, counts, duration, metadata.
 

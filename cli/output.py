@@ -11,6 +11,7 @@ import functools
 import os
 import sys
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
@@ -53,6 +54,27 @@ ForceOption = Annotated[
     bool, typer.Option("--force", help="Overwrite existing output files.", callback=_note_force)
 ]
 VerboseOption = Annotated[bool, typer.Option("--verbose", "-v", help="Also print the details of the run.")]
+QuietCommandVerboseOption = Annotated[
+    bool, typer.Option("--verbose", "-v", help="Accepted, as by every command; adds nothing here.")
+]
+"""``-v`` of a command with no details to add (``info``, ``import``, ``report``)."""
+
+
+def output_name(text: str) -> str:
+    """An output's name as typed, refused when it names a folder: ``-o out/`` wrote a file named
+    ``out`` (``Path`` drops the slash), and ``-o e.mcap/ --force`` replaced ``e.mcap``."""
+    if not text:
+        raise typer.BadParameter("an empty name; give a file name")
+    if text != "-" and (text.endswith(("/", os.sep)) or os.path.basename(text) in (".", "..")):
+        raise typer.BadParameter(f"{text!r} names a folder; give a file name")
+    return text
+
+
+def output_file(text: str) -> Path:
+    """:func:`output_name` as a path (the parser of ``-o``, ``--contact-sheet``)."""
+    return Path(output_name(text))
+
+
 ImageTopicOption = Annotated[
     str | None,
     typer.Option(help="Image topic (CompressedImage or Image). \\[default: /camera/image/compressed]"),

@@ -13,7 +13,7 @@ from typing import Annotated
 import typer
 
 from aslam.cli.app import app
-from aslam.cli.output import ForceOption, QuietOption, Terminal, VerboseOption, counted_progress
+from aslam.cli.output import ForceOption, QuietOption, Terminal, VerboseOption, counted_progress, output_file
 from aslam.recorder.config import (
     DEFAULT_CAMERA_HEIGHT_M,
     DEFAULT_FOV_DEG,
@@ -29,7 +29,7 @@ _DEFAULT_NOISE = NoiseParams()
 
 @app.command()
 def record(
-    output: Annotated[Path, typer.Option("-o", "--output", help="MCAP file to write.", dir_okay=False)],
+    output: Annotated[Path, typer.Option("-o", "--output", help="MCAP file to write.", parser=output_file)],
     route: Annotated[
         str, typer.Option(help="Preset (paper, figure8, grid) or a route JSON file.", show_default=True)
     ] = "paper",
@@ -118,7 +118,7 @@ def record(
         int | None, typer.Option(help="Write JPEG of this quality instead of PNG.")
     ] = None,
     contact_sheet: Annotated[
-        Path | None, typer.Option(help="Also write a PNG grid of sample keyframes.", dir_okay=False)
+        Path | None, typer.Option(help="Also write a PNG grid of sample keyframes.", parser=output_file)
     ] = None,
     force: ForceOption = False,
     quiet: QuietOption = False,

@@ -13,7 +13,14 @@ from typing import Annotated, Any
 import typer
 
 from aslam.cli.app import app
-from aslam.cli.output import ForceOption, QuietOption, Terminal, VerboseOption, table_console
+from aslam.cli.output import (
+    ForceOption,
+    QuietCommandVerboseOption,
+    QuietOption,
+    Terminal,
+    output_name,
+    table_console,
+)
 from aslam.core.config import REVISIT_HEADING_DEG, REVISIT_RADIUS_M
 from aslam.core.errors import InputError, QualityGateFailed
 from aslam.data_formats.format_names import TrajectoryFormat
@@ -32,7 +39,9 @@ def report(
     ] = None,
     graph: Annotated[
         str | None,
-        typer.Option("--graph", help="Write the map as JSON (docs/graph-json.md); '-': stdout."),
+        typer.Option(
+            "--graph", help="Write the map as JSON (docs/graph-json.md); '-': stdout.", parser=output_name
+        ),
     ] = None,
     plots: Annotated[
         Path | None, typer.Option("--plots", help="Write PNG figures into this folder.", file_okay=False)
@@ -55,7 +64,9 @@ def report(
     json_out: Annotated[
         str | None,
         typer.Option(
-            "--json", help="Write the summary JSON here; '-': stdout (the tables then go to stderr)."
+            "--json",
+            help="Write the summary JSON here; '-': stdout (the tables then go to stderr).",
+            parser=output_name,
         ),
     ] = None,
     fail_on: Annotated[
@@ -89,7 +100,7 @@ def report(
     ] = None,
     force: ForceOption = False,
     quiet: QuietOption = False,
-    verbose: VerboseOption = False,
+    verbose: QuietCommandVerboseOption = False,
 ) -> None:
     """Score an estimate against the recording's ground truth: tables, graph JSON, plots, gates.
 

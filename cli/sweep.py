@@ -15,7 +15,7 @@ from typing import Annotated, Any
 import typer
 
 from aslam.cli.app import app
-from aslam.cli.output import QuietOption, Terminal, VerboseOption, print_table, table_console
+from aslam.cli.output import QuietOption, Terminal, VerboseOption, output_name, print_table, table_console
 from aslam.cli.sweep_display import LiveDisplay, PlainDisplay, figure_text, parameters_text, plan_text
 
 
@@ -91,7 +91,11 @@ def sweep(
     ] = False,
     json_out: Annotated[
         str | None,
-        typer.Option("--json", help="With --dry-run: write the plan as one JSON object here; '-': stdout."),
+        typer.Option(
+            "--json",
+            help="With --dry-run: write the plan as one JSON object here; '-': stdout.",
+            parser=output_name,
+        ),
     ] = None,
     example: Annotated[
         bool,

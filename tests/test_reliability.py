@@ -1628,3 +1628,28 @@ def test_a_temporary_file_left_for_a_name_with_brackets_is_found(recording: Path
     stale.write_bytes(b"half")
     assert main(["estimate", str(recording), "-o", str(tmp_path / "a[1].mcap")]) == 0
     assert f"{stale}: temporary file left by an interrupted run" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["estimate", "{recording}", "-o", "{tmp}/new/"],
+        ["estimate", "{recording}", "-o", "{tmp}/e.mcap/", "--force"],
+        ["record", "-o", "{tmp}/r/", "--size", "32x24"],
+        ["record", "-o", "{tmp}/r.mcap", "--size", "32x24", "--contact-sheet", "{tmp}/."],
+        ["import", "{tmp}", "-o", ""],
+        ["report", "{estimate}", "--json", "{tmp}/s/"],
+        ["report", "{estimate}", "--graph", ".."],
+        ["info", "{recording}", "--json", "{tmp}/i/"],
+    ],
+)
+def test_an_output_named_as_a_folder_is_refused(recording: Path, estimate_file: Path, tmp_path: Path, capsys,
+                                                argv: list[str]):  # fmt: skip
+    """``-o out/`` wrote a file named ``out`` (a path drops the slash), ``-o e.mcap/ --force``
+    replaced ``e.mcap``: an output's name is checked as typed."""
+    (tmp_path / "e.mcap").write_bytes(b"kept")
+    filled = [part.format(recording=recording, estimate=estimate_file, tmp=tmp_path) for part in argv]
+    assert main(filled) == 2
+    assert "give a file name" in one_error_line(capsys)
+    assert (tmp_path / "e.mcap").read_bytes() == b"kept"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["e.mcap"]
