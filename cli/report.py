@@ -129,8 +129,9 @@ def report(
         outputs += export_plan(trajectory, trajectory_format)[0]
     elif trajectory_format is not None:
         raise InputError("--trajectory-format needs --trajectory")
-    for i, path in enumerate(outputs):  # before any work: a bad path, or two outputs that are one file
-        _check_output(path, force=force, others=outputs[:i])
+    inputs = [estimate] if recording is None else [estimate, recording]
+    for i, path in enumerate(outputs):  # before any work: a bad path, two outputs that are one file, an input
+        _check_output(path, force=force, others=outputs[:i], inputs=inputs)
     if plots is not None:
         from aslam.data_formats.files import check_output_folder
 
@@ -139,7 +140,7 @@ def report(
         from aslam.app.plots import PLOT_NAMES
 
         for name in PLOT_NAMES:
-            _check_output(plots / name, force=force, others=outputs)
+            _check_output(plots / name, force=force, others=outputs, inputs=inputs)
 
     if truth_by_index and (recording is not None or ground_truth_topic is not None):
         raise InputError(
@@ -219,10 +220,11 @@ def _status(terminal: Terminal) -> Iterator[Callable[[str], None] | None]:
         yield lambda text: status.update(f"report: {text}")
 
 
-def _check_output(path: Path, *, force: bool, others: list[Path]) -> None:
+def _check_output(path: Path, *, force: bool, others: list[Path], inputs: list[Path]) -> None:
+    """Refused as an input first: ``--json E.mcap`` advised a ``--force`` that was then refused."""
     from aslam.data_formats.files import check_output_path
 
-    check_output_path(path, force=force, outputs=others)
+    check_output_path(path, force=force, outputs=others, inputs=inputs)
 
 
 def _write_json(target: str, document: dict[str, Any], *, indent: int) -> list[Path]:

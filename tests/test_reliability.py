@@ -1653,3 +1653,12 @@ def test_an_output_named_as_a_folder_is_refused(recording: Path, estimate_file: 
     assert "give a file name" in one_error_line(capsys)
     assert (tmp_path / "e.mcap").read_bytes() == b"kept"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["e.mcap"]
+
+
+def test_report_refuses_an_input_as_an_output_without_advising_force(
+    estimate_file: Path, recording: Path, capsys
+):
+    """``report E.mcap --json E.mcap`` said to use --force, which then was refused."""
+    for argv in (["--json", str(estimate_file)], ["--recording", str(recording), "--graph", str(recording)]):
+        assert main(["report", str(estimate_file), *argv]) == 2
+        assert "resolves to an input of this command" in one_error_line(capsys)
