@@ -25,6 +25,7 @@ from aslam.core.errors import ConfigError
 from aslam.data_formats.files import file_name_from_utf8, full_path
 from aslam.data_formats.toml_files import read_toml
 from aslam.recorder.config import CameraSpec, NoiseModel, NoiseParams, RecordConfig, parse_size
+from aslam.recorder.routes import default_laps
 
 DEFAULT_FIGURES = (
     "keyframes",
@@ -240,7 +241,8 @@ def _record_config(knobs: dict[str, Any], base: Path, where: str, problems: list
     noise = NoiseParams()
     config = RecordConfig(
         route=route,
-        laps=knobs.get("laps"),
+        # the default given is no other render (its label and its file were another's)
+        laps=None if knobs.get("laps") == default_laps(route) else knobs.get("laps"),
         seed=knobs["seeds"],
         noise=NoiseParams.of_model(
             knobs.get("noise_model", NoiseModel.DEFAULT),

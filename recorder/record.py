@@ -133,9 +133,7 @@ def plan(config: RecordConfig) -> Plan:
     """
     config.validate()
     base = routes.resolve_route(config.route)
-    laps = config.laps
-    if laps is None:
-        laps = routes.DEFAULT_PRESET_LAPS if config.route in routes.PRESETS else 1
+    laps = routes.default_laps(config.route) if config.laps is None else config.laps
     try:
         route = base.repeated(laps)
     except RouteError as err:  # the file named, not only the route's name (its stem)

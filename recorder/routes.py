@@ -200,6 +200,11 @@ PRESETS = {"paper": _paper, "figure8": _figure8, "grid": _grid}
 DEFAULT_PRESET_LAPS = 2
 
 
+def default_laps(route: str) -> int:
+    """Laps driven when none are given: two of a preset, one of a route file."""
+    return DEFAULT_PRESET_LAPS if route in PRESETS else 1
+
+
 def preset(name: str) -> Route:
     try:
         return PRESETS[name]()

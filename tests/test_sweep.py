@@ -1545,3 +1545,16 @@ def test_the_plan_json_replaces_no_input_and_no_file_without_force(tmp_path, cap
     assert "already exists" in capsys.readouterr().err
     assert main([*dry, str(plan), "--force"]) == 0
     assert json.loads(plan.read_text())["tasks"] == 1
+
+
+def test_a_default_given_is_the_same_render(tmp_path, capsys):
+    """``laps = 2`` on a preset (its default) was another render: another label, file and task."""
+    sweep = tmp_path / "s.toml"
+    table = '[[render]]\nroute = "paper"\nseeds = 1\nsize = "64x48"\n'
+    sweep.write_text(table + "\n" + table + "laps = 2\n\n" + table.replace("paper", "grid") + "laps = 3\n")
+    assert main(["sweep", str(sweep), "-o", str(tmp_path / "out"), "--dry-run", "--json", "-", "-q"]) == 0
+    rows = json.loads(capsys.readouterr().out)["rows"]
+    assert [row["render"] for row in rows] == [
+        "route=paper seed=1 size=64x48",
+        "route=grid seed=1 laps=3 size=64x48",
+    ]
