@@ -335,11 +335,12 @@ class Recording:
                 stamp_ns, msg, datatype = images.read(schema, channel, message)
                 assembler.log_time_images += _set_header_stamp_ns(msg) is None
                 yield from assembler.add_image(stamp_ns, _lazy_image(path, topic, datatype, msg, stamp_ns))
-            elif topic == topics.odometry:
+                continue
+            if topic == topics.odometry:
                 stamp_ns, msg, datatype = odometry.read(schema, channel, message)
                 if assembler.odometry_stamps.admits(stamp_ns):
                     yield from assembler.add_odometry(stamp_ns, odometry.pose(topic, datatype, msg, stamp_ns))
-            else:
+            if topic == topics.ground_truth:  # the odometry's own topic too, if named so (exact odometry)
                 stamp_ns, msg, datatype = truth.read(schema, channel, message)
                 if assembler.ground_truth_stamps.admits(stamp_ns):
                     yield from assembler.add_ground_truth(

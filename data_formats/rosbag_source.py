@@ -421,7 +421,7 @@ def _bag_samples(
                     raise BagError(f"odometry pose on '{topic}' at stamp {stamp_ns} ns {problem}", path=path)
                 last_odometry = pose
                 yield from assembler.add_odometry(stamp_ns, pose)
-        else:
+        if topic == resolved.ground_truth:  # the odometry's own topic too, if named so (exact odometry)
             stamp_ns = _stamp(path, "ground-truth", topic, msg, log_time)
             if assembler.ground_truth_stamps.admits(stamp_ns):
                 last_truth = _pose(path, "ground-truth", topic, datatype, msg, stamp_ns, last_truth)

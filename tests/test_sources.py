@@ -108,3 +108,20 @@ def test_estimate_gives_the_same_result_from_a_recording_and_its_bags(tmp_path, 
             scored[name]["ground_truth"]
             and scored[name]["loop_closure"] == scored["recording"]["loop_closure"]
         )
+
+
+@pytest.mark.parametrize("kind", ["recording", "bag"])
+def test_one_topic_may_be_both_odometry_and_ground_truth(tmp_path, kind):
+    """Exact odometry named as the ground truth too: every sample lacked its truth (the topic went
+    to the odometry alone), while ``report`` read it."""
+    from conftest import random_frames, square_route, write_recording, write_square_bag
+
+    path = tmp_path / "in.mcap"
+    if kind == "recording":
+        write_recording(path, random_frames(4))
+    else:
+        write_square_bag(path, square_route()[:6], 3, ground_truth_topic="/truth")
+    source = open_input(path, TopicChoice(odometry="/odom", ground_truth="/odom"))
+    samples = list(source.samples())
+    assert samples and all(sample.ground_truth_pose is not None for sample in samples)
+    assert [tuple(s.ground_truth_pose) for s in samples] == [tuple(s.odometry_pose) for s in samples]
