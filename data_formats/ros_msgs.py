@@ -155,6 +155,10 @@ def yaw_of_quaternion(x: float, y: float, z: float, w: float) -> float:
     norm2 = x * x + y * y + z * z + w * w
     if not norm2 > 1e-12:
         raise ValueError("the orientation quaternion is zero")
+    if norm2 == math.inf:  # squared, 1e200 overflowed, and a 90° yaw read 0: scaled down first
+        largest = max(abs(x), abs(y), abs(z), abs(w))
+        x, y, z, w = x / largest, y / largest, z / largest, w / largest
+        norm2 = x * x + y * y + z * z + w * w
     if abs(norm2 - 1.0) > 1e-6:
         scale = 1.0 / math.sqrt(norm2)
         x, y, z, w = x * scale, y * scale, z * scale, w * scale
