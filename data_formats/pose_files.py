@@ -214,6 +214,8 @@ def _tum_pose(values: list[float]) -> np.ndarray:
 
 def _kitti_pose(values: list[float]) -> np.ndarray:
     m = np.array(values).reshape(3, 4)
+    if not math.hypot(m[0, 2], m[2, 2]) > 1e-6:  # a zero matrix was read as a yaw of 0
+        raise ValueError("the rotation gives no heading (its forward axis is zero or vertical)")
     # Camera axes (x right, y down, z forward) → ground plane (x forward, y left).
     return np.array([m[2, 3], -m[0, 3], math.atan2(-m[0, 2], m[2, 2])])
 

@@ -665,6 +665,14 @@ def test_kitti_count_mismatch_names_file_and_line(tmp_path, rows, line):
     assert "\n" not in message
 
 
+def test_a_kitti_rotation_with_no_heading_is_refused(tmp_path):
+    """A zero rotation matrix was read as a heading of 0, where a zero quaternion is refused."""
+    poses_file = tmp_path / "00.txt"
+    poses_file.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n0 0 0 1 0 0 0 0 0 0 0 2\n")
+    with pytest.raises(PoseFileError, match=r"line 2: .*the rotation gives no heading"):
+        list(iter_poses(poses_file, "kitti"))
+
+
 def test_duplicate_stamps_in_a_per_image_file(tmp_path):
     write_images(tmp_path / "imgs", 3)
     truth = tmp_path / "gt.txt"
