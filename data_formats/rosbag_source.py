@@ -281,7 +281,12 @@ def _open_reader(path: Path) -> Iterator[Any]:
 
 
 def _topic_types(reader: Any) -> dict[str, str]:
-    return {topic: info.msgtype or "" for topic, info in reader.topics.items()}
+    """Each topic's message type; rosbags gives none for a topic that carries several, which the
+    errors then showed as type '' (now: the types, joined with " and ")."""
+    types = {topic: info.msgtype or "" for topic, info in reader.topics.items()}
+    for topic in [topic for topic, msgtype in types.items() if not msgtype]:
+        types[topic] = " and ".join(sorted({c.msgtype for c in reader.connections if c.topic == topic}))
+    return types
 
 
 def _messages(path: Path, reader: Any, topics: set[str]) -> Iterator[tuple[str, str, int, Any]]:

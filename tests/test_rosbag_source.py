@@ -1103,3 +1103,27 @@ def test_the_geometric_check_reads_a_bags_camera_info(bags, tmp_path, kind):
     with pytest.raises(InputError, match="camera") as raised:
         estimate(blind, tmp_path / "blind-estimate.mcap", config)
     assert raised.value.path == str(blind) and not (tmp_path / "blind-estimate.mcap").exists()
+
+
+def test_a_topic_of_two_types_names_both(tmp_path):
+    """rosbags gives no type for a topic that carries two; the error said type ''."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    rows = bag_messages(ts)
+    stamp = odometry_stamps()[0]
+    rows.append(
+        (stamp + 1, "/odom", "geometry_msgs/msg/PoseStamped", pose_stamped_msg(ts, stamp, true_pose(stamp)))
+    )
+    path = tmp_path / "bag"
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        connections: dict[tuple[str, str], Any] = {}
+        for log, topic, msgtype, msg in sorted(rows, key=lambda row: row[0]):
+            if (topic, msgtype) not in connections:
+                connections[topic, msgtype] = writer.add_connection(topic, msgtype, typestore=ts)
+            writer.write(connections[topic, msgtype], log, ts.serialize_cdr(msg, msgtype))
+    with pytest.raises(
+        BagError, match="'/odom' has type 'geometry_msgs/msg/PoseStamped and nav_msgs/msg/Odometry'"
+    ):
+        list(iter_bag_samples(path, BagTopics(odometry="/odom")))
