@@ -20,6 +20,7 @@ import base64
 import binascii
 import hashlib
 import json
+import re
 from collections.abc import Generator, Iterator, Mapping
 from contextlib import closing
 from dataclasses import asdict, dataclass
@@ -152,6 +153,7 @@ PLACE_VIEWS_SCHEMA: dict[str, Any] = {
 #: Any number in an estimate file (actions, covariances, tree statistics) lies within this; the
 #: recording reader refuses poses beyond 1e7 m, so larger values are damage, not data.
 MAX_ABS_NUMBER = 1e15
+_SHA256 = re.compile(r"[0-9a-f]{64}")
 MAX_ABS_COVARIANCE = 1e40
 """A covariance grows with the square of a step's length squared (the lateral drift term): a
 carry or an odometry jump of 10⁷ m, which odometry may report, gives entries near 10²⁹."""
@@ -325,8 +327,21 @@ class EstimateMetadata:
             return f"topics must map {', '.join(TOPIC_KEYS)} to topic names (null: found in a bag)"
         if self.recording.size_bytes < 0:
             return "recording_size_bytes is negative"
-        if self.prior_map is not None and self.prior_map.keyframes < 0:
-            return "map_keyframes is negative"
+        if not self.recording.path:  # ``report`` read the current folder as the recording
+            return "recording_path is empty"
+        digests = [("recording_sha256", self.recording.sha256)]
+        if self.prior_map is not None:
+            if self.prior_map.keyframes < 0:
+                return "map_keyframes is negative"
+            if not self.prior_map.path:
+                return "map_path is empty"
+            digests += [
+                ("map_sha256", self.prior_map.sha256),
+                ("map_graph_sha256", self.prior_map.graph_sha256),
+            ]
+        for name, digest in digests:
+            if digest is not None and not _SHA256.fullmatch(digest):
+                return f"{name} is not a SHA-256 digest (64 hex digits)"
         return None
 
 

@@ -23,6 +23,8 @@ from aslam.data_formats.ros_msgs import LAST_STAMP_NS
 number = st.floats(-2e7, 2e7, allow_nan=False)
 small = st.integers(0, 10_000)
 text = st.text(max_size=12)
+name = st.text(min_size=1, max_size=12)  # a file's name is never empty
+digest = st.text("0123456789abcdef", min_size=64, max_size=64)  # SHA-256, hex
 
 
 @st.composite
@@ -84,9 +86,9 @@ def runs(draw):
     metadata = estimate_format.EstimateMetadata(
         draw(text),
         draw(st.dictionaries(text, st.one_of(st.none(), st.booleans(), small, number, text), max_size=4)),
-        estimate_format.RecordingIdentity(draw(text), draw(small), draw(text)),
+        estimate_format.RecordingIdentity(draw(name), draw(small), draw(digest)),
         draw(st.dictionaries(st.sampled_from(estimate_format.TOPIC_KEYS), st.one_of(st.none(), text))),
-        draw(st.none() | st.builds(estimate_format.MapIdentity, text, text, small, st.none() | text)),
+        draw(st.none() | st.builds(estimate_format.MapIdentity, name, digest, small, st.none() | digest)),
     )
     timing = draw(
         st.one_of(

@@ -483,13 +483,22 @@ def test_schema_without_a_field_the_reader_uses_is_one_line(tmp_path: Path, caps
     one_error_line(capsys, needle, datatype.replace("/msg/", "/"))
 
 
-def rewrite_estimate(source: Path, target: Path, change: Callable[[str, dict], dict]) -> None:
-    """``source`` with every JSON message passed through ``change(topic, message)``."""
+def rewrite_estimate(
+    source: Path,
+    target: Path,
+    change: Callable[[str, dict], dict] = lambda _topic, message: message,
+    change_metadata: Callable[[dict], None] = lambda _record: None,
+) -> None:
+    """``source`` with every JSON message passed through ``change(topic, message)`` and its
+    ``aslam.estimate`` metadata through ``change_metadata(record)``."""
     from mcap.reader import make_reader
     from mcap.writer import Writer
 
     with source.open("rb") as f:
         metadata = [(m.name, dict(m.metadata)) for m in make_reader(f).iter_metadata()]
+    for name, record in metadata:
+        if name == "aslam.estimate":
+            change_metadata(record)
     with source.open("rb") as f, target.open("wb") as out:
         writer = Writer(out)
         writer.start()
@@ -568,6 +577,23 @@ def test_well_formed_but_wrong_estimate_json_is_one_line(estimate_file: Path, tm
     assert main(["report", str(bad), "-q", "--json", str(tmp_path / "s.json")]) == 2
     one_error_line(capsys, str(bad), needle)
     assert not (tmp_path / "s.json").exists()
+
+
+@pytest.mark.parametrize(
+    "change, needle",
+    [
+        (lambda r: r.update(recording_path=""), "recording_path is empty"),
+        (lambda r: r.update(recording_sha256="zz"), "recording_sha256 is not a SHA-256 digest"),
+    ],
+)
+def test_an_estimate_naming_no_recording_is_refused(
+    estimate_file: Path, tmp_path: Path, capsys, change, needle
+):
+    """An empty ``recording_path`` made ``report`` read the current folder as the recording."""
+    bad = tmp_path / "bad.mcap"
+    rewrite_estimate(estimate_file, bad, change_metadata=change)
+    assert main(["report", str(bad), "-q", "--json", "-"]) == 2
+    one_error_line(capsys, str(bad), needle)
 
 
 @pytest.mark.parametrize(
