@@ -464,7 +464,9 @@ class LazyImage:
             import cv2
 
             return self._imdecode(cv2.IMREAD_GRAYSCALE)
-        if not (self.width > 0 and self.height > 0 and _within_limits(self.width, self.height)):
+        if not (self.width > 0 and self.height > 0):
+            raise self._error(f"{self.width}x{self.height} {self.encoding} image: no pixels")
+        if not _within_limits(self.width, self.height):
             raise self._error(f"{self.width}x{self.height} {self.encoding} image ({_LIMIT_TEXT})")
         return raw_to_gray(
             self.data,

@@ -170,7 +170,7 @@ def test_every_listed_encoding_decodes_exactly_its_size():
         (bytes(11), "mono8", 4, 3, 4, "11 bytes do not hold a 4x3 mono8 image with step 4"),
         (bytes(36), "bgr8", 4, 3, 8, "needs step ≥ 12"),
         (bytes(12), "mono16", 4, 3, 4, "needs step ≥ 8"),
-        (bytes(0), "rgb8", 0, 0, 0, "0x0"),
+        (bytes(0), "rgb8", 0, 0, 0, "0x0 rgb8 image: no pixels"),
         (bytes(12), "hsv8", 4, 3, 4, "unknown image encoding 'hsv8'"),
     ],
 )
