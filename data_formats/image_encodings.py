@@ -87,7 +87,9 @@ def _pixels(
             f"unknown image encoding '{encoding}' (accepted: {', '.join(sorted(_LAYOUTS))})", where, path
         )
     row_bytes = width * layout.channels * layout.bytes_per_channel
-    if width <= 0 or height <= 0 or step < row_bytes or len(data) < step * height:
+    if width <= 0 or height <= 0:
+        raise _error(f"{width}x{height} {encoding} image: no pixels", where, path)
+    if step < row_bytes or len(data) < step * height:
         raise _error(
             f"{len(data)} bytes do not hold a {width}x{height} {encoding} image with step {step} "
             f"(needs step ≥ {max(row_bytes, 0)} and {max(step, row_bytes, 0) * max(height, 0)} bytes)",
