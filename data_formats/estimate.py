@@ -329,7 +329,7 @@ class EstimateMetadata:
             return "recording_size_bytes is negative"
         if not self.recording.path:  # ``report`` read the current folder as the recording
             return "recording_path is empty"
-        digests = [("recording_sha256", self.recording.sha256)]
+        digests: list[tuple[str, str | None]] = [("recording_sha256", self.recording.sha256)]
         if self.prior_map is not None:
             if self.prior_map.keyframes < 0:
                 return "map_keyframes is negative"
