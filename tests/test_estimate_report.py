@@ -417,16 +417,16 @@ def test_report_without_the_recording_warns_and_continues(recording: Path, tmp_p
 
 
 def test_a_recording_without_truth_is_not_named_as_the_source_of_it(estimate_file: Path, tmp_path: Path):
-    """``--recording`` naming a file with no ground truth in it (here not a recording at all): the
-    report continues without ground truth, so neither the Report nor the graph JSON names that file
-    as where the truth came from (both did: ``"recording": ".../notes.mcap"`` beside
-    ``"ground_truth": false``)."""
+    """``--recording`` naming a recording with no ground truth in it: the report continues without
+    ground truth, so neither the Report nor the graph JSON names that file as where the truth came
+    from (both did: ``"recording": ".../notes.mcap"`` beside ``"ground_truth": false``)."""
+    from conftest import random_frames, write_recording
+
     from aslam.app.score import score
 
-    not_a_recording = tmp_path / "notes.mcap"
-    not_a_recording.write_text("notes\n")
+    without_truth = write_recording(tmp_path / "notes.mcap", random_frames(3), with_ground_truth=False)
     warnings: list[str] = []
-    report = score(estimate_file, recording=not_a_recording, on_warning=warnings.append)
+    report = score(estimate_file, recording=without_truth, on_warning=warnings.append)
     assert "reporting without ground truth" in warnings[-1]
     assert report.summary["ground_truth"] is False
     assert report.recording_path is None
