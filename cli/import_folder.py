@@ -13,9 +13,9 @@ import typer
 from aslam.cli.app import app
 from aslam.cli.output import (
     ForceOption,
-    QuietCommandVerboseOption,
     QuietOption,
     Terminal,
+    VerboseAcceptedOption,
     counted_progress,
     output_file,
 )
@@ -61,7 +61,7 @@ def import_folder(
     ] = None,
     force: ForceOption = False,
     quiet: QuietOption = False,
-    verbose: QuietCommandVerboseOption = False,
+    verbose: VerboseAcceptedOption = False,
 ) -> None:
     """Import an image-folder dataset (Nordland, KITTI, TUM RGB-D, St Lucia…) as a recording."""
     from aslam.app.importer import import_image_folder

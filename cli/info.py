@@ -36,7 +36,7 @@ def info(
     ground_truth_topic: output.GroundTruthTopicOption = None,
     force: output.ForceOption = False,
     quiet: output.QuietOption = False,
-    verbose: output.QuietCommandVerboseOption = False,
+    verbose: output.VerboseAcceptedOption = False,
 ) -> None:
     """Read a recording or a ROS bag, decoding every image; print its topics, counts, duration, metadata.
 

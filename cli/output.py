@@ -54,7 +54,7 @@ ForceOption = Annotated[
     bool, typer.Option("--force", help="Overwrite existing output files.", callback=_note_force)
 ]
 VerboseOption = Annotated[bool, typer.Option("--verbose", "-v", help="Also print the details of the run.")]
-QuietCommandVerboseOption = Annotated[
+VerboseAcceptedOption = Annotated[
     bool, typer.Option("--verbose", "-v", help="Accepted, as by every command; adds nothing here.")
 ]
 """``-v`` of a command with no details to add (``info``, ``import``, ``report``)."""

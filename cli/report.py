@@ -15,9 +15,9 @@ import typer
 from aslam.cli.app import app
 from aslam.cli.output import (
     ForceOption,
-    QuietCommandVerboseOption,
     QuietOption,
     Terminal,
+    VerboseAcceptedOption,
     output_name,
     table_console,
 )
@@ -100,7 +100,7 @@ def report(
     ] = None,
     force: ForceOption = False,
     quiet: QuietOption = False,
-    verbose: QuietCommandVerboseOption = False,
+    verbose: VerboseAcceptedOption = False,
 ) -> None:
     """Score an estimate against the recording's ground truth: tables, graph JSON, plots, gates.
 

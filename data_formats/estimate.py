@@ -150,10 +150,12 @@ PLACE_VIEWS_SCHEMA: dict[str, Any] = {
 
 # --- reading: the writer's schemas with bounds ------------------------------------------------------
 
+_SHA256 = re.compile(r"[0-9a-f]{64}")
+"""A recording's or a map's identity as the metadata holds it: SHA-256, lowercase hex."""
+
 #: Any number in an estimate file (actions, covariances, tree statistics) lies within this; the
 #: recording reader refuses poses beyond 1e7 m, so larger values are damage, not data.
 MAX_ABS_NUMBER = 1e15
-_SHA256 = re.compile(r"[0-9a-f]{64}")
 MAX_ABS_COVARIANCE = 1e40
 """A covariance grows with the square of a step's length squared (the lateral drift term): a
 carry or an odometry jump of 10⁷ m, which odometry may report, gives entries near 10²⁹."""
