@@ -791,10 +791,12 @@ def run_sweep(
     # here, before its recordings are hashed; the folder is held once there are tasks to run.
     if write_problem(results_dir) is None:
         check_folder_free(results_dir, holder=_ANOTHER_SWEEP, what=_RESULTS_FOLDER)
+    held: list[bool] = []  # set once this sweep holds the folder
     with contextlib.ExitStack() as hold:
         try:
             return _run_in(
                 hold,
+                held,
                 sweep,
                 results_dir,
                 workers,
@@ -810,15 +812,30 @@ def run_sweep(
         except BaseException:
             # A sweep that made its folder and then failed before any work was kept (a scheduler out
             # of reach, a bad recording, an early interrupt) leaves nothing; renders or results stay,
-            # to resume. Done while the folder is held: no other sweep has begun in it meanwhile.
+            # to resume. Only while the folder is held, by this sweep or now for the removal: a sweep
+            # refused because another took the folder while it hashed its recordings removed the
+            # other's folder, lock file and all, under it.
             kept = {entry.name for entry in results_dir.iterdir()} - {HASHES_FILE, TASKS_FOLDER, LOCK_FILE}
             if created and not kept and not any((results_dir / TASKS_FOLDER).iterdir()):
-                shutil.rmtree(results_dir, ignore_errors=True)
+                _remove_unless_taken(results_dir, held=bool(held))
             raise
+
+
+def _remove_unless_taken(results_dir: Path, *, held: bool) -> None:
+    """Remove the results folder this sweep made, holding it (already, or now): not when another
+    sweep took it meanwhile, whose folder it then is."""
+    with contextlib.ExitStack() as removal:
+        if not held:
+            try:
+                removal.enter_context(folder_lock(results_dir, holder=_ANOTHER_SWEEP, what=_RESULTS_FOLDER))
+            except InputError:
+                return
+        shutil.rmtree(results_dir, ignore_errors=True)
 
 
 def _run_in(
     hold: contextlib.ExitStack,
+    held: list[bool],
     sweep: Sweep,
     results_dir: Path,
     workers: int | None,
@@ -836,6 +853,7 @@ def _run_in(
     plan.check_writable()
     if plan.to_run and plan.cannot_write is None:  # until the caller's ``hold`` ends
         hold.enter_context(folder_lock(results_dir, holder=_ANOTHER_SWEEP, what=_RESULTS_FOLDER))
+        held.append(True)
     if plan.cannot_write is None:
         # What an interrupted run's workers were writing when they were killed (renders, estimates).
         for folder in (

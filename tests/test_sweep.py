@@ -1558,3 +1558,32 @@ def test_a_default_given_is_the_same_render(tmp_path, capsys):
         "route=paper seed=1 size=64x48",
         "route=grid seed=1 laps=3 size=64x48",
     ]
+
+
+@pytest.mark.parametrize("taken", [False, True])
+def test_a_failed_sweep_removes_the_folder_it_made_unless_another_sweep_took_it(tmp_path, monkeypatch, taken):
+    """A sweep refused because another took the folder while it hashed its recordings removed that
+    sweep's folder, lock file and all, under it; alone, it leaves nothing."""
+    import fcntl
+
+    import aslam.app.sweep as sweep_module
+    from aslam.data_formats.files import LOCK_FILE
+
+    recording = write_recording(tmp_path / "rec.mcap", random_frames(3))
+    sweep_file = tmp_path / "s.toml"
+    sweep_file.write_text(f'[recordings]\npaths = ["{recording.name}"]\n')
+    results = tmp_path / "out"
+    other: list[int] = []
+
+    def plan_then_fail(*_args, **_kwargs):
+        if taken:  # another sweep takes the folder meanwhile (another open file: another holder)
+            other.append(os.open(results / LOCK_FILE, os.O_RDWR | os.O_CREAT))
+            fcntl.flock(other[0], fcntl.LOCK_EX | fcntl.LOCK_NB)
+        raise InputError("a recording that cannot be read")
+
+    monkeypatch.setattr(sweep_module, "plan_sweep", plan_then_fail)
+    with pytest.raises(InputError, match="cannot be read"):
+        run_sweep(read_sweep_file(sweep_file), results, workers=1)
+    assert results.exists() is taken
+    for descriptor in other:
+        os.close(descriptor)
