@@ -245,14 +245,19 @@ def plan_tasks(sweep: Sweep, results_dir: Path, *, hashes: HashCache | None = No
     name on one recording once, where it first comes.
 
     Hashes each recording file (one sequential read), or takes its hash from ``hashes``. A listed
-    file under the results folder is the sweep's own output (a render, an estimate, matched by a
-    ``**`` glob on a second run), not a recording: left out. Two names of the same bytes (a copy, a
+    file in the results folder's own subfolders is the sweep's output (a render, an estimate,
+    matched by a ``**`` glob on a second run), not a recording: left out. Only those: recordings
+    beside them (``-o .`` in the recordings' folder) were all left out too, a sweep of no task,
+    exit 0. Two names of the same bytes (a copy, a
     link) each get their tasks, so every recording named has its rows; the later one's tasks have
     ``same_as`` set and share the first's results, computed once.
     """
     results_dir = full_path(results_dir)
     hashes = hashes if hashes is not None else HashCache(None)
-    recordings = [path for path in sweep.recordings if not full_path(path).is_relative_to(results_dir)]
+    own = [results_dir / name for name in (RENDERS_FOLDER, ESTIMATES_FOLDER, TASKS_FOLDER)]
+    recordings = [
+        path for path in sweep.recordings if not any(full_path(path).is_relative_to(folder) for folder in own)
+    ]
     names = distinct_names(recordings)
     sources = [Source(path, hashes.sha256(path), names[path]) for path in recordings]
     for render in sweep.renders:

@@ -1370,8 +1370,8 @@ def test_a_glob_never_takes_the_sweeps_own_outputs_and_grids_are_bounded(recordi
     folder = tmp_path / "s"
     folder.mkdir()
     (folder / "good.mcap").write_bytes((recordings / "good.mcap").read_bytes())
-    (folder / "results" / "renders").mkdir(parents=True)
-    (folder / "results" / "renders" / "old.mcap").write_bytes((recordings / "good.mcap").read_bytes())
+    (folder / "results" / "recordings").mkdir(parents=True)  # where its renders go
+    (folder / "results" / "recordings" / "old.mcap").write_bytes((recordings / "good.mcap").read_bytes())
     path = folder / "s.toml"
     path.write_text("[recordings]\npaths = ['**/*.mcap']\n")
     sweep = read_sweep_file(path)
@@ -1587,3 +1587,16 @@ def test_a_failed_sweep_removes_the_folder_it_made_unless_another_sweep_took_it(
     assert results.exists() is taken
     for descriptor in other:
         os.close(descriptor)
+
+
+def test_recordings_beside_the_results_are_recordings_its_own_outputs_are_not(tmp_path, monkeypatch):
+    """``-o .`` in the recordings' folder left every recording out (a sweep of no task, exit 0):
+    only the sweep's own subfolders hold no recordings."""
+    write_recording(tmp_path / "rec.mcap", random_frames(3))
+    (tmp_path / "estimates").mkdir()
+    write_recording(tmp_path / "estimates" / "old.mcap", random_frames(3, seed=1))
+    sweep_file = tmp_path / "s.toml"
+    sweep_file.write_text('[recordings]\npaths = ["**/*.mcap"]\n')
+    monkeypatch.chdir(tmp_path)
+    tasks = plan_tasks(read_sweep_file(sweep_file), Path("."))
+    assert [task.source.path.name for task in tasks] == ["rec.mcap"]
