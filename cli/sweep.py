@@ -127,7 +127,9 @@ def sweep(
     if json_out is not None and json_out != "-":  # before the recordings are hashed
         _check_plan_output(Path(json_out), sweep_file, spec.recordings, output, force=force)
     if scheduler_file is not None:
-        scheduler = scheduler_address(scheduler_file)
+        # A dry run contacts no scheduler, so it waits for no scheduler file either (it waited 30 s
+        # for one not yet written, then exit 2); its options are checked as the run's would be.
+        scheduler = f"the cluster of {scheduler_file}" if dry_run else scheduler_address(scheduler_file)
     # what a run and a dry run both take, so that the dry run plans exactly what the run would do
     options: dict[str, Any] = {
         "workers": workers,

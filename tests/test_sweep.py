@@ -1600,3 +1600,21 @@ def test_recordings_beside_the_results_are_recordings_its_own_outputs_are_not(tm
     monkeypatch.chdir(tmp_path)
     tasks = plan_tasks(read_sweep_file(sweep_file), Path("."))
     assert [task.source.path.name for task in tasks] == ["rec.mcap"]
+
+
+def test_a_dry_run_waits_for_no_scheduler_file(tmp_path, capsys, monkeypatch):
+    """A dry run contacts no scheduler: with a scheduler file not yet written it waited 30 s, then
+    exit 2. It still refuses what the run would (--workers beside a cluster's file)."""
+
+    def never(_path):
+        raise AssertionError("a dry run read the scheduler file")
+
+    monkeypatch.setattr("aslam.app.sweep.scheduler_address", never)
+    recording = write_recording(tmp_path / "rec.mcap", random_frames(3))
+    sweep_file = tmp_path / "s.toml"
+    sweep_file.write_text(f'[recordings]\npaths = ["{recording.name}"]\n')
+    dry = ["sweep", str(sweep_file), "-o", str(tmp_path / "out"), "--dry-run", "-q"]
+    later = ["--scheduler-file", str(tmp_path / "not-yet.json")]
+    assert main([*dry, *later]) == 0
+    assert main([*dry, *later, "--workers", "2"]) == 2
+    assert "--workers sizes a local cluster" in capsys.readouterr().err
