@@ -708,6 +708,8 @@ def _probe_scheduler(address: str) -> None:
         raise InputError(
             f"nothing answers as a Dask scheduler at {address} within {SCHEDULER_ANSWER_S:g} s"
         ) from None
+    except MemoryError:  # a service that speaks first (SSH's banner) read as a frame's length
+        raise InputError(f"something else answers at {address}: not a Dask scheduler") from None
     except Exception as err:  # refused, not an address, a transport without its settings (tls, ucx)
         raise InputError(f"cannot reach the Dask scheduler at {address}: {error_text(err)}") from err
 
@@ -860,12 +862,7 @@ def _run_in(
         hold.enter_context(folder_lock(results_dir, holder=_ANOTHER_SWEEP, what=_RESULTS_FOLDER))
         held.append(True)
     if plan.cannot_write is None:
-        # What an interrupted run's workers were writing when they were killed (renders, estimates).
-        for folder in (
-            results_dir,
-            *(results_dir / name for name in (RENDERS_FOLDER, ESTIMATES_FOLDER, TASKS_FOLDER)),
-        ):
-            remove_stale_partials(folder)
+        _remove_partials_of_killed_writers(results_dir)  # an interrupted run's
         hashes.save()  # a cache: a read-only folder's is only read
     if on_plan is not None:
         on_plan(plan)
@@ -902,6 +899,7 @@ def _run_in(
             finally:
                 if own:
                     _close(client, local=scheduler is None)
+        _remove_partials_of_killed_writers(results_dir)  # a worker killed mid-task, its task run again
     ordered = tuple(results[task.index] for task in plan.tasks)
     written = write_tables(results_dir, sweep, plan.tasks, ordered, extra_figures, on_warning=on_warning)
     return SweepRun(
@@ -914,6 +912,16 @@ def _run_in(
         results_dir / RESULTS_CSV,
         written,
     )
+
+
+def _remove_partials_of_killed_writers(results_dir: Path) -> None:
+    """What workers were writing when they were killed (renders, estimates, task results): a worker
+    killed mid-task, whose task Dask then ran again elsewhere, left its partial file behind."""
+    for folder in (
+        results_dir,
+        *(results_dir / name for name in (RENDERS_FOLDER, ESTIMATES_FOLDER, TASKS_FOLDER)),
+    ):
+        remove_stale_partials(folder)
 
 
 _ANOTHER_SWEEP = "another sweep"
@@ -1343,6 +1351,9 @@ def resolve_objectives(text: str) -> list[Objective]:
             problems.append(f"--pareto: '{name}' {err}")
             continue
         maximise = sign == "+" if sign else not lower_is_better(key)
+        if any(objective.key == key for objective in objectives):  # twice: a column twice, or both ways
+            problems.append(f"--pareto: '{name}' names {key} again")
+            continue
         objectives.append(Objective(key, maximise))
     if problems:
         raise InputError("; ".join(problems) + f" (keys: {', '.join(sorted(known))})")

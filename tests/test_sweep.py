@@ -14,6 +14,7 @@ import os
 import shutil
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -946,6 +947,11 @@ def test_pareto_names_map_to_summary_keys_with_a_direction():
     ]
     with pytest.raises(InputError, match=r"'max' is ambiguous .*'nope' is not a summary key"):
         resolve_objectives("max,nope")
+    # a figure twice gave two identical columns; both ways put every task in the set
+    with pytest.raises(InputError, match=r"'loop_closure.precision' names loop_closure.precision again"):
+        resolve_objectives("precision,loop_closure.precision")
+    with pytest.raises(InputError, match=r"'precision' names loop_closure.precision again"):
+        resolve_objectives("-precision,+precision")
 
 
 def _result(index: int, values: list[float | None]) -> TaskResult:
@@ -1321,6 +1327,28 @@ def test_a_cluster_that_cannot_run_the_tasks_is_one_line_not_a_wait_for_ever(
         assert "nothing answers as a Dask scheduler" in capsys.readouterr().err
     finally:
         silent.close()
+    # A service that speaks first (SSH): its banner was read as a frame's length, "MemoryError:
+    # Unable to allocate 2.82 EiB".
+    banner = socket.socket()
+    banner.bind(("127.0.0.1", 0))
+    banner.listen(1)
+    speaking = threading.Thread(
+        target=lambda: banner.accept()[0].sendall(b"SSH-2.0-OpenSSH_9.6\r\n"), daemon=True
+    )
+    speaking.start()
+    try:
+        args = [
+            "sweep",
+            str(sweep_file),
+            "-o",
+            str(tmp_path / "z"),
+            "--scheduler",
+            f"tcp://127.0.0.1:{banner.getsockname()[1]}",
+        ]
+        assert main([*args, "-q"]) == 2
+        assert "something else answers at tcp://127.0.0.1:" in capsys.readouterr().err
+    finally:
+        banner.close()
     tls = ["sweep", str(sweep_file), "-o", str(tmp_path / "y"), "--scheduler", "tls://127.0.0.1:1", "-q"]
     assert main(tls) == 2
     assert "cannot reach the Dask scheduler at tls://127.0.0.1:1" in capsys.readouterr().err
@@ -1618,3 +1646,29 @@ def test_a_dry_run_waits_for_no_scheduler_file(tmp_path, capsys, monkeypatch):
     assert main([*dry, *later]) == 0
     assert main([*dry, *later, "--workers", "2"]) == 2
     assert "--workers sizes a local cluster" in capsys.readouterr().err
+
+
+def test_a_run_removes_what_a_killed_worker_was_writing(tmp_path, monkeypatch):
+    """A worker killed mid-task (its task run again on another) left its partial estimate until the
+    next run began in the folder."""
+    import aslam.app.sweep as sweep_module
+    from aslam.data_formats.files import PARTIAL_MARK
+
+    recording = write_recording(tmp_path / "rec.mcap", random_frames(3))
+    sweep_file = tmp_path / "s.toml"
+    sweep_file.write_text(f'[recordings]\npaths = ["{recording.name}"]\n')
+    results = tmp_path / "out"
+    gone = subprocess.Popen(["true"])  # a process id that no longer runs
+    gone.wait()
+    left = results / "estimates" / f".x.mcap{PARTIAL_MARK}{gone.pid}"
+    compute = sweep_module._compute
+
+    def killed_worker_then_compute(*args, **kwargs):
+        left.parent.mkdir(parents=True, exist_ok=True)
+        left.write_bytes(b"half an estimate")
+        return compute(*args, **kwargs)
+
+    monkeypatch.setattr(sweep_module, "_compute", killed_worker_then_compute)
+    run = run_sweep(read_sweep_file(sweep_file), results, workers=1)
+    run.check()
+    assert not left.exists()
