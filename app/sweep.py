@@ -1339,7 +1339,7 @@ def resolve_objectives(text: str) -> list[Objective]:
     from aslam.app.score import lower_is_better, summary_key, summary_keys
 
     known = summary_keys()
-    objectives = []
+    objectives: list[Objective] = []
     problems = []
     for raw in (part.strip() for part in text.split(",")):
         if not raw:
