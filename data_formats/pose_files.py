@@ -19,6 +19,7 @@ must be reported with its file and line number, and the rows are streamed.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from decimal import Decimal, InvalidOperation
@@ -79,12 +80,15 @@ def _split(text: str) -> list[str]:
     return [part.strip() for part in text.split(",")] if "," in text else text.split()
 
 
+_NUMBER = re.compile(
+    r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|[+-]?(?:nan|inf|infinity)", re.ASCII | re.IGNORECASE
+)
+"""A number as pose files write it: Python's ``float()`` alone also took ``1_0`` (10) and digits of
+other scripts."""
+
+
 def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
+    return _NUMBER.fullmatch(text) is not None
 
 
 def detect_format(path: Path) -> PoseFormat:
@@ -119,6 +123,8 @@ def stamp_text_ns(text: str, unit: StampUnit | str | None = None) -> int:
     seconds or whole nanoseconds of 18 or more digits. Raises ``ValueError`` saying why a stamp is
     none (milliseconds since 1970, say, read as seconds are past the last time a ROS message holds;
     relative ones are not, see :func:`spacing_doubt`)."""
+    if not _is_number(text):  # Decimal too takes 1_0 and digits of other scripts
+        raise ValueError(f"stamp '{text}' is not a number")
     try:
         value = Decimal(text)
     except InvalidOperation as err:
@@ -275,11 +281,10 @@ def _iter_poses(path: Path, fmt: PoseFormat, unit: StampUnit | None) -> Iterator
                 f"line {number}: {len(fields)} fields, a {fmt.value.upper()} line has {layout.fields}",
                 path=path,
             )
-        try:
-            values = [float(f) for f in fields]
-        except ValueError as err:
-            bad = next(f for f in fields if not _is_number(f))
-            raise PoseFileError(f"line {number}: '{bad}' is not a number", path=path) from err
+        bad = next((f for f in fields if not _is_number(f)), None)
+        if bad is not None:
+            raise PoseFileError(f"line {number}: '{bad}' is not a number", path=path)
+        values = [float(f) for f in fields]
         if not all(math.isfinite(v) for v in values):
             raise PoseFileError(f"line {number}: not finite (NaN or infinite)", path=path)
         stamp = None

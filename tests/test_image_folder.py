@@ -977,3 +977,14 @@ def test_the_frames_of_a_folder_of_odd_names_are_those_import_lists(tmp_path):
     assert sorted(p.name for p in list_images(folder)) == sorted(
         n for n, frame in HOSTILE_ENTRIES.items() if frame
     )
+
+
+@pytest.mark.parametrize("text", ["1_0", "\u0661", "0x10", "1e", "--1"])
+def test_a_pose_file_number_is_written_as_numbers_are(tmp_path, text):
+    """Python's float() took ``1_0`` as 10 and Arabic-Indic digits as digits."""
+    path = tmp_path / "p.txt"
+    path.write_text(f"0 0 0 0 0 0 0 1\n1 {text} 0 0 0 0 0 1\n", encoding="utf-8")
+    with pytest.raises(PoseFileError, match=rf"line 2: '{re.escape(text)}' is not a number"):
+        list(iter_poses(path, "tum"))
+    with pytest.raises(ValueError, match="is not a number"):
+        stamp_text_ns(text)
