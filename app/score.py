@@ -30,7 +30,7 @@ from aslam.core.mapgraph import GrowableArray
 from aslam.core.metrics import AssignmentScore, Evaluation, evaluate, score_assignment
 from aslam.data_formats.errors import EstimateError, RecordingError
 from aslam.data_formats.estimate import EstimateFile, iter_keyframes, map_digest, open_estimate, read_estimate
-from aslam.data_formats.files import file_name_from_utf8, full_path, source_size_bytes
+from aslam.data_formats.files import file_name_from_utf8, full_path, real_path, source_size_bytes
 from aslam.data_formats.graph_json import build_graph_json
 from aslam.data_formats.mcap_file import McapFile
 from aslam.data_formats.pose_sync import TRUTH_MAX_GAP_NS
@@ -486,33 +486,48 @@ def _map_truth(
     its recording or its estimate missing, or an estimate that is no longer the map this run started
     in (estimated again since). ``ground_truth_topic`` is read in every session that has it (bags
     estimated without one), the others on their own topic."""
-    prior = info.metadata.prior_map
-    if prior is None:
-        return np.zeros((0, 3)), []
-    unscored = np.full((prior.keyframes, 3), np.nan), [_Session(prior.keyframes, None, None)]
-    found = _find_map(info, path, warn)
-    if found is None:
-        return unscored
-    prior_path, prior_source, prior_info = found
-    try:
-        with closing(iter_keyframes(prior_source)) as keyframes:
-            stamps = [keyframe.stamp_ns for keyframe in keyframes]
-    except InputError as err:
-        warn(f"{err}; {_MAP_LOST}")
-        return unscored
-    if prior_info.graph.first_keyframe + len(stamps) != prior.keyframes:
-        warn(
-            f"{prior_path}: {len(stamps)} keyframes where its map says"
-            f" {prior.keyframes - prior_info.graph.first_keyframe}; {_MAP_LOST}"
+    # Walked back link by link, not recursively: a chain of a thousand sessions (a robot estimating
+    # each run in the last one's map) exceeded Python's recursion limit, exit 70.
+    links: list[tuple[Path, EstimateFile, list[int]]] = []  # the maps' estimates, newest first
+    current, current_path = info, path
+    lost = 0  # keyframes of the sessions before the oldest map found: unscored
+    seen = {real_path(path)}
+    while (prior := current.metadata.prior_map) is not None:
+        found = _find_map(current, current_path, warn)
+        if found is None:
+            lost = prior.keyframes
+            break
+        prior_path, prior_source, prior_info = found
+        if real_path(prior_path) in seen:  # a damaged chain that names itself again
+            warn(f"{prior_path}: the chain of maps comes back to this file; {_MAP_LOST}")
+            lost = prior.keyframes
+            break
+        seen.add(real_path(prior_path))
+        try:
+            with closing(iter_keyframes(prior_source)) as keyframes:
+                stamps = [keyframe.stamp_ns for keyframe in keyframes]
+        except InputError as err:
+            warn(f"{err}; {_MAP_LOST}")
+            lost = prior.keyframes
+            break
+        if prior_info.graph.first_keyframe + len(stamps) != prior.keyframes:
+            warn(
+                f"{prior_path}: {len(stamps)} keyframes where its map says"
+                f" {prior.keyframes - prior_info.graph.first_keyframe}; {_MAP_LOST}"
+            )
+            lost = prior.keyframes
+            break
+        links.append((prior_path, prior_info, stamps))
+        current, current_path = prior_info, prior_path
+    truths = [np.full((lost, 3), np.nan)]
+    sessions = [_Session(lost, None, None)] if lost else []
+    for prior_path, prior_info, stamps in reversed(links):
+        own, session = _session_truth(
+            prior_info, prior_path, stamps, truth_by_index, None, warn, ground_truth_topic, of_the_map=True
         )
-        return unscored
-    earlier, sessions = _map_truth(prior_info, prior_path, truth_by_index, warn, ground_truth_topic)
-    own, session = _session_truth(
-        prior_info, prior_path, stamps, truth_by_index, None, warn, ground_truth_topic, of_the_map=True
-    )
-    if own is None:
-        own = np.full((len(stamps), 3), np.nan)
-    return np.concatenate([earlier, own]), [*sessions, session]
+        truths.append(np.full((len(stamps), 3), np.nan) if own is None else own)
+        sessions.append(session)
+    return np.concatenate(truths), sessions
 
 
 @dataclass(frozen=True)

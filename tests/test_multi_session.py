@@ -786,3 +786,34 @@ def test_the_evidence_weight_scales_the_log_likelihood_ratio_to_a_new_place(weig
     full, reference = judged(1.0)
     weighted, _ = judged(weight)
     np.testing.assert_allclose(np.log(weighted / reference), weight * np.log(full / reference), atol=1e-9)
+
+
+def test_a_long_chain_of_sessions_is_scored_without_recursion(tmp_path, monkeypatch):
+    """``report`` walked a chain of maps recursively, a level per session: at about 960 sessions
+    (a robot estimating each run in the last one's map) RecursionError, exit 70. The chain is now
+    walked in one call, however long."""
+    from conftest import random_frames, write_recording
+
+    import aslam.app.score as score_module
+    from aslam.app.estimate import estimate
+
+    recording = write_recording(tmp_path / "r.mcap", random_frames(2))
+    previous = None
+    for i in range(6):
+        out = tmp_path / f"e{i}.mcap"
+        estimate(recording, out, EstimatorConfig(), timing=False, reader_process=False, prior=previous)
+        previous = out
+    walk, depth, deepest = score_module._map_truth, [0], [0]
+
+    def counted(*args, **kwargs):
+        depth[0] += 1
+        deepest[0] = max(deepest[0], depth[0])
+        try:
+            return walk(*args, **kwargs)
+        finally:
+            depth[0] -= 1
+
+    monkeypatch.setattr(score_module, "_map_truth", counted)
+    report = score_module.score(previous)
+    assert deepest[0] == 1
+    assert report.summary["keyframes"] == 2 and report.summary["ground_truth"] is True
