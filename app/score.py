@@ -667,22 +667,36 @@ def _find_recording(
                 f" {info.metadata.recording.size_bytes}): its ground truth is taken at the keyframes' stamps"
             )
         return full_path(given)
+    # Only a file of the recorded size is that recording: one made again in its place (another seed)
+    # was scored against, a perfect run at precision 0, after a warning alone.
     named, size_bytes = info.metadata.recording.path, info.metadata.recording.size_bytes
     path = file_name_from_utf8(named)
-    if not path.exists():
-        beside = full_path(estimate).parent / path.name
-        try:
-            moved = beside != path and beside.exists() and source_size_bytes(beside) == size_bytes
-        except (InputError, OSError):  # a folder of no bag, a file we may not read
-            moved = False
-        if moved:
-            return beside
+    beside = full_path(estimate).parent / path.name
+    sizes = {candidate: _size_or_none(candidate) for candidate in dict.fromkeys([path, beside])}
+    for candidate, size in sizes.items():
+        if size == size_bytes:
+            return candidate
+    if sizes[path] is not None:
+        warn(
+            f"recording {named} has changed since the estimate ({sizes[path]} bytes, was {size_bytes});"
+            f" {without}"
+        )
+    elif sizes[beside] is not None:
+        warn(
+            f"recording {named} (named in {estimate}) not found, and {beside} beside it is"
+            f" another file ({sizes[beside]} bytes, the recording {size_bytes}); {without}"
+        )
+    else:
         warn(f"recording {named} (named in {estimate}) not found; {without}")
+    return None
+
+
+def _size_or_none(path: Path) -> int | None:
+    """The size of a recording or bag at ``path``, or None where there is none to read."""
+    try:
+        return source_size_bytes(path) if path.exists() else None
+    except (InputError, OSError):  # a folder of no bag, a file we may not read
         return None
-    size = source_size_bytes(path)
-    if size != size_bytes:
-        warn(f"recording {named} has changed since the estimate ({size} bytes, was {size_bytes})")
-    return path
 
 
 def _ground_truth(

@@ -817,3 +817,34 @@ def test_a_long_chain_of_sessions_is_scored_without_recursion(tmp_path, monkeypa
     report = score_module.score(previous)
     assert deepest[0] == 1
     assert report.summary["keyframes"] == 2 and report.summary["ground_truth"] is True
+
+
+def test_a_recording_made_again_in_its_place_is_no_truth(tmp_path):
+    """A map session's recording made again (another seed, another size) was taken as its truth:
+    a perfect run scored precision 0 after a warning. Only the recorded size is that recording; a
+    copy of it beside the estimate still is."""
+    from conftest import random_frames, write_recording
+
+    from aslam.app.estimate import estimate
+    from aslam.app.score import score
+
+    (tmp_path / "a").mkdir()
+    first = write_recording(tmp_path / "a" / "s1.mcap", random_frames(3))
+    second = write_recording(tmp_path / "s2.mcap", random_frames(3))
+    first_estimate, second_estimate = tmp_path / "e1.mcap", tmp_path / "e2.mcap"
+    estimate(first, first_estimate, EstimatorConfig(), timing=False, reader_process=False)
+    estimate(
+        second, second_estimate, EstimatorConfig(), timing=False, reader_process=False, prior=first_estimate
+    )
+    before = score(second_estimate).summary["loop_closure"]
+    kept = first.read_bytes()
+    first.unlink()
+    write_recording(first, random_frames(4, seed=9))  # made again in its place: another size
+    warnings: list[str] = []
+    after = score(second_estimate, on_warning=warnings.append).summary["loop_closure"]
+    assert any("s1.mcap has changed since the estimate" in w and "not scored" in w for w in warnings)
+    assert after["unjudged_claims"] == before["claims"] and after["correct"] == 0
+    (tmp_path / "s1.mcap").write_bytes(kept)  # the original, beside the estimate: taken
+    warnings.clear()
+    assert score(second_estimate, on_warning=warnings.append).summary["loop_closure"] == before
+    assert not any("s1.mcap" in w for w in warnings)
