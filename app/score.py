@@ -271,10 +271,12 @@ class Report:
         return self.evaluation.has_ground_truth and self.recording_path is None
 
     def graph_json(self) -> dict[str, Any]:
+        # By index the truth is frame numbers, not poses: none for the places (it was written as
+        # ``first_visit_truth`` {"x_m": 3.0, ...} for place 3).
         return build_graph_json(
             self.estimate.graph,
             self.stamps_ns,
-            self.map_truth,
+            None if self.truth_by_index else self.map_truth,
             estimate_path=str(full_path(self.estimate_path)),
             recording_path=None if self.recording_path is None else str(self.recording_path),
         )

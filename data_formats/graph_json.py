@@ -71,7 +71,8 @@ def build_graph_json(
         "recording": recording_path,
         "keyframes": n,
         "first_keyframe": first,
-        "ground_truth": true_poses is not None,
+        # known for some place: a map whose sessions' recordings are gone has none, with truth elsewhere
+        "ground_truth": any(state["first_visit_truth"] is not None for state in states),
         "states": states,
         "links": links,
         "hypotheses": [hypothesis_json(h) for h in graph.hypotheses],

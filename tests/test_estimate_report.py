@@ -579,6 +579,18 @@ def test_error_plot_of_a_truth_by_index_draws_no_errors(estimate_file: Path, tmp
     assert any("not measured" in text.get_text() for text in errors.axes[0].texts)
 
 
+def test_the_graph_json_gives_no_true_poses_by_index_and_says_so(estimate_file: Path, tmp_path: Path):
+    """By index the truth is frame numbers: ``first_visit_truth`` was {"x_m": 3.0, ...} for place 3
+    beside ``"ground_truth": true``. And the flag says whether any place's truth is known: a map
+    whose recording has gone had every place null and the flag true."""
+    from aslam.app.score import score
+
+    graph = score(estimate_file, truth_by_index=True).graph_json()
+    assert graph["ground_truth"] is False
+    assert all(state["first_visit_truth"] is None for state in graph["states"])
+    assert score(estimate_file).graph_json()["ground_truth"] is True
+
+
 def test_plots_leave_a_notebooks_matplotlib_as_it_was(estimate_file: Path, tmp_path: Path):
     """``write_plots`` from a notebook: its backend (inline, here svg) and its open figures stay;
     ``matplotlib.use("Agg")`` switched the backend, so the notebook's later figures were not shown."""
