@@ -28,6 +28,7 @@ from aslam.cli.output import (
     QuietOption,
     Terminal,
     VerboseOption,
+    input_file,
     output_file,
 )
 from aslam.core.config import EstimatorConfig
@@ -157,7 +158,10 @@ _FIXED: dict[str, tuple[Any, Any]] = {
     ),
     "output": (
         Annotated[
-            Path, typer.Option("-o", "--output", help="Estimate file (.mcap) to write.", parser=output_file)
+            Path,
+            typer.Option(
+                "-o", "--output", help="Estimate file (.mcap) to write.", parser=output_file, metavar="<file>"
+            ),
         ],
         _MISSING,
     ),
@@ -167,7 +171,8 @@ _FIXED: dict[str, tuple[Any, Any]] = {
             typer.Option(
                 "--config",
                 help="TOML file with estimator parameters in an \\[estimator] table.",
-                dir_okay=False,
+                parser=input_file,
+                metavar="<file>",
             ),
         ],
         None,
@@ -180,7 +185,8 @@ _FIXED: dict[str, tuple[Any, Any]] = {
                 help="Start in the map of an earlier estimate file (multi-session): the robot's place in it"
                 " is found by appearance, then it is tracked and the map extended. Use the same"
                 " observation settings as that run. One map: chain sessions to grow it.",
-                dir_okay=False,
+                parser=input_file,
+                metavar="<file>",
             ),
         ],
         None,

@@ -28,7 +28,10 @@ def import_folder(
         Path, typer.Argument(help="Folder of .png/.jpg images, read in file-name order.", show_default=False)
     ],
     output: Annotated[
-        Path, typer.Option("-o", "--output", help="Recording (.mcap) to write.", parser=output_file)
+        Path,
+        typer.Option(
+            "-o", "--output", help="Recording (.mcap) to write.", parser=output_file, metavar="<file>"
+        ),
     ],
     ground_truth: Annotated[
         Path | None, typer.Option(help="Pose file with the true poses (TUM, KITTI or CSV t,x,y,yaw).")

@@ -29,6 +29,7 @@ def info(
             "--json",
             help="Write the description as one JSON object here; '-': stdout.",
             parser=output.output_name,
+            metavar="<file>",
         ),
     ] = None,
     image_topic: output.ImageTopicOption = None,

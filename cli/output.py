@@ -70,6 +70,14 @@ def output_name(text: str) -> str:
     return text
 
 
+def input_file(text: str) -> Path:
+    """An input's name, refused when empty: ``--map ""`` was the current folder, named in an error
+    as a folder the user never gave."""
+    if not text:
+        raise typer.BadParameter("an empty name; give a file name")
+    return Path(text)
+
+
 def output_file(text: str) -> Path:
     """:func:`output_name` as a path (the parser of ``-o``, ``--contact-sheet``)."""
     return Path(output_name(text))

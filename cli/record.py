@@ -29,7 +29,9 @@ _DEFAULT_NOISE = NoiseParams()
 
 @app.command()
 def record(
-    output: Annotated[Path, typer.Option("-o", "--output", help="MCAP file to write.", parser=output_file)],
+    output: Annotated[
+        Path, typer.Option("-o", "--output", help="MCAP file to write.", parser=output_file, metavar="<file>")
+    ],
     route: Annotated[
         str, typer.Option(help="Preset (paper, figure8, grid) or a route JSON file.", show_default=True)
     ] = "paper",
@@ -118,7 +120,8 @@ def record(
         int | None, typer.Option(help="Write JPEG of this quality instead of PNG.")
     ] = None,
     contact_sheet: Annotated[
-        Path | None, typer.Option(help="Also write a PNG grid of sample keyframes.", parser=output_file)
+        Path | None,
+        typer.Option(help="Also write a PNG grid of sample keyframes.", parser=output_file, metavar="<file>"),
     ] = None,
     force: ForceOption = False,
     quiet: QuietOption = False,

@@ -18,6 +18,7 @@ from aslam.cli.output import (
     QuietOption,
     Terminal,
     VerboseAcceptedOption,
+    input_file,
     output_name,
     table_console,
 )
@@ -35,12 +36,17 @@ def report(
         Path | None,
         typer.Option(
             help="Recording (or bag) with the ground truth. \\[default: the one named in the estimate]",
+            parser=input_file,
+            metavar="<file>",
         ),
     ] = None,
     graph: Annotated[
         str | None,
         typer.Option(
-            "--graph", help="Write the map as JSON (docs/graph-json.md); '-': stdout.", parser=output_name
+            "--graph",
+            help="Write the map as JSON (docs/graph-json.md); '-': stdout.",
+            parser=output_name,
+            metavar="<file>",
         ),
     ] = None,
     plots: Annotated[
@@ -67,6 +73,7 @@ def report(
             "--json",
             help="Write the summary JSON here; '-': stdout (the tables then go to stderr).",
             parser=output_name,
+            metavar="<file>",
         ),
     ] = None,
     fail_on: Annotated[

@@ -95,6 +95,7 @@ def sweep(
             "--json",
             help="With --dry-run: write the plan as one JSON object here; '-': stdout.",
             parser=output_name,
+            metavar="<file>",
         ),
     ] = None,
     example: Annotated[

@@ -1695,3 +1695,20 @@ def test_report_refuses_an_input_as_an_output_without_advising_force(
     for argv in (["--json", str(estimate_file)], ["--recording", str(recording), "--graph", str(recording)]):
         assert main(["report", str(estimate_file), *argv]) == 2
         assert "resolves to an input of this command" in one_error_line(capsys)
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["estimate", "{recording}", "-o", "{tmp}/e.mcap", "--map", ""],
+        ["estimate", "{recording}", "-o", "{tmp}/e.mcap", "--config", ""],
+        ["report", "{estimate}", "--recording", ""],
+    ],
+)
+def test_an_empty_input_name_is_refused_not_read_as_the_current_folder(
+    recording: Path, estimate_file: Path, tmp_path: Path, capsys, argv: list[str]
+):
+    """``--map ""`` was the current folder, named in the error as a folder the user never gave."""
+    filled = [part.format(recording=recording, estimate=estimate_file, tmp=tmp_path) for part in argv]
+    assert main(filled) == 2
+    assert "an empty name; give a file name" in one_error_line(capsys)
