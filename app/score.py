@@ -449,6 +449,11 @@ def _session_truth(
     named = ground_truth_topic is not None and (alone or _has_topic(path, ground_truth_topic))
     if named:
         topics = replace(topics, ground_truth=ground_truth_topic)
+    elif of_the_map and ground_truth_topic is not None and topics.ground_truth is None:
+        # A map session (a bag estimated with no truth topic) without the topic named: it said
+        # "no ground-truth topic named for this bag", though one was.
+        warn(f"{path}: no topic '{ground_truth_topic}' in it; {without}")
+        return None, _Session(len(stamps), path, None)
     strict = ground_truth_topic is not None and not of_the_map
     try:
         poses = _ground_truth(path, topics, stamps, warn, strict=strict, without=without)

@@ -241,6 +241,24 @@ def test_a_truth_topic_no_session_has_is_an_error(mixed, chain, words, tmp_path,
     assert f"{mixed[run]}: {words}" in line
 
 
+def test_a_map_bag_without_the_topic_named_says_so(mixed, capsys):
+    """A map session that is a bag estimated with no truth topic, and a report naming a topic it
+    lacks: the warning said "no ground-truth topic named for this bag", though one was."""
+    capsys.readouterr()
+    args = [
+        "report",
+        str(mixed["recording in bag"]),
+        "--json",
+        "-",
+        "--ground-truth-topic",
+        "/ground_truth/pose",
+    ]
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert f"{mixed['bag']}: no topic '/ground_truth/pose' in it" in err
+    assert "no ground-truth topic named" not in err
+
+
 def test_a_truth_topic_only_a_missing_map_session_had_is_no_error(tmp_path, capsys):
     """The map's bag, the one session with /ground_truth, deleted: the report said no session has
     the topic (exit 2, as for a typo) though it cannot know. The run is now scored on its own topic,
