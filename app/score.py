@@ -680,8 +680,8 @@ def _find_recording(
     path = file_name_from_utf8(named)
     beside = full_path(estimate).parent / path.name
     sizes = {candidate: _size_or_none(candidate) for candidate in dict.fromkeys([path, beside])}
-    for candidate, size in sizes.items():
-        if size == size_bytes:
+    for candidate, found_size in sizes.items():
+        if found_size == size_bytes:
             return candidate
     if sizes[path] is not None:
         warn(
