@@ -202,7 +202,10 @@ class _Stream:
         datatype = schema.name if schema is not None else ""
         _check_type(self.path, self.what, channel.topic, datatype, self.accepted)
         msg = self.decode(schema, channel, message)
-        stamp_ns = _header_stamp_ns(msg, message.log_time)
+        try:
+            stamp_ns = _header_stamp_ns(msg, message.log_time)
+        except ros_msgs.StampError as err:
+            raise RecordingError(f"{self.what} message on '{channel.topic}': {err}", path=self.path) from None
         if stamp_ns < 0:
             raise RecordingError(negative_stamp(self.what, channel.topic, stamp_ns), path=self.path)
         return stamp_ns, msg, datatype

@@ -134,9 +134,18 @@ def stamp_msg(stamp_ns: int) -> dict[str, int]:
     return {"sec": sec, "nanosec": nanosec}
 
 
+class StampError(ValueError):
+    """A ``builtin_interfaces/Time`` that is no time; the readers name the file and the topic."""
+
+
 def stamp_ns_of(stamp: object) -> int:
-    """Integer nanoseconds of a decoded ``builtin_interfaces/Time``."""
-    return int(stamp.sec) * NS_PER_S + int(stamp.nanosec)  # type: ignore[attr-defined]
+    """Integer nanoseconds of a decoded ``builtin_interfaces/Time``. A ``nanosec`` of a whole second
+    or more is no time (:class:`StampError`): it was added to the seconds, an image shifted in time
+    in silence, an odometry message said to go backwards."""
+    nanosec = int(stamp.nanosec)  # type: ignore[attr-defined]
+    if not 0 <= nanosec < NS_PER_S:
+        raise StampError(f"its header stamp's nanosec is {nanosec}, not under 10⁹")
+    return int(stamp.sec) * NS_PER_S + nanosec  # type: ignore[attr-defined]
 
 
 def header_msg(stamp_ns: int, frame_id: str) -> dict[str, object]:

@@ -232,7 +232,10 @@ def _pose(
 
 def _stamp(path: Path, what: str, topic: str, msg: Any, log_time: int) -> int:
     """The message's header stamp (its log time if unset), refused before 1970."""
-    stamp_ns = _header_stamp_ns(msg, log_time)
+    try:
+        stamp_ns = _header_stamp_ns(msg, log_time)
+    except ros_msgs.StampError as err:
+        raise BagError(f"{what} message on '{topic}' at log time {log_time} ns: {err}", path=path) from None
     if stamp_ns < 0:
         raise BagError(negative_stamp(what, topic, stamp_ns), path=path)
     return stamp_ns
@@ -333,7 +336,12 @@ class _TfOdometry:
                 self._warn(f"{self._path}: odometry from /tf: {parent} → {child}")
             if child != self.base_frame:
                 continue
-            stamp_ns = _header_stamp_ns(transform, log_time)
+            try:
+                stamp_ns = _header_stamp_ns(transform, log_time)
+            except ros_msgs.StampError as err:
+                raise BagError(
+                    f"odometry transform {parent} → {child} at log time {log_time} ns: {err}", path=self._path
+                ) from None
             t, q = transform.transform.translation, transform.transform.rotation
             values = (float(t.x), float(t.y), float(q.x), float(q.y), float(q.z), float(q.w))
             if not all(math.isfinite(v) for v in values):

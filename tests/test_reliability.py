@@ -1712,3 +1712,34 @@ def test_an_empty_input_name_is_refused_not_read_as_the_current_folder(
     filled = [part.format(recording=recording, estimate=estimate_file, tmp=tmp_path) for part in argv]
     assert main(filled) == 2
     assert "an empty name; give a file name" in one_error_line(capsys)
+
+
+def test_a_header_stamp_whose_nanosec_is_a_second_or_more_is_refused(tmp_path: Path, capsys):
+    """It was added to the seconds: an image moved in time in silence, an odometry message said to
+    go backwards. In a recording and in a bag (written with rosbags) alike."""
+    from rosbags.typesys import Stores, get_typestore
+    from test_rosbag_source import bag_messages, write_rosbag2
+
+    path = tmp_path / "r.mcap"
+    with ForeignRecording(path) as rec:
+        for k in range(3):
+            stamp = T0_NS + k * FRAME_NS
+            rec.compressed_image("/camera/image/compressed", stamp, PNG, "png")
+            nanosec = 1_500_000_000 if k == 1 else stamp % 1_000_000_000
+            message = {
+                "header": {"stamp": {"sec": stamp // 1_000_000_000, "nanosec": nanosec}, "frame_id": "odom"},
+                "child_frame_id": "base_link",
+                "pose": {"pose": {"position": {"x": float(k), "y": 0.0, "z": 0.0},
+                                  "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}},
+            }  # fmt: skip
+            rec.writer.write_message("/odom", rec.schema(ros_msgs.ODOMETRY), message, log_time=stamp)
+    assert main(["info", str(path)]) == 2
+    one_error_line(capsys, str(path), "odometry message on '/odom'", "nanosec is 1500000000, not under 10⁹")
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    rows = bag_messages(ts)
+    msg = next(row for row in rows[3:] if row[1] == "/odom")[3]
+    msg.header.stamp.nanosec = 1_500_000_000
+    bag = write_rosbag2(tmp_path / "bag", messages=rows)
+    assert main(["info", str(bag)]) == 2
+    one_error_line(capsys, str(bag), "odometry message on '/odom'", "nanosec is 1500000000, not under 10⁹")
