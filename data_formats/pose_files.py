@@ -66,10 +66,6 @@ def _lines(path: Path) -> Iterator[tuple[int, str]]:
                 text = raw.strip()
                 if text and not text.startswith("#"):
                     yield number, text
-    except FileNotFoundError as err:
-        raise PoseFileError("no such file", path=path) from err
-    except IsADirectoryError as err:
-        raise PoseFileError("is a folder, not a pose file", path=path) from err
     except UnicodeDecodeError as err:
         raise PoseFileError(f"not a text file (byte {err.start} is not UTF-8)", path=path) from err
     except OSError as err:

@@ -32,10 +32,6 @@ def read_toml(path: Path, *, what: str) -> dict[str, Any]:
         raise ConfigError(f"is larger than {MAX_FILE_BYTES:,} bytes, not {what}", path=path)
     try:
         return tomllib.loads(Path(path).read_bytes().removeprefix(codecs.BOM_UTF8).decode("utf-8"))
-    except FileNotFoundError as err:
-        raise ConfigError("no such file", path=path) from err
-    except IsADirectoryError as err:
-        raise ConfigError(f"is a directory, not {what}", path=path) from err
     except OSError as err:
         raise ConfigError(f"cannot read: {err.strerror or err}", path=path) from err
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
