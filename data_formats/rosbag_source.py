@@ -394,9 +394,10 @@ def _bag_samples(
     topics: BagTopics,
     warn: Callable[[str], None],
     on_image_count: Callable[[int], None] | None,
+    read_counts: dict[str, int] | None = None,
 ) -> Iterator[Sample]:
     """The samples of the bag ``reader`` has open, then the pairing's warnings; ``on_image_count``
-    as :func:`iter_bag_samples`'s."""
+    as :func:`iter_bag_samples`'s. ``read_counts``, if given, gets the messages read per topic."""
     types = _topic_types(reader)
     resolved = resolve_topics(path, types, topics)
     counts = {topic: info.msgcount for topic, info in reader.topics.items()}
@@ -414,6 +415,8 @@ def _bag_samples(
     last_truth: np.ndarray | None = None
     wanted = {t for t in (resolved.image, resolved.odometry, resolved.ground_truth, resolved.tf) if t}
     for topic, datatype, log_time, msg in _messages(path, reader, wanted):
+        if read_counts is not None:
+            read_counts[topic] = read_counts.get(topic, 0) + 1
         if topic == resolved.image:
             stamp_ns = _stamp(path, "image", topic, msg, log_time)
             assembler.log_time_images += _set_header_stamp_ns(msg) is None
@@ -613,6 +616,9 @@ def describe_bag(
     ``on_image_count`` and ``on_sample`` as :func:`iter_bag_samples`'s and after each sample.
 
     The bag's own facts (kind, storage, files, compression, the topics read) go in ``metadata``.
+    The topics read are counted as read: a rosbag2 index (its ``metadata.yaml``) may be stale, and
+    a count that differs from it is warned about. Other topics keep the index's counts (reading
+    them, a lidar's point clouds say, is not what ``info`` is for).
     """
     from aslam.data_formats.recording_info import RecordingInfo, SampleStats
 
@@ -626,13 +632,14 @@ def describe_bag(
             on_warning(message)
 
     stats = SampleStats()
+    read_counts: dict[str, int] = {}
     # Opened once: a rosbag2 bag compressed by file is decompressed whole, into a temporary folder,
     # at every open (rosbags), and a ROS 1 bag's index read in full.
     with _open_reader(path) as reader:
         summary = _summary(path, kind, reader, topics)
         if summary.problem is not None:
             raise BagError(summary.problem, path=path)
-        for sample in _bag_samples(path, reader, topics, warn, on_image_count):
+        for sample in _bag_samples(path, reader, topics, warn, on_image_count, read_counts):
             stats.add(sample)
             if on_sample is not None:
                 on_sample(stats.samples)
@@ -641,6 +648,13 @@ def describe_bag(
         warn(line)
     resolved = summary.resolved
     assert resolved is not None
+    read = {t for t in (resolved.image, resolved.odometry, resolved.ground_truth, resolved.tf) if t}
+    topic_infos = []
+    for t in summary.topics:
+        messages = read_counts.get(t.topic, 0) if t.topic in read else t.messages
+        if messages != t.messages:
+            warn(f"{path}: the bag's index says {t.messages} messages on '{t.topic}'; it holds {messages}")
+        topic_infos.append(TopicInfo(t.topic, t.datatype, messages))
     metadata = {
         "kind": summary.kind.value,
         "storage": summary.storage,
@@ -654,7 +668,7 @@ def describe_bag(
     return RecordingInfo(
         path=str(path),
         size_bytes=source_size_bytes(path),
-        topics=tuple(TopicInfo(t.topic, t.datatype, t.messages) for t in summary.topics),
+        topics=tuple(topic_infos),
         **stats.fields(),
         camera=camera,
         metadata=metadata,

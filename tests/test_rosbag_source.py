@@ -466,6 +466,30 @@ def test_describe_bag_reads_every_sample(bags):
     assert info.odometry_distance_m == pytest.approx(float(np.hypot(*span)))
 
 
+def test_describe_bag_counts_the_topics_it_reads_rather_than_a_stale_index(bags, tmp_path):
+    """A rosbag2 folder's metadata.yaml is the index rosbags gives counts from; one left stale (a
+    bag trimmed or rewritten by a tool) made ``aslam info`` show counts the bag does not hold."""
+    from ruamel.yaml import YAML
+
+    bag = tmp_path / "bag"
+    shutil.copytree(bags["rosbag2-mcap"], bag)
+    yaml = YAML(typ="safe")
+    meta = yaml.load((bag / "metadata.yaml").read_text())
+    for topic in meta["rosbag2_bagfile_information"]["topics_with_message_count"]:
+        if topic["topic_metadata"]["name"] == IMAGE_TOPIC:
+            topic["message_count"] = 3 * N_IMAGES
+    with (bag / "metadata.yaml").open("w") as f:
+        yaml.dump(meta, f)
+    warnings: list[str] = []
+    info = describe_bag(bag, WITH_TRUTH, on_warning=warnings.append)
+    counts = {t.topic: t.messages for t in info.topics}
+    assert counts[IMAGE_TOPIC] == N_IMAGES == info.samples
+    said = f"the bag's index says {3 * N_IMAGES} messages on '{IMAGE_TOPIC}'; it holds {N_IMAGES}"
+    assert warnings == [f"{bag}: {said}"]
+    fresh = {t.topic: t.messages for t in describe_bag(bags["rosbag2-mcap"], WITH_TRUTH).topics}
+    assert fresh == counts
+
+
 def test_info_opens_a_bag_once(bags, monkeypatch):
     """rosbags decompresses a rosbag2 bag compressed by file whole, into a temporary folder, each
     time it is opened (and reads a ROS 1 bag's whole index): ``aslam info`` opened it four times
