@@ -39,7 +39,7 @@ from typing import Any
 
 from aslam.app.sweep_file import ScoreOptions, Sweep, estimator_config
 from aslam.core.config import EstimatorConfig
-from aslam.core.errors import AslamError, InputError, one_line
+from aslam.core.errors import AslamError, ConfigError, InputError, one_line
 from aslam.data_formats.files import (
     LOCK_FILE,
     check_folder_free,
@@ -52,6 +52,7 @@ from aslam.data_formats.files import (
     write_problem,
 )
 from aslam.data_formats.provenance import code_version, library_versions
+from aslam.data_formats.rosbag_source import SourceKind, open_source
 from aslam.data_formats.sweep_files import (
     HASHES_FILE,
     RESULTS_CSV,
@@ -240,6 +241,28 @@ class HashCache:
             write_json_document(self.path, self.entries)
 
 
+def _check_inputs(sweep_file: Path, recordings: list[Path]) -> None:
+    """ConfigError naming every listed path that is no recording or bag (a README a glob met, an
+    estimate, a folder): told at the dry run, not as a failed task after the others ran."""
+    problems = []
+    for path in recordings:
+        try:
+            kind = open_source(path)
+        except InputError as err:
+            problems.append(str(err))
+            continue
+        if kind is SourceKind.IMAGE_FOLDER:
+            problems.append(
+                f"{path}: an image folder; make it a recording first: aslam import {path} -o REC.mcap"
+            )
+    if problems:
+        raise ConfigError(
+            "recordings.paths names what a sweep cannot read (a glob such as 'runs/**/*.mcap' names"
+            " recordings only): " + "; ".join(problems),
+            path=sweep_file,
+        )
+
+
 def plan_tasks(sweep: Sweep, results_dir: Path, *, hashes: HashCache | None = None) -> list[Task]:
     """Every task of ``sweep``, in the stable order the rows take; a configuration two grids both
     name on one recording once, where it first comes.
@@ -258,6 +281,7 @@ def plan_tasks(sweep: Sweep, results_dir: Path, *, hashes: HashCache | None = No
     recordings = [
         path for path in sweep.recordings if not any(full_path(path).is_relative_to(folder) for folder in own)
     ]
+    _check_inputs(sweep.path, recordings)
     names = distinct_names(recordings)
     sources = [Source(path, hashes.sha256(path), names[path]) for path in recordings]
     for render in sweep.renders:

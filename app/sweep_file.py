@@ -163,7 +163,12 @@ def _recordings(value: Any, base: Path, problems: list[str]) -> tuple[Path, ...]
             found[full_path(full)] = None
         elif glob.has_magic(str(given)):  # the pattern's own wildcards; the sweep file's folder literal
             search = str(given) if given.is_absolute() else os.path.join(glob.escape(str(base)), str(given))
-            matches = sorted(Path(p) for p in glob.glob(search, recursive=True) if Path(p).exists())
+            # The folders a ``**`` glob passes through are no recordings; a rosbag2 folder is one.
+            matches = sorted(
+                Path(p)
+                for p in glob.glob(search, recursive=True)
+                if Path(p).is_file() or (Path(p) / "metadata.yaml").is_file()
+            )
             if not matches:
                 problems.append(f"recordings.paths: '{pattern}' matches nothing")
             found.update(dict.fromkeys(full_path(m) for m in matches))

@@ -1,7 +1,8 @@
 """`aslam sweep` on real Dask clusters (a LocalCluster, and a scheduler + worker started as processes).
 
 The recordings are tiny renders (64×48, paper route, 2 laps) so that a sweep takes seconds; the
-corrupt one is garbage bytes under a .mcap name.
+corrupt one is that recording with garbage bytes written over its middle: it opens as a recording,
+so the sweep plans it, and its task fails on the damage.
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import cv2
+import numpy as np
 import psutil
 import pyarrow.csv
 import pyarrow.parquet
@@ -57,7 +60,10 @@ FIGURES = ["keyframes", "loop_closure.precision", "loop_closure.recall", "error.
 def recordings(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("recordings")
     record(RecordConfig(route="paper", laps=2, seed=0, camera=CameraSpec(64, 48)), folder / "good.mcap")
-    (folder / "corrupt.mcap").write_bytes(os.urandom(4096))
+    damaged = bytearray((folder / "good.mcap").read_bytes())
+    middle = len(damaged) // 2
+    damaged[middle : middle + 4096] = bytes(range(256)) * 16
+    (folder / "corrupt.mcap").write_bytes(bytes(damaged))
     return folder
 
 
@@ -118,7 +124,7 @@ def test_local_cluster_runs_three_tasks_one_failing_on_a_corrupt_recording(local
     assert Path(rendered["recording"]).is_file()
     assert corrupt["status"] == "error"
     assert str(recordings / "corrupt.mcap") in corrupt["error"]
-    assert "not a recording or a bag" in corrupt["error"]
+    assert "corrupt MCAP data" in corrupt["error"]
     assert corrupt["loop_closure.precision"] is None and corrupt["keyframes"] is None
     csv = pyarrow.csv.read_csv(results / "results.csv")
     assert csv.num_rows == 3 and csv.column("status").to_pylist() == ["ok", "error", "ok"]
@@ -894,9 +900,9 @@ def test_recordings_of_one_name_are_told_apart_by_their_folders_on_the_terminal(
     on the terminal (the plan, the live table, --pareto), each by the shortest tail of its path no
     other recording has; a name no other has stays a name; the files keep the whole path."""
     paths = ["x/run.mcap", "y/deep/run.mcap", "z/deep/run.mcap", "a.mcap"]
-    for path in paths:
+    for seed, path in enumerate(paths):
         (tmp_path / path).parent.mkdir(parents=True, exist_ok=True)
-        (tmp_path / path).write_bytes(path.encode())
+        write_recording(tmp_path / path, random_frames(2, seed=seed))
     sweep = tmp_path / "s.toml"
     sweep.write_text(f"[recordings]\npaths = {json.dumps(paths)}\n[grid]\nbeta = 3.0\n")
     assert main(["sweep", str(sweep), "-o", str(tmp_path / "out"), "--dry-run"]) == 0
@@ -1554,6 +1560,43 @@ def test_the_live_table_shows_a_name_with_control_characters_escaped(tmp_path, r
     assert "n\\n\\x1b[31m.mcap" in row and "bad\\nline" in row
 
 
+@pytest.mark.parametrize("width", [80, 120, 250])
+def test_the_live_table_is_readable_at_any_terminal_width(tmp_path, recordings, width):
+    """At the default figures the live table has 14 columns: at 80 columns rich folded every cell
+    into strips four letters wide (``reco/rdin/g``). A table that does not fit drops its worker
+    column, then becomes one line per task; every line fits the terminal, every figure is whole."""
+    import io
+
+    from rich.console import Console
+
+    from aslam.app.sweep_file import DEFAULT_FIGURES
+    from aslam.cli.output import Terminal
+    from aslam.cli.sweep_display import LiveDisplay
+
+    shutil.copy(recordings / "good.mcap", tmp_path / "good.mcap")
+    path = tmp_path / "s.toml"
+    path.write_text('[recordings]\npaths = ["*.mcap"]\n[grid]\nbeta = [2.0, 3.0]\n')
+    first, second = plan_tasks(read_sweep_file(path), tmp_path / "out")
+    screen = io.StringIO()
+    terminal = Terminal()
+    terminal._console = Console(file=screen, width=width)
+    display = LiveDisplay(terminal, DEFAULT_FIGURES)
+    summary = {key: 0.123456 for key in DEFAULT_FIGURES}
+    worker = "tcp://127.0.0.1:40211"
+    display.result(first, TaskResult(0, first.key, summary, None, (), 1.0, 1.0, worker), False)
+    display.result(second, TaskResult(1, second.key, {}, "it broke: " + "x" * 40, (), 1.0, 1.0, "w"), False)
+    terminal.console.print(display._render())
+    text = screen.getvalue()
+    lines = text.splitlines()
+    assert all(len(line.rstrip()) <= width for line in lines)
+    assert text.count("0.1235") == len(DEFAULT_FIGURES)  # every figure whole, none folded
+    assert "it broke: " + "x" * 40 in text.replace("\n", "") and "good.mcap" in text
+    table = lines[0].startswith("#  ")
+    assert table == (width == 250)
+    if not table:
+        assert lines[0].startswith("#0 good.mcap beta=2.0: keyframes=0.1235")
+
+
 def test_the_plan_json_replaces_no_input_and_no_file_without_force(tmp_path, capsys):
     """``--dry-run --json REC.mcap`` replaced a recording the sweep reads with its plan, in silence,
     and an existing file was replaced without ``--force``."""
@@ -1628,6 +1671,32 @@ def test_recordings_beside_the_results_are_recordings_its_own_outputs_are_not(tm
     monkeypatch.chdir(tmp_path)
     tasks = plan_tasks(read_sweep_file(sweep_file), Path("."))
     assert [task.source.path.name for task in tasks] == ["rec.mcap"]
+
+
+def test_a_sweep_refuses_listed_paths_it_cannot_read_before_running_a_task(tmp_path, capsys):
+    """``paths = ["data/**"]`` planned a task for the folder itself, one for each subfolder and one for
+    a README beside the recordings (the dry run listed them; the run then failed each, exit 3). The
+    folders a glob passes through are no recordings; a file that is none is refused at once."""
+    data = tmp_path / "data"
+    (data / "sub").mkdir(parents=True)
+    write_recording(data / "sub" / "rec.mcap", random_frames(3))
+    sweep_file = tmp_path / "s.toml"
+    sweep_file.write_text('[recordings]\npaths = ["data/**"]\n')
+    assert [task.source.path.name for task in plan_tasks(read_sweep_file(sweep_file), tmp_path / "out")] == [
+        "rec.mcap"
+    ]
+    (data / "README.txt").write_text("recordings of the lab\n")
+    with pytest.raises(ConfigError, match=r"data/README.txt: not a recording or a bag"):
+        plan_tasks(read_sweep_file(sweep_file), tmp_path / "out")
+    images = tmp_path / "frames"
+    images.mkdir()
+    cv2.imwrite(str(images / "000001.png"), np.zeros((8, 8), np.uint8))
+    sweep_file.write_text('[recordings]\npaths = ["data/**/*.mcap", "frames"]\n')
+    dry = ["sweep", str(sweep_file), "-o", str(tmp_path / "out"), "--dry-run", "-q"]
+    assert main(dry) == 2
+    err = capsys.readouterr().err
+    assert "frames: an image folder; make it a recording first: aslam import" in err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
 
 
 def test_a_dry_run_waits_for_no_scheduler_file(tmp_path, capsys, monkeypatch):
