@@ -314,12 +314,19 @@ def _map_figure(
     odometry = dead_reckoning(actions, start)
     first = graph.first_keyframe
     position: dict[int, np.ndarray] = {}
+    later = 0  # places drawn at a later visit: their first visit's truth is unknown
     for state in graph.states:  # state ids are keyframes of the whole map, prior sessions first
         if has_truth:
             truth = true_poses if map_truth is None else map_truth
             assert truth is not None
-            keyframe = state.id if map_truth is not None else state.id - first
-            pose = truth[keyframe] if 0 <= keyframe < len(truth) else None
+            offset = 0 if map_truth is not None else first
+            known = [
+                k - offset
+                for k in (state.id, *sorted(state.keyframes))
+                if 0 <= k - offset < len(truth) and np.isfinite(truth[k - offset][:2]).all()
+            ]
+            pose = truth[known[0]] if known else None
+            later += bool(known) and known[0] != state.id - offset
         else:  # where this run first was at the place by odometry (a prior place it never visited: not drawn)
             visits = [k - first for k in state.keyframes if first <= k < first + len(odometry)]
             pose = odometry[min(visits)] if visits else None
@@ -366,6 +373,8 @@ def _map_figure(
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     frame = "at first-visit true positions" if has_truth else "at dead-reckoned odometry positions"
+    if later:
+        frame += f" ({later} at a later visit: the first's truth unknown)"
     ax.set_title(f"Map of places {frame}\n{title}")
     ax.legend(loc="best", fontsize="small")
     return fig

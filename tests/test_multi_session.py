@@ -119,6 +119,38 @@ def test_the_map_plot_draws_every_place_of_the_map_where_it_is(sessions, tmp_pat
             np.testing.assert_allclose(np.column_stack(line.get_data()), np.reshape(expected, (-1, 2)))
 
 
+def test_the_map_plot_draws_places_whose_first_visit_has_no_truth_at_a_later_visit(
+    sessions, tmp_path, monkeypatch
+):
+    """The first session's recording gone (its truth unknown), map.png drew no place of it, though
+    this run revisited them all with its truth known: each is now drawn at its first visit that has
+    one, and the title says how many."""
+    from aslam.app import plots
+    from aslam.app.score import score
+
+    drawn = {}
+    monkeypatch.setattr(plots, "_save", lambda figure, path: drawn.setdefault(path.name, figure))
+    report = score(sessions["second.est"])
+    assert report.map_truth is not None
+    first = report.estimate.graph.first_keyframe
+    report.map_truth[:first] = np.nan  # as when the first session's recording cannot be read
+    plots.write_plots(tmp_path, report)
+    axes = drawn["map.png"].axes[0]
+    states = report.estimate.graph.states
+    revisited = [s for s in states if s.id < first and any(k >= first for k in s.keyframes)]
+    assert revisited
+    drawn_at = {
+        tuple(np.round(xy, 9))
+        for line in axes.lines
+        if str(line.get_label()) in ("place", "place visited again")
+        for xy in np.column_stack(line.get_data())
+    }
+    for state in revisited:
+        later = min(k for k in state.keyframes if k >= first)
+        assert tuple(np.round(report.map_truth[later][:2], 9)) in drawn_at
+    assert f"{len(revisited)} at a later visit" in axes.get_title()
+
+
 def test_without_a_map_the_same_recording_is_a_new_map(sessions, tmp_path, capsys):
     """The control: without --map only the lap's own closing keyframe can be a revisit."""
     alone = tmp_path / "alone.est.mcap"
