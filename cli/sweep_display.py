@@ -13,6 +13,9 @@ if TYPE_CHECKING:
 #: Finished tasks the live table shows (the newest); the files hold them all.
 LIVE_ROWS = 15
 
+#: The narrowest error column the live table folds an error into; narrower, one line per task.
+ERROR_MIN_WIDTH = 24
+
 
 def figure_text(value: Any) -> str:
     if value is None:
@@ -63,19 +66,28 @@ class PlainDisplay:
         self.done += 1
         if reused and not self.terminal.verbose:
             return
-        head = f"[{self.done}/{self.total}] {task.source.label} {parameters_text(task)}:"
-        if result.ok and result.summary is not None:
-            figures = " ".join(f"{_short_key(k)}={figure_text(result.summary.get(k))}" for k in self.figures)
-            timing = "already done" if reused else f"{result.estimate_wall_s:.2f} s on {result.worker}"
-            if task.same_as is not None:
-                timing += f"; task {task.same_as}'s result, the same bytes"
-            self.terminal.info(f"{head} {figures} ({timing})")
-        else:
-            self.terminal.info(f"{head} failed: {result.error}")
+        self.terminal.info(f"[{self.done}/{self.total}] {task_line(task, result, reused, self.figures)}")
+
+
+def task_line(task: Task, result: TaskResult, reused: bool, figures: tuple[str, ...]) -> str:
+    """One finished task as a line: its recording, parameters and figures, or why it failed."""
+    head = f"{task.source.label} {parameters_text(task)}:"
+    if result.ok and result.summary is not None:
+        values = " ".join(f"{_short_key(k)}={figure_text(result.summary.get(k))}" for k in figures)
+        timing = "already done" if reused else f"{result.estimate_wall_s:.2f} s on {result.worker}"
+        if task.same_as is not None:
+            timing += f"; task {task.same_as}'s result, the same bytes"
+        return f"{head} {values} ({timing})"
+    return f"{head} failed: {result.error}"
 
 
 class LiveDisplay:
-    """A progress bar over a table of the newest finished tasks, redrawn in place on stderr."""
+    """A progress bar over a table of the newest finished tasks, redrawn in place on stderr.
+
+    A table too wide for the terminal (14 columns at the default figures: every cell folded into
+    four-letter strips at 80 columns) first loses its worker column, then becomes one wrapped line
+    per task, as the plain display's.
+    """
 
     def __init__(self, terminal: Terminal, figures: tuple[str, ...]) -> None:
         from rich.live import Live
@@ -92,21 +104,34 @@ class LiveDisplay:
             console=terminal.console,
         )
         self.bar = self.progress.add_task("sweep", total=None, failed=0)
-        self.rows: deque[tuple[Any, ...]] = deque(maxlen=LIVE_ROWS)
+        self.rows: deque[tuple[tuple[Any, ...], Any]] = deque(maxlen=LIVE_ROWS)  # (cells, line)
         self.failed = 0
         self.live = Live(self._render(), console=terminal.console, refresh_per_second=4, transient=False)
 
     def _render(self) -> Any:
         from rich.console import Group
         from rich.table import Table
+        from rich.text import Text
 
-        table = Table(box=None, pad_edge=False)
-        for name in ("#", "recording", "parameters", *map(_short_key, self.figures), "wall s", "worker"):
-            table.add_column(name, overflow="fold")
-        table.add_column("error", overflow="fold", style="red")
-        for row in self.rows:
-            table.add_row(*row)
-        return Group(table, self.progress)
+        console = self.terminal.console
+        unbounded = console.options.update_width(1 << 20)
+        names = ("#", "recording", "parameters", *map(_short_key, self.figures), "wall s", "worker", "error")
+        # An error folds into what the other columns leave it, if that is a readable width.
+        error_width = ERROR_MIN_WIDTH if any(cells[-1].plain for cells, _line in self.rows) else len("error")
+        for dropped in ((), ("worker",)):
+            kept = [i for i, name in enumerate(names) if name not in dropped]
+            tables = [Table(box=None, pad_edge=False) for _ in range(2)]  # shown, and measured
+            for i in kept:
+                tables[0].add_column(names[i], overflow="fold", style="red" if names[i] == "error" else "")
+                if names[i] != "error":
+                    tables[1].add_column(names[i])
+            for cells, _line in self.rows:
+                tables[0].add_row(*(cells[i] for i in kept))
+                tables[1].add_row(*(cells[i] for i in kept if names[i] != "error"))
+            if console.measure(tables[1], options=unbounded).maximum + 2 + error_width <= console.width:
+                return Group(tables[0], self.progress)
+        lines = [line for _cells, line in self.rows]
+        return Group(*lines, self.progress) if lines else Group(Text(""), self.progress)
 
     def __enter__(self) -> LiveDisplay:
         self.live.__enter__()
@@ -136,6 +161,9 @@ class LiveDisplay:
         # Text, never markup: a recording's name, a route file's or an error may hold [brackets];
         # printable: a newline or an escape sequence in one neither breaks nor recolours the table
         cells = (task.source.label, parameters_text(task), *figures, wall, result.worker, result.error or "")
-        self.rows.append((str(task.index), *(Text(printable(cell)) for cell in cells)))
+        line = Text(printable(f"#{task.index} {task_line(task, result, reused, self.figures)}"))
+        if not result.ok:
+            line.stylize("red")
+        self.rows.append(((str(task.index), *(Text(printable(cell)) for cell in cells)), line))
         self.progress.update(self.bar, advance=1, failed=self.failed)
         self.live.update(self._render())
