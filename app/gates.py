@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from aslam.app.score import leaves, summary_key, summary_keys
+from aslam.core.decimal_text import parse_decimal
 from aslam.core.errors import ConfigError
 
 _OPERATORS: dict[str, Callable[[Any, Any], bool]] = {
@@ -37,9 +38,9 @@ class Condition:
     def holds(self, summary: dict[str, Any]) -> tuple[bool, Any]:
         """Whether the condition holds, and the value it was tested on.
 
-        A null value (not measurable, e.g. precision without any claim) holds for every ordering
-        test: a gate never passes on a measurement that was not made. ``== null`` / ``!= null``
-        test for it explicitly.
+        A null value (not measurable, e.g. precision without any claim) holds for every test
+        against a number, ``==`` and ``!=`` too: a gate never passes on a measurement that was not
+        made. ``== null`` / ``!= null`` test for it explicitly.
         """
         actual = leaves(summary)[self.key]
         if self.value is None:
@@ -72,7 +73,7 @@ def parse_condition(text: str, keys: set[str] | None = None) -> Condition:
             raise ConfigError(f"--fail-on {text!r}: null can only be compared with == or !=")
         return Condition(text, key, op, None)
     try:
-        value = float(raw)
+        value = parse_decimal(raw)  # float() took 1_0 as 10 and digits of other scripts
     except ValueError as err:
         raise ConfigError(f"--fail-on {text!r}: {raw!r} is not a number (or null)") from err
     if not math.isfinite(value):
@@ -91,7 +92,8 @@ def failed_conditions(conditions: Sequence[Condition], summary: dict[str, Any]) 
 
 
 def _shown(value: Any) -> str:
-    """A summary value as the summary JSON writes it (null, true), a float to 6 digits."""
-    if isinstance(value, float):
-        return f"{value:.6g}"
+    """A summary value as the summary JSON writes it (null, true, every digit of a float): rounded
+    to 6 digits, ``recall<0.9714286`` failed on a recall shown as 0.971429."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return "null"
     return json.dumps(value)

@@ -28,8 +28,10 @@ from aslam.cli.output import (
     QuietOption,
     Terminal,
     VerboseOption,
+    decimal_number,
     input_file,
     output_file,
+    whole_number,
 )
 from aslam.core.config import EstimatorConfig
 
@@ -216,11 +218,25 @@ _FIXED: dict[str, tuple[Any, Any]] = {
         False,
     ),
     "workers": (
-        Annotated[int, typer.Option(help="Threads decoding and describing images (0: in the main thread).")],
+        Annotated[
+            int,
+            typer.Option(
+                parser=whole_number,
+                metavar="INTEGER",
+                help="Threads decoding and describing images (0: in the main thread).",
+            ),
+        ],
         2,
     ),
     "quiet": (QuietOption, False),
     "verbose": (VerboseOption, False),
+}
+
+
+#: Numbers in decimal digits only (:func:`aslam.cli.output.decimal_number`).
+_NUMBER_PARSERS: dict[type, dict[str, Any]] = {
+    float: {"parser": decimal_number, "metavar": "FLOAT"},
+    int: {"parser": whole_number, "metavar": "INTEGER"},
 }
 
 
@@ -240,6 +256,7 @@ def _signature() -> inspect.Signature:
                 kind | None,
                 typer.Option(
                     option_name(name),
+                    **_NUMBER_PARSERS.get(kind, {}),
                     help=f"{help_text} \\[default: {default}]",
                     show_default=False,
                     rich_help_panel=_ESTIMATOR_PANEL,

@@ -17,6 +17,7 @@ from aslam.cli.output import (
     Terminal,
     VerboseAcceptedOption,
     counted_progress,
+    decimal_number,
     output_file,
 )
 from aslam.data_formats.format_names import PoseFormat, StampUnit
@@ -47,6 +48,8 @@ def import_folder(
         float | None,
         typer.Option(
             "--rate",
+            parser=decimal_number,
+            metavar="FLOAT",
             help="Images per second, for stamps when no pose file has them (before KITTI's times.txt).",
         ),
     ] = None,
@@ -60,7 +63,11 @@ def import_folder(
     ] = None,
     fov_deg: Annotated[
         float | None,
-        typer.Option(help="Horizontal field of view, degrees. \\[default: 60, recorded as assumed]"),
+        typer.Option(
+            parser=decimal_number,
+            metavar="FLOAT",
+            help="Horizontal field of view, degrees. \\[default: 60, recorded as assumed]",
+        ),
     ] = None,
     force: ForceOption = False,
     quiet: QuietOption = False,

@@ -57,7 +57,7 @@ VerboseOption = Annotated[bool, typer.Option("--verbose", "-v", help="Also print
 VerboseAcceptedOption = Annotated[
     bool, typer.Option("--verbose", "-v", help="Accepted, as by every command; adds nothing here.")
 ]
-"""``-v`` of a command with no details to add (``info``, ``import``, ``report``)."""
+"""``-v`` of a command with no details to add (``info``, ``import``, ``report``, ``record``)."""
 
 
 def output_name(text: str) -> str:
@@ -68,6 +68,31 @@ def output_name(text: str) -> str:
     if text != "-" and (text.endswith(("/", os.sep)) or os.path.basename(text) in (".", "..")):
         raise typer.BadParameter(f"{text!r} names a folder; give a file name")
     return text
+
+
+def decimal_number(text: str | float) -> float:
+    """A float option's value in decimal digits (:func:`aslam.core.decimal_text.parse_decimal`):
+    ``--radius-m 0_5`` was 5 and ``--step-m ٥`` 5.0, in silence. A default is a number already."""
+    from aslam.core.decimal_text import parse_decimal
+
+    if isinstance(text, int | float):
+        return float(text)
+    try:
+        return parse_decimal(text)
+    except ValueError:
+        raise typer.BadParameter(f"{text!r} is not a decimal number (digits 0-9, e.g. 0.5 or 1e-3)") from None
+
+
+def whole_number(text: str | int) -> int:
+    """An integer option's value in decimal digits (``--seed ３`` was 3, ``--laps 1_0`` 10)."""
+    from aslam.core.decimal_text import parse_whole
+
+    if isinstance(text, int):
+        return text
+    try:
+        return parse_whole(text)
+    except ValueError:
+        raise typer.BadParameter(f"{text!r} is not a whole number (digits 0-9)") from None
 
 
 def input_file(text: str) -> Path:

@@ -13,7 +13,16 @@ from typing import Annotated
 import typer
 
 from aslam.cli.app import app
-from aslam.cli.output import ForceOption, QuietOption, Terminal, VerboseOption, counted_progress, output_file
+from aslam.cli.output import (
+    ForceOption,
+    QuietOption,
+    Terminal,
+    VerboseAcceptedOption,
+    counted_progress,
+    decimal_number,
+    output_file,
+    whole_number,
+)
 from aslam.recorder.config import (
     DEFAULT_CAMERA_HEIGHT_M,
     DEFAULT_FOV_DEG,
@@ -36,14 +45,29 @@ def record(
         str, typer.Option(help="Preset (paper, figure8, grid) or a route JSON file.", show_default=True)
     ] = "paper",
     laps: Annotated[
-        int | None, typer.Option(help="Times to drive a closed route. [default: 2 for presets, 1 for files]")
+        int | None,
+        typer.Option(
+            parser=whole_number,
+            metavar="INTEGER",
+            help="Times to drive a closed route. [default: 2 for presets, 1 for files]",
+        ),
     ] = None,
-    seed: Annotated[int, typer.Option(help="Seed of the world and the noise.")] = 0,
+    seed: Annotated[
+        int, typer.Option(parser=whole_number, metavar="INTEGER", help="Seed of the world and the noise.")
+    ] = 0,
     noise: Annotated[
-        float, typer.Option(help="Odometry error per action (relative σ of distance and angle).")
+        float,
+        typer.Option(
+            parser=decimal_number,
+            metavar="FLOAT",
+            help="Odometry error per action (relative σ of distance and angle).",
+        ),
     ] = _DEFAULT_NOISE.noise,
     drift_deg_per_m: Annotated[
-        float, typer.Option(help="Odometry heading drift σ per metre driven, degrees.")
+        float,
+        typer.Option(
+            parser=decimal_number, metavar="FLOAT", help="Odometry heading drift σ per metre driven, degrees."
+        ),
     ] = _DEFAULT_NOISE.drift_deg_per_m,
     noise_model: Annotated[
         NoiseModel,
@@ -57,6 +81,8 @@ def record(
     jitter_m: Annotated[
         float | None,
         typer.Option(
+            parser=decimal_number,
+            metavar="FLOAT",
             help="σ of the true x, y around the route, white (not accumulated), metres. "
             "(default 0.05; 0 with --noise-model paper)",
             show_default=False,
@@ -65,6 +91,8 @@ def record(
     jitter_deg: Annotated[
         float | None,
         typer.Option(
+            parser=decimal_number,
+            metavar="FLOAT",
             help="σ of the true heading around the route, white (not accumulated), degrees. "
             "(default 1.5; 0 with --noise-model paper)",
             show_default=False,
@@ -73,51 +101,80 @@ def record(
     wander_m: Annotated[
         float,
         typer.Option(
+            parser=decimal_number,
+            metavar="FLOAT",
             help="σ of a smooth offset of the true x, y, correlated along the route, different on "
-            "every lap (soft-limited to 0.6 m), metres."
+            "every lap (soft-limited to 0.6 m), metres.",
         ),
     ] = _DEFAULT_NOISE.wander_m,
     wander_deg: Annotated[
-        float, typer.Option(help="σ of a smooth true heading error, correlated along the route, degrees.")
+        float,
+        typer.Option(
+            parser=decimal_number,
+            metavar="FLOAT",
+            help="σ of a smooth true heading error, correlated along the route, degrees.",
+        ),
     ] = _DEFAULT_NOISE.wander_deg,
     wander_length_m: Annotated[
-        float, typer.Option(help="Correlation length of the wander along the route, metres.")
+        float,
+        typer.Option(
+            parser=decimal_number,
+            metavar="FLOAT",
+            help="Correlation length of the wander along the route, metres.",
+        ),
     ] = _DEFAULT_NOISE.wander_length_m,
     odometry_reset_at: Annotated[
         int | None,
         typer.Option(
-            help="Odometry restarts from zero at this keyframe (the truth goes on).", show_default=False
+            parser=whole_number,
+            metavar="INTEGER",
+            help="Odometry restarts from zero at this keyframe (the truth goes on).",
+            show_default=False,
         ),
     ] = None,
     aliasing: Annotated[
         float,
         typer.Option(
+            parser=decimal_number,
+            metavar="FLOAT",
             help="Fraction (0..1) of wall panels and floor zones drawn from a shared plain texture set; "
-            "1 = every surface shared (no doors or pictures): places differ only by layout."
+            "1 = every surface shared (no doors or pictures): places differ only by layout.",
         ),
     ] = 0.0,
     lighting_change: Annotated[
         float,
         typer.Option(
+            parser=decimal_number,
+            metavar="FLOAT",
             help="0..1: each lap lit differently (intensity, colour temperature, which lights are on); "
-            "0 = the same light on every lap."
+            "0 = the same light on every lap.",
         ),
     ] = 0.0,
     world: Annotated[
         Path | None,
         typer.Option(help="Scene file (.glb, .gltf, .obj; metres, +z up) instead of a generated world."),
     ] = None,
-    fov_deg: Annotated[float, typer.Option(help="Horizontal field of view, degrees.")] = DEFAULT_FOV_DEG,
+    fov_deg: Annotated[
+        float, typer.Option(parser=decimal_number, metavar="FLOAT", help="Horizontal field of view, degrees.")
+    ] = DEFAULT_FOV_DEG,
     size: Annotated[str, typer.Option(help="Image size WIDTHxHEIGHT.")] = "320x240",
-    camera_height_m: Annotated[float, typer.Option(help="Camera height above the floor, metres.")] = (
-        DEFAULT_CAMERA_HEIGHT_M
-    ),
+    camera_height_m: Annotated[
+        float,
+        typer.Option(parser=decimal_number, metavar="FLOAT", help="Camera height above the floor, metres."),
+    ] = (DEFAULT_CAMERA_HEIGHT_M),
     fps: Annotated[
         float | None,
-        typer.Option(help="Render round(FPS) frames per action (1 s each). [default: one per action]"),
+        typer.Option(
+            parser=decimal_number,
+            metavar="FLOAT",
+            help="Render round(FPS) frames per action (1 s each). [default: one per action]",
+        ),
     ] = None,
     jpeg_quality: Annotated[
-        int | None, typer.Option(help="Write JPEG of this quality instead of PNG.")
+        int | None,
+        typer.Option(
+            parser=whole_number, metavar="INTEGER", help="Write JPEG of this quality instead of PNG."
+        ),
     ] = None,
     contact_sheet: Annotated[
         Path | None,
@@ -125,7 +182,7 @@ def record(
     ] = None,
     force: ForceOption = False,
     quiet: QuietOption = False,
-    verbose: VerboseOption = False,
+    verbose: VerboseAcceptedOption = False,
 ) -> None:
     """Render an indoor walkthrough along a route into an MCAP recording (images, odometry, truth)."""
     width, height = parse_size(size)

@@ -18,6 +18,7 @@ from aslam.cli.output import (
     QuietOption,
     Terminal,
     VerboseAcceptedOption,
+    decimal_number,
     input_file,
     output_name,
     table_console,
@@ -85,10 +86,20 @@ def report(
         ),
     ] = None,
     radius_m: Annotated[
-        float, typer.Option(help="A revisit is within this distance of the earlier true position (m).")
+        float,
+        typer.Option(
+            parser=decimal_number,
+            metavar="FLOAT",
+            help="A revisit is within this distance of the earlier true position (m).",
+        ),
     ] = REVISIT_RADIUS_M,
     heading_deg: Annotated[
-        float, typer.Option(help="A revisit is within this difference of the earlier true heading (degrees).")
+        float,
+        typer.Option(
+            parser=decimal_number,
+            metavar="FLOAT",
+            help="A revisit is within this difference of the earlier true heading (degrees).",
+        ),
     ] = REVISIT_HEADING_DEG,
     truth_by_index: Annotated[
         bool,

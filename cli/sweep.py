@@ -15,7 +15,16 @@ from typing import Annotated, Any
 import typer
 
 from aslam.cli.app import app
-from aslam.cli.output import QuietOption, Terminal, VerboseOption, output_name, print_table, table_console
+from aslam.cli.output import (
+    QuietOption,
+    Terminal,
+    VerboseOption,
+    decimal_number,
+    output_name,
+    print_table,
+    table_console,
+    whole_number,
+)
 from aslam.cli.sweep_display import LiveDisplay, PlainDisplay, figure_text, parameters_text, plan_text
 
 
@@ -47,7 +56,12 @@ def sweep(
         ),
     ],
     workers: Annotated[
-        int | None, typer.Option(help="Worker processes of the local cluster. \\[default: one per core]")
+        int | None,
+        typer.Option(
+            parser=whole_number,
+            metavar="INTEGER",
+            help="Worker processes of the local cluster. \\[default: one per core]",
+        ),
     ] = None,
     scheduler: Annotated[
         str | None,
@@ -75,6 +89,7 @@ def sweep(
     task_timeout: Annotated[
         float | None,
         typer.Option(
+            parser=decimal_number,
             metavar="SECONDS",
             help="A task still computing after this long is stopped (its worker restarted) and is a"
             " failed row. \\[default: none]",

@@ -20,13 +20,31 @@ ERROR_MIN_WIDTH = 24
 def figure_text(value: Any) -> str:
     if value is None:
         return "—"
+    if isinstance(value, bool):
+        return "true" if value else "false"  # as the summary JSON and the gates say it
     if isinstance(value, float):
         return f"{value:.4g}"
     return str(value)
 
 
-def _short_key(key: str) -> str:
-    return key.rsplit(".", 1)[-1] if key.count(".") <= 1 else ".".join(key.split(".")[-2:])
+def short_names(keys: tuple[str, ...]) -> tuple[str, ...]:
+    """Each summary key by its last part (the last two where there are more: ``x_m.mean``), longer
+    where that would name another key too: ``loop_closure.precision`` and ``committed.precision``
+    were both ``precision``."""
+
+    def tail(key: str, parts: int) -> str:
+        return ".".join(key.split(".")[-parts:])
+
+    names = []
+    for key in keys:
+        parts = 1 if key.count(".") <= 1 else 2
+        while parts <= key.count(".") and any(
+            other != key and (other == tail(key, parts) or other.endswith("." + tail(key, parts)))
+            for other in keys
+        ):
+            parts += 1
+        names.append(tail(key, parts))
+    return tuple(names)
 
 
 def parameters_text(task: Task) -> str:
@@ -73,7 +91,8 @@ def task_line(task: Task, result: TaskResult, reused: bool, figures: tuple[str, 
     """One finished task as a line: its recording, parameters and figures, or why it failed."""
     head = f"{task.source.label} {parameters_text(task)}:"
     if result.ok and result.summary is not None:
-        values = " ".join(f"{_short_key(k)}={figure_text(result.summary.get(k))}" for k in figures)
+        named = zip(short_names(figures), figures, strict=True)
+        values = " ".join(f"{name}={figure_text(result.summary.get(key))}" for name, key in named)
         timing = "already done" if reused else f"{result.estimate_wall_s:.2f} s on {result.worker}"
         if task.same_as is not None:
             timing += f"; task {task.same_as}'s result, the same bytes"
@@ -115,7 +134,7 @@ class LiveDisplay:
 
         console = self.terminal.console
         unbounded = console.options.update_width(1 << 20)
-        names = ("#", "recording", "parameters", *map(_short_key, self.figures), "wall s", "worker", "error")
+        names = ("#", "recording", "parameters", *short_names(self.figures), "wall s", "worker", "error")
         # An error folds into what the other columns leave it, if that is a readable width.
         error_width = ERROR_MIN_WIDTH if any(cells[-1].plain for cells, _line in self.rows) else len("error")
         for dropped in ((), ("worker",)):

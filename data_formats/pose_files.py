@@ -19,7 +19,6 @@ must be reported with its file and line number, and the rows are streamed.
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from decimal import Decimal, InvalidOperation
@@ -28,6 +27,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from aslam.core.decimal_text import is_decimal
 from aslam.core.errors import InputError
 from aslam.data_formats import ros_msgs
 from aslam.data_formats.files import check_input_file
@@ -76,23 +76,12 @@ def _split(text: str) -> list[str]:
     return [part.strip() for part in text.split(",")] if "," in text else text.split()
 
 
-_NUMBER = re.compile(
-    r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|[+-]?(?:nan|inf|infinity)", re.ASCII | re.IGNORECASE
-)
-"""A number as pose files write it: Python's ``float()`` alone also took ``1_0`` (10) and digits of
-other scripts."""
-
-
-def _is_number(text: str) -> bool:
-    return _NUMBER.fullmatch(text) is not None
-
-
 def detect_format(path: Path) -> PoseFormat:
     """The format of ``path`` from its first pose line (a header line of comma-separated names is skipped)."""
     path = Path(path)
     for number, text in _lines(path):
         fields = _split(text)
-        if "," in text and not all(_is_number(f) for f in fields):
+        if "," in text and not all(is_decimal(f) for f in fields):
             continue  # a CSV header such as "t,x,y,yaw"
         for fmt, layout in LAYOUTS.items():
             if layout.comma_separated == ("," in text) and layout.fields == len(fields):
@@ -119,7 +108,7 @@ def stamp_text_ns(text: str, unit: StampUnit | str | None = None) -> int:
     seconds or whole nanoseconds of 18 or more digits. Raises ``ValueError`` saying why a stamp is
     none (milliseconds since 1970, say, read as seconds are past the last time a ROS message holds;
     relative ones are not, see :func:`spacing_doubt`)."""
-    if not _is_number(text):  # Decimal too takes 1_0 and digits of other scripts
+    if not is_decimal(text):  # Decimal too takes 1_0 and digits of other scripts
         raise ValueError(f"stamp '{text}' is not a number")
     try:
         value = Decimal(text)
@@ -268,7 +257,7 @@ def _iter_poses(path: Path, fmt: PoseFormat, unit: StampUnit | None) -> Iterator
     first = True
     for number, text in _lines(path):
         fields = _split(text) if layout.comma_separated else text.split()
-        if first and layout.comma_separated and not all(_is_number(f) for f in fields):
+        if first and layout.comma_separated and not all(is_decimal(f) for f in fields):
             first = False
             continue  # the header line
         first = False
@@ -277,7 +266,7 @@ def _iter_poses(path: Path, fmt: PoseFormat, unit: StampUnit | None) -> Iterator
                 f"line {number}: {len(fields)} fields, a {fmt.value.upper()} line has {layout.fields}",
                 path=path,
             )
-        bad = next((f for f in fields if not _is_number(f)), None)
+        bad = next((f for f in fields if not is_decimal(f)), None)
         if bad is not None:
             raise PoseFileError(f"line {number}: '{bad}' is not a number", path=path)
         values = [float(f) for f in fields]

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from aslam.data_formats.camera import CameraIntrinsics
+from aslam.data_formats.files import full_path
 from aslam.data_formats.images import JpegDamage
 from aslam.data_formats.pose_sync import Sample
 from aslam.data_formats.recording import METADATA_NAME, Recording, RecordingTopics
@@ -60,7 +61,8 @@ class RecordingInfo:
                 "cy": c.cy,
             }
         return {
-            "path": self.path,
+            # as every other JSON output names files: the same file from another folder, same bytes
+            "path": str(full_path(self.path)),
             "size_bytes": self.size_bytes,
             "topics": [{"topic": t.topic, "type": t.datatype, "messages": t.messages} for t in self.topics],
             "samples": self.samples,

@@ -198,7 +198,7 @@ class RecordConfig:
             raise ConfigError(problems[0] + more)
 
 
-_SIZE = re.compile(r"^\s*(\d{1,9})\s*[xX×]\s*(\d{1,9})\s*$")
+_SIZE = re.compile(r"^\s*(\d{1,9})\s*[xX×]\s*(\d{1,9})\s*$", re.ASCII)  # not another script's digits
 
 
 def parse_size(text: str) -> tuple[int, int]:

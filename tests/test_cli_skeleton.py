@@ -5,6 +5,8 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
+
 from aslam.cli.app import main
 
 
@@ -91,3 +93,43 @@ def test_an_estimate_of_a_recording_loads_no_image_folder_reader(recording, tmp_
         "assert not loaded, loaded\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True, capture_output=True)
+
+
+def test_every_numeric_option_reads_decimal_digits_only():
+    """click's FLOAT and INT call ``float()`` and ``int()``, which take ``1_0`` (10) and the digits
+    of other scripts (``٥`` is 5): every numeric option goes through ``decimal_number`` or
+    ``whole_number`` instead, the generated estimator options too."""
+    import typer
+
+    from aslam.cli.app import _register_commands, app
+
+    _register_commands()
+    group = typer.main.get_command(app)
+    numeric = []
+    for name, command in group.commands.items():  # type: ignore[attr-defined]
+        for param in command.params:
+            numeric += [(name, param.name)] if param.type.name in ("float", "integer") else []
+    assert numeric == []
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["report", "e.mcap", "--radius-m", "0_5"],
+        ["report", "e.mcap", "--heading-deg", "٤٥"],
+        ["estimate", "r.mcap", "-o", "e.mcap", "--step-m", "٥"],
+        ["estimate", "r.mcap", "-o", "e.mcap", "--workers", "1_0"],
+        ["record", "-o", "r.mcap", "--seed", "３"],
+        ["record", "-o", "r.mcap", "--size", "３２０x240"],
+        ["import", "frames", "-o", "r.mcap", "--rate", "1_0"],
+        ["sweep", "s.toml", "-o", "out", "--task-timeout", "1_0"],
+    ],
+)
+def test_a_number_in_other_digits_is_refused_before_any_file_is_read(args, tmp_path, monkeypatch, capsys):
+    """``report --radius-m 0_5`` scored revisits within 5 m, and ``--step-m ٥`` took keyframes 5 m
+    apart, in silence; now exit 2 naming the option (no file named is even looked for)."""
+    monkeypatch.chdir(tmp_path)
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert "not a decimal number" in err or "not a whole number" in err or "WIDTHxHEIGHT" in err

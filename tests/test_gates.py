@@ -94,3 +94,19 @@ def test_a_measured_figure_fails_exactly_one_of_two_opposite_gates_and_an_unmeas
 def test_a_gate_on_no_finite_number_is_refused(raw):
     with pytest.raises(ConfigError, match="not a finite number"):
         parse_condition(f"keyframes<{raw}")
+
+
+@pytest.mark.parametrize("raw", ["1_0", "٥", "０.5", "0x1", "1,5"])
+def test_a_gate_value_is_ascii_decimal(raw):
+    """``float()`` took ``1_0`` as 10 and ``٥`` as 5: ``precision<1_0`` was a gate on 10, in silence."""
+    with pytest.raises(ConfigError, match="is not a number"):
+        parse_condition(f"loop_closure.precision<{raw}")
+
+
+@given(st.sampled_from(sorted(KEYS)), st.floats(-1e6, 1e6, allow_nan=False))
+def test_a_failed_gate_names_the_value_it_was_tested_on_exactly(key, actual):
+    """Rounded to 6 digits, ``recall<0.9714286`` failed on a recall shown as 0.971429, which is not
+    under 0.9714286. The value is written as the summary JSON writes it: it reads back as itself."""
+    [failed] = failed_conditions([parse_condition(f"{key}!=null")], summary_with(key, actual))
+    shown = failed.rsplit("(is ", 1)[1].removesuffix(")")
+    assert float(shown) == actual

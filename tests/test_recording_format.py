@@ -417,6 +417,20 @@ def test_info_json_describes_the_recording(tmp_path, capsys):
     assert report["truncated"] is False and report["warnings"] == []
 
 
+def test_info_json_names_the_file_the_same_from_any_folder(tmp_path, capsys, monkeypatch):
+    """``path`` was the name as typed: ``info ../r.mcap --json -`` from another folder gave other
+    bytes, where every other JSON output names files absolute, ``..`` folded (usage.md)."""
+    path = write_recording(tmp_path / "r.mcap", random_frames(2))
+    outputs = []
+    for folder, name in ((tmp_path, "r.mcap"), (tmp_path / "sub", "../r.mcap"), (tmp_path, str(path))):
+        folder.mkdir(exist_ok=True)
+        monkeypatch.chdir(folder)
+        assert main(["info", name, "--json", "-"]) == 0
+        outputs.append(capsys.readouterr().out)
+    assert outputs[0] == outputs[1] == outputs[2]
+    assert json.loads(outputs[0])["path"] == str(path)
+
+
 def test_info_json_gives_the_field_of_view_as_recorded(tmp_path, capsys):
     """It comes back from fx through an arctangent: 60° was 59.99999999999999."""
     camera = CameraIntrinsics(width_px=32, height_px=24, fov_deg=60.0)

@@ -1597,6 +1597,34 @@ def test_the_live_table_is_readable_at_any_terminal_width(tmp_path, recordings, 
         assert lines[0].startswith("#0 good.mcap beta=2.0: keyframes=0.1235")
 
 
+def test_the_terminal_names_each_figure_apart_and_says_booleans_as_json_does():
+    """``loop_closure.precision`` and ``committed.precision`` were both ``precision`` on a task's
+    line, ``error.best.x_m.mean`` and ``error.weighted.x_m.mean`` both ``x_m.mean``; a boolean was
+    Python's ``True``."""
+    from aslam.app.score import summary_keys
+    from aslam.app.sweep_file import DEFAULT_FIGURES
+    from aslam.cli.sweep_display import figure_text, short_names
+
+    keys = tuple(sorted(summary_keys()))
+    names = short_names(keys)
+    assert len(set(names)) == len(keys)
+    assert all(key == name or key.endswith("." + name) for key, name in zip(keys, names, strict=True))
+    picked = (
+        "loop_closure.precision",
+        "committed.precision",
+        "error.best.x_m.mean",
+        "error.weighted.x_m.mean",
+    )
+    assert short_names(picked) == (
+        "loop_closure.precision",
+        "committed.precision",
+        "best.x_m.mean",
+        "weighted.x_m.mean",
+    )
+    assert short_names(DEFAULT_FIGURES)[1:3] == ("precision", "recall")  # short where nothing else is named
+    assert (figure_text(True), figure_text(False), figure_text(None)) == ("true", "false", "—")
+
+
 def test_the_plan_json_replaces_no_input_and_no_file_without_force(tmp_path, capsys):
     """``--dry-run --json REC.mcap`` replaced a recording the sweep reads with its plan, in silence,
     and an existing file was replaced without ``--force``."""
