@@ -63,6 +63,9 @@ class EstimateSummary:
     slam_s: float
     embed_s: float
     """The metric view: the pose-graph optimisation and the Foxglove scene, written at the end."""
+    recording_sha256: str
+    """SHA-256 of the bytes read (the file opened, whatever is at its name now), as the estimate
+    file records it: a sweep checks it against the hash it planned the task with."""
 
     @property
     def keyframes_per_second(self) -> float:
@@ -241,6 +244,7 @@ def estimate(
         wall_s=time.perf_counter() - start,
         slam_s=counts.slam_s,
         embed_s=embed_s,
+        recording_sha256=metadata.recording.sha256,
     )
 
 

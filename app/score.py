@@ -28,7 +28,7 @@ from aslam.core.config import REVISIT_HEADING_DEG, REVISIT_RADIUS_M, check_repor
 from aslam.core.errors import InputError
 from aslam.core.mapgraph import GrowableArray
 from aslam.core.metrics import AssignmentScore, Evaluation, evaluate, score_assignment
-from aslam.data_formats.errors import EstimateError, RecordingError
+from aslam.data_formats.errors import CutWhileReadError, EstimateError, RecordingError
 from aslam.data_formats.estimate import EstimateFile, iter_keyframes, map_digest, open_estimate, read_estimate
 from aslam.data_formats.files import file_name_from_utf8, full_path, real_path, source_size_bytes
 from aslam.data_formats.graph_json import build_graph_json
@@ -513,6 +513,8 @@ def _map_truth(
         try:
             with closing(iter_keyframes(prior_source)) as keyframes:
                 stamps = [keyframe.stamp_ns for keyframe in keyframes]
+        except CutWhileReadError:
+            raise
         except InputError as err:
             warn(f"{err}; {_MAP_LOST}")
             lost = prior.keyframes
@@ -610,6 +612,8 @@ def _find_map(
                 same = map_digest(candidate_info.graph) == prior.graph_sha256
             elif not same:  # an estimate written before the map's digest was stored
                 same = _same_map(candidate_info, info, prior.keyframes)
+        except CutWhileReadError:
+            raise
         except InputError as err:  # EstimateError among them: damaged, not an estimate
             problems.append(str(err))
             continue

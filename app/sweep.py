@@ -382,6 +382,12 @@ def render_task(config: RecordConfig, path: Path, force: bool) -> Rendered:
     return Rendered(path, None, time.perf_counter() - start)
 
 
+def _file_stamp(path: Path) -> tuple[int, int, int, int]:
+    """What changes when a file (or a bag folder's contents) is written or replaced."""
+    stat = path.stat()
+    return stat.st_dev, stat.st_ino, stat.st_size, stat.st_mtime_ns
+
+
 def run_task(task: Task, rendered: Rendered | None = None) -> TaskResult:
     """Estimate and score one task, in this process; every failure becomes the result's error.
 
@@ -402,7 +408,12 @@ def run_task(task: Task, rendered: Rendered | None = None) -> TaskResult:
 
     if rendered is not None and rendered.error is not None:
         return failed(rendered.error)
+    replaced = (
+        f"{task.source.path}: not the bytes the sweep planned this task with (another file was written"
+        " in its place since); run the sweep again to estimate what is there now"
+    )
     try:
+        before = _file_stamp(task.source.path)
         task.estimate_path.parent.mkdir(parents=True, exist_ok=True)
         summary = estimate(
             task.source.path,
@@ -413,6 +424,8 @@ def run_task(task: Task, rendered: Rendered | None = None) -> TaskResult:
             reader_process=False,
             on_warning=warnings.append,
         )
+        if task.source.render is None and summary.recording_sha256 != task.source.identity:
+            return failed(replaced)
         report = score(
             task.estimate_path,
             recording=task.source.path,
@@ -420,6 +433,10 @@ def run_task(task: Task, rendered: Rendered | None = None) -> TaskResult:
             heading_deg=task.score.heading_deg,
             on_warning=warnings.append,
         )
+        # Replaced after the estimate read it, the truth was read from the new file (or, of another
+        # size, not at all: a row without precision saved as done).
+        if _file_stamp(task.source.path) != before:
+            return failed(replaced)
     except Exception as err:
         return failed(error_text(err))
     return TaskResult(

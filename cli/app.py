@@ -119,16 +119,28 @@ class _Signals:
     active: _Signals | None = None
     """The command's, while it runs: whether an error was the interrupt's doing."""
 
+    #: Seconds after the first signal during which more signals are the same request: a supervisor
+    #: sending INT then TERM, a hang-up then TERM. Raised again, each broke the first one's clean-up
+    #: (a traceback, exit 1; a partial file left). Later than this, a signal raises again: a user
+    #: insisting on a command whose clean-up hangs.
+    REPEAT_WINDOW_S = 5.0
+
     def __init__(self) -> None:
         self.received: int | None = None
+        self._first_at = 0.0
         self._pid = os.getpid()
         self._saved: dict[int, object] = {}
 
     def _handle(self, signum: int, _frame: object) -> None:
+        import time
+
         if os.getpid() != self._pid:
             os._exit(128 + signum)
         if self.received is None:
             self.received = signum
+            self._first_at = time.monotonic()
+        elif time.monotonic() - self._first_at < self.REPEAT_WINDOW_S:
+            return  # the first one's unwinding is under way: let it finish
         raise Interrupted(signal.Signals(signum).name)
 
     def __enter__(self) -> _Signals:

@@ -19,6 +19,37 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from _typeshed import ReadableBuffer
 
+
+def _hold_standard_descriptors() -> None:
+    """Descriptors 0-2 closed at the start (``>&- 2>&-``) are held, so no file this process opens
+    lands on one: with both closed, the descriptor of the file ``import`` was writing became 2, and
+    libjpeg's warnings went into the recording (exit 0, a file no command could read); with stdout
+    closed, a copy of stderr became 1, and ``-o /dev/stdout`` wrote the MCAP onto the terminal.
+    Stdout becomes a pipe no one reads (a result written there is a closed pipe: exit 141, as
+    ``| head -0``); stdin and stderr, /dev/null. Python's own ``sys.stdout``/``sys.stderr`` stay
+    None for the code below to handle."""
+    for descriptor in (0, 1, 2):
+        try:
+            os.fstat(descriptor)
+            continue
+        except OSError:
+            pass
+        if descriptor == 1:
+            reader, writer = os.pipe()  # the lowest free descriptors: the reader may be 1
+            os.dup2(writer, 1)  # closes the reader if it was 1
+            for extra in (reader, writer):
+                if extra != 1:
+                    with contextlib.suppress(OSError):
+                        os.close(extra)
+        else:
+            held = os.open(os.devnull, os.O_RDONLY if descriptor == 0 else os.O_WRONLY)
+            if held != descriptor:
+                os.dup2(held, descriptor)
+                os.close(held)
+
+
+_hold_standard_descriptors()
+
 # aslam parallelises by processes (the estimate's reader, a sweep's workers) and its matrices are
 # 3 × 3: OpenBLAS's own threads only spin. Started with numpy, they cost 70 ms of every command's
 # start-up (measured: `aslam estimate` of one image, 551 → 482 ms). A user's own setting wins.

@@ -17,6 +17,13 @@ class EstimateError(InputError):
     """An estimate file that cannot be read or written; the message is ``PATH: problem`` (exit 2)."""
 
 
+class CutWhileReadError(InputError):
+    """A file another process truncated while it was read (exit 2). Never a recording's damage,
+    which readers read around (``report`` then goes on without the truth it held): a file that
+    shrinks mid-read says nothing of what it holds, so every command stops and says to read it
+    again once it is whole."""
+
+
 class BagError(RecordingError):
     """A ROS bag (rosbag2 folder or file, ROS 1 bag) that cannot be read (exit 2)."""
 

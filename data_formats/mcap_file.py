@@ -34,7 +34,7 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.summary import Summary
 
 from aslam.core.errors import InputError
-from aslam.data_formats.errors import RecordingError
+from aslam.data_formats.errors import CutWhileReadError, RecordingError
 from aslam.data_formats.files import MCAP_MAGIC as MAGIC
 from aslam.data_formats.files import hash_file, open_mcap_input
 
@@ -178,7 +178,7 @@ class McapFile:
 
     def _cut_short(self) -> InputError:
         now = os.fstat(self._descriptor).st_size
-        return self._error_type(
+        return CutWhileReadError(
             f"was cut to {now:,} bytes while it was read ({self.size:,} when opened): another process"
             " truncated it; read it again once it is whole",
             path=self.path,

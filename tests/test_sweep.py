@@ -1727,6 +1727,43 @@ def test_a_sweep_refuses_listed_paths_it_cannot_read_before_running_a_task(tmp_p
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
 
 
+def test_a_task_whose_recording_was_replaced_since_the_plan_fails_rather_than_saving_other_bytes(
+    tmp_path,
+):
+    """A recording replaced mid-sweep (``mv new R.mcap``) was estimated by the tasks that ran after,
+    their results saved under the planned file's hash: wrong rows, reused by every later run even
+    after the file was put back. A task now checks the bytes it read against the plan's hash."""
+    from aslam.app.sweep import run_task
+
+    recording = write_recording(tmp_path / "R.mcap", random_frames(3))
+    sweep_file = tmp_path / "s.toml"
+    sweep_file.write_text('[recordings]\npaths = ["R.mcap"]\n')
+    [task] = plan_tasks(read_sweep_file(sweep_file), tmp_path / "out")
+    assert run_task(task).ok
+    write_recording(tmp_path / "other.mcap", random_frames(4, seed=5))
+    os.replace(tmp_path / "other.mcap", recording)
+    result = run_task(task)
+    assert not result.ok and result.summary is None
+    assert f"{recording}: not the bytes the sweep planned this task with" in result.error
+    # Replaced between the estimate and the scoring: the truth came from the other file.
+    recording.unlink()
+    write_recording(recording, random_frames(3))
+    [task] = plan_tasks(read_sweep_file(sweep_file), tmp_path / "out")
+    import aslam.app.score as score_module
+
+    real_score = score_module.score
+
+    def replaced_first(*args, **kwargs):
+        write_recording(tmp_path / "other.mcap", random_frames(4, seed=5))
+        os.replace(tmp_path / "other.mcap", recording)
+        return real_score(*args, **kwargs)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(score_module, "score", replaced_first)
+        result = run_task(task)
+    assert not result.ok and "not the bytes the sweep planned" in result.error
+
+
 def test_a_dry_run_waits_for_no_scheduler_file(tmp_path, capsys, monkeypatch):
     """A dry run contacts no scheduler: with a scheduler file not yet written it waited 30 s, then
     exit 2. It still refuses what the run would (--workers beside a cluster's file)."""
