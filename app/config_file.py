@@ -5,6 +5,7 @@ option > ``--config`` file (TOML, an ``[estimator]`` table) > ``--paper-faithful
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -29,12 +30,17 @@ def estimator_options_markdown() -> str:
     return "\n".join(rows) + "\n"
 
 
+_LARGEST_FLOAT = int(sys.float_info.max)
+
+
 def type_problem(where: str, value: Any, kind: type) -> str | None:
     """Why a TOML ``value`` is not a ``kind`` (ints are accepted for floats, booleans for nothing),
     or None: the one type check of configuration files and sweep files."""
     if kind is float:
         ok = isinstance(value, int | float) and not isinstance(value, bool)
         want = "a number"
+        if ok and isinstance(value, int) and abs(value) > _LARGEST_FLOAT:  # float() would overflow
+            return f"{where} must be a number a float can hold (within ±1.8e308), got a larger integer"
     elif kind is int:
         ok = isinstance(value, int) and not isinstance(value, bool)
         want = "a whole number"
@@ -75,23 +81,27 @@ def read_config_file(path: Path) -> tuple[dict[str, Any], list[str]]:
 def build_config(
     *, paper_faithful: bool, config_file: Path | None, options: dict[str, Any]
 ) -> EstimatorConfig:
-    """Defaults, then ``--paper-faithful``, then the file, then the options that were given. Every
-    problem at once: the file's unknown keys and wrong types beside the values out of range."""
+    """Defaults, then ``--paper-faithful``, then the file, then the options that were given.
+
+    The file is checked on its own first, every problem at once (unknown keys and wrong types beside
+    values out of range), and named: a value out of range in it was hidden by an option setting the
+    same key, and an option's bad value was blamed on the file. The options' problems then name no file.
+    """
     values: dict[str, Any] = {}
     if paper_faithful:
         base = EstimatorConfig.paper_faithful()
         values.update({name: getattr(base, name) for name, *_ in EstimatorConfig.parameters()})
-    from_file, file_problems = read_config_file(config_file) if config_file is not None else ({}, [])
+    from_file, problems = read_config_file(config_file) if config_file is not None else ({}, [])
     values.update(from_file)
-    values.update({k: v for k, v in options.items() if v is not None})
-    problems = list(file_problems)
-    try:
-        config = EstimatorConfig(**values)
-    except ConfigError as err:
-        problems.append(err.problem)
+    if from_file:
+        try:
+            EstimatorConfig(**values)
+        except ConfigError as err:
+            problems.append(err.problem)
     if problems:
-        named = from_file or file_problems  # an option's bad value alone is not the file's
-        raise ConfigError(
-            f"bad estimator configuration: {'; '.join(problems)}", path=config_file if named else None
-        )
-    return config
+        raise ConfigError(f"bad estimator configuration: {'; '.join(problems)}", path=config_file)
+    values.update({k: v for k, v in options.items() if v is not None})
+    try:
+        return EstimatorConfig(**values)
+    except ConfigError as err:
+        raise ConfigError(f"bad estimator configuration: {err.problem}") from None

@@ -21,7 +21,7 @@ from typing import Any
 
 from aslam.app.config_file import type_problem
 from aslam.core.config import REPORT_RANGES, REVISIT_HEADING_DEG, REVISIT_RADIUS_M, EstimatorConfig
-from aslam.core.errors import ConfigError
+from aslam.core.errors import AslamError, ConfigError
 from aslam.data_formats.files import file_name_from_utf8, full_path
 from aslam.data_formats.toml_files import read_toml
 from aslam.recorder.config import CameraSpec, NoiseModel, NoiseParams, RecordConfig, parse_size
@@ -275,6 +275,13 @@ def _record_config(knobs: dict[str, Any], base: Path, where: str, problems: list
     found = [f"{where}: {_option_to_key(p)}" for p in config.problems()]
     if size_problem is not None:
         found.insert(0, size_problem)
+    if not found:  # the route as driven: its file, laps of an open route, the action cap, the reset
+        from aslam.recorder.record import driven_route
+
+        try:
+            driven_route(config)
+        except AslamError as err:
+            found.append(f"{where}: {_option_to_key(str(err))}")
     problems += found
     return None if found else config
 

@@ -53,13 +53,19 @@ def estimate(**options: Any) -> None:
 
     fixed = {name: options.pop(name) for name in _FIXED}
     terminal = Terminal(quiet=fixed["quiet"], verbose=fixed["verbose"])
-    the_map = _one_map(fixed["map"])
+    the_map = _one_file(
+        "--map",
+        fixed["map"],
+        "a run starts in one map; to join sessions, chain them"
+        " (estimate B --map A.est.mcap, then C --map B.est.mcap)",
+    )
+    config_file = _one_file(
+        "--config", fixed["config"], "one configuration file is read; put the parameters in one"
+    )
     topics = TopicChoice(
         image=fixed["image_topic"], odometry=fixed["odometry_topic"], ground_truth=fixed["ground_truth_topic"]
     )
-    config = build_config(
-        paper_faithful=fixed["paper_faithful"], config_file=fixed["config"], options=options
-    )
+    config = build_config(paper_faithful=fixed["paper_faithful"], config_file=config_file, options=options)
     terminal.detail(f"configuration: {json.dumps(asdict(config))}")  # JSON, as the estimate file holds it
     progress, on_progress = _progress_bar(terminal)
     with progress:
@@ -86,20 +92,17 @@ def estimate(**options: Any) -> None:
     )
 
 
-def _one_map(maps: list[Path] | None) -> Path | None:
-    """The one ``--map``; given twice (click keeps the last in silence) it is exit 2, unless both
-    name the same file: a run starts in one map, and maps are merged by chaining sessions."""
-    if not maps:
+def _one_file(option: str, paths: list[Path] | None, why: str) -> Path | None:
+    """The one file of ``option``; given twice (click keeps the last in silence) it is exit 2,
+    unless both name the same file. ``why``: the use of one, and what to do instead."""
+    if not paths:
         return None
     from aslam.core.errors import InputError
     from aslam.data_formats.files import real_path
 
-    if len({real_path(path) for path in maps}) > 1:
-        raise InputError(
-            f"--map given {len(maps)} times ({', '.join(map(str, maps))}): a run starts in one map;"
-            " to join sessions, chain them (estimate B --map A.est.mcap, then C --map B.est.mcap)"
-        )
-    return maps[0]
+    if len({real_path(path) for path in paths}) > 1:
+        raise InputError(f"{option} given {len(paths)} times ({', '.join(map(str, paths))}): {why}")
+    return paths[0]
 
 
 def progress_columns() -> tuple[Any, ...]:
@@ -169,7 +172,7 @@ _FIXED: dict[str, tuple[Any, Any]] = {
     ),
     "config": (
         Annotated[
-            Path | None,
+            list[Path] | None,  # a list only to refuse a second file, which would silently win
             typer.Option(
                 "--config",
                 help="TOML file with estimator parameters in an \\[estimator] table.",

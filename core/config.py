@@ -126,9 +126,15 @@ class EstimatorConfig:
         " and χ²) or 'thumbnail' (a patch-normalised 16×12 thumbnail, mean absolute difference over small"
         " horizontal shifts).",
     )
-    histogram_bins: int = _param(16, "Gradient-orientation bins over [-π, π).")
-    cells_x: int = _param(2, "Columns of spatial cells per image (1 = the paper's single global histogram).")
-    cells_y: int = _param(1, "Rows of spatial cells.")
+    histogram_bins: int = _param(
+        16,
+        "Gradient-orientation bins over [-π, π) (histogram model): an even number; bins × cells_x ×"
+        " cells_y at most 16384.",
+    )
+    cells_x: int = _param(
+        2, "Columns of spatial cells per image (histogram model; 1 = the paper's single global histogram)."
+    )
+    cells_y: int = _param(1, "Rows of spatial cells (histogram model).")
     beta: float = _param(3.0, "Sensitivity β of the observation probability P(z|x) = χ²^-β.")
     chi2_floor: float = _param(
         1e-3, "χ² is floored here so that two identical views give a finite likelihood."
@@ -343,13 +349,15 @@ class EstimatorConfig:
         jump = self.odometry_jump_factor
         if isinstance(jump, float | int) and 0 < jump <= 1:  # every ordinary step would be a jump
             problems.append(f"odometry_jump_factor must be 0 (off) or above 1, got {jump!r}")
-        if isinstance(self.histogram_bins, int) and self.histogram_bins % 2:
-            problems.append(f"histogram_bins must be even, got {self.histogram_bins}")
-        length = self.histogram_bins * self.cells_x * self.cells_y
-        if not problems and length > MAX_OBSERVATION_LENGTH:
-            problems.append(
-                f"histogram_bins × cells_x × cells_y must be at most {MAX_OBSERVATION_LENGTH}, got {length}"
-            )
+        if self.observation_model == "histogram":  # the other models read none of the three
+            if isinstance(self.histogram_bins, int) and self.histogram_bins % 2:
+                problems.append(f"histogram_bins must be even, got {self.histogram_bins}")
+            length = self.histogram_bins * self.cells_x * self.cells_y
+            if not problems and length > MAX_OBSERVATION_LENGTH:
+                problems.append(
+                    f"histogram_bins × cells_x × cells_y must be at most {MAX_OBSERVATION_LENGTH},"
+                    f" got {length}"
+                )
         return problems
 
     @classmethod

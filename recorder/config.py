@@ -19,6 +19,13 @@ from aslam.data_formats.camera import fov_option_problem
 DEFAULT_FOV_DEG = 60.0
 DEFAULT_SIZE = (320, 240)
 DEFAULT_CAMERA_HEIGHT_M = 1.2
+NEAR_PLANE_M = 0.05
+"""The renderer's near clipping plane: nearer surfaces are not drawn."""
+MIN_CAMERA_HEIGHT_M = 2 * NEAR_PLANE_M
+"""Lower, the floor under the camera is clipped: the lower part of every image black (half of it
+at a micrometre)."""
+GENERATED_CEILING_M = 2.5
+"""The ceiling of a generated world; the camera stays 0.1 m below it."""
 MAX_SIZE_PX = 4096
 MAX_FPS = 120.0
 
@@ -149,7 +156,8 @@ class RecordConfig:
 
     @property
     def frames_per_action(self) -> int:
-        return 1 if self.fps is None else max(1, round(self.fps))
+        """``fps`` to the nearest whole number, halves up (``round`` took 2.5 to 2 and 3.5 to 4)."""
+        return 1 if self.fps is None else max(1, math.floor(self.fps + 0.5))
 
     def problems(self) -> list[str]:
         """Every unusable value, each as a message naming its option (empty when all is well)."""
@@ -182,8 +190,17 @@ class RecordConfig:
                 f"--size {cam.width_px}x{cam.height_px} is {cam.width_px * cam.height_px:,} pixels;"
                 f" at most {MAX_PIXELS:,} (2048x2048), the largest image aslam reads"
             )
-        if not (math.isfinite(cam.height_m) and cam.height_m > 0):
-            out.append(f"--camera-height-m must be a positive number of metres, got {cam.height_m}")
+        if not (math.isfinite(cam.height_m) and cam.height_m >= MIN_CAMERA_HEIGHT_M):
+            out.append(
+                f"--camera-height-m must be at least {MIN_CAMERA_HEIGHT_M:g} m (the renderer draws"
+                f" nothing nearer than {NEAR_PLANE_M:g} m: the floor under a lower camera is black),"
+                f" got {cam.height_m}"
+            )
+        elif self.world is None and cam.height_m >= GENERATED_CEILING_M - 0.1:
+            out.append(
+                f"--camera-height-m must be below {GENERATED_CEILING_M - 0.1:g} m in a generated world "
+                f"(ceilings are {GENERATED_CEILING_M:g} m), got {cam.height_m}"
+            )
         if self.fps is not None and not (math.isfinite(self.fps) and 1.0 <= self.fps <= MAX_FPS):
             out.append(f"--fps must be between 1 and {MAX_FPS:g} frames per second, got {self.fps}")
         if self.jpeg_quality is not None and not 1 <= self.jpeg_quality <= 100:

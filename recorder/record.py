@@ -124,13 +124,10 @@ class RecordResult:
     contact_sheet: Path | None
 
 
-def plan(config: RecordConfig) -> Plan:
-    """Validate the config, resolve the route, simulate the poses, build or load the world.
-
-    The generated world is built around the commanded path, and with ``--noise-model paper``
-    (whose truth drifts off the route) around the true path as well; either way the true path is
-    then checked to stay in free space, naming the first action that leaves it.
-    """
+def driven_route(config: RecordConfig) -> tuple[routes.Route, int, routes.Route]:
+    """(the route, its laps, the route as driven: every lap): what :func:`plan` refuses before any
+    world is built (the config's values, the route file, laps of an open route, the action cap, a
+    reset beyond the route), cheap enough for a sweep file's check of every render."""
     config.validate()
     base = routes.resolve_route(config.route)
     laps = routes.default_laps(config.route) if config.laps is None else config.laps
@@ -140,24 +137,30 @@ def plan(config: RecordConfig) -> Plan:
         if err.path is not None or config.route in routes.PRESETS:
             raise
         raise RouteError(err.problem, path=config.route) from err
+    keyframes = len(route.actions) + 1
+    reset_at = config.odometry_reset_at
+    if reset_at is not None and reset_at >= keyframes:
+        raise ConfigError(
+            f"--odometry-reset-at must be a keyframe of the route (0..{keyframes - 1}), got {reset_at}"
+        )
+    return base, laps, route
+
+
+def plan(config: RecordConfig) -> Plan:
+    """Validate the config, resolve the route, simulate the poses, build or load the world.
+
+    The generated world is built around the commanded path, and with ``--noise-model paper``
+    (whose truth drifts off the route) around the true path as well; either way the true path is
+    then checked to stay in free space, naming the first action that leaves it.
+    """
+    base, laps, route = driven_route(config)
     commanded = route.poses()
     connected = route.connected
     actions_json = [a.to_json() for a in route.actions]
     reset_at = config.odometry_reset_at
-    if reset_at is not None and reset_at >= len(commanded):
-        raise ConfigError(
-            f"--odometry-reset-at must be a keyframe of the route (0..{len(commanded) - 1}), got {reset_at}"
-        )
     truth, odometry = noise.simulate(commanded, config.noise, config.seed, connected=connected)
     world: GridWorld | SceneWorld
     if config.world is None:
-        from aslam.recorder.world import HEIGHT_M
-
-        if config.camera.height_m >= HEIGHT_M - 0.1:
-            raise ConfigError(
-                f"--camera-height-m must be below {HEIGHT_M - 0.1:g} m in a generated world "
-                f"(ceilings are {HEIGHT_M:g} m), got {config.camera.height_m}"
-            )
         drifting = config.noise.model is NoiseModel.PAPER
         world = generate_world(
             commanded,

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from aslam.recorder.config import CameraSpec
+from aslam.recorder.config import NEAR_PLANE_M, CameraSpec
 from aslam.recorder.errors import RenderError
 from aslam.recorder.lighting import DEFAULT as DEFAULT_LIGHTING
 from aslam.recorder.lighting import DEFAULT_COLOUR, Lighting
@@ -453,7 +453,10 @@ class PyrenderRenderer:
         self._on_xy = self._lights_xy
         self._intensity = LIGHT_INTENSITY
         cam = pyrender.PerspectiveCamera(
-            yfov=camera.yfov_rad, aspectRatio=camera.width_px / camera.height_px, znear=0.05, zfar=80.0
+            yfov=camera.yfov_rad,
+            aspectRatio=camera.width_px / camera.height_px,
+            znear=NEAR_PLANE_M,
+            zfar=80.0,
         )
         self._camera_node = _add(self.scene, pyrender, camera=cam)
         n_lights = N_POINT_LIGHTS if self._lights_xy is not None else 1

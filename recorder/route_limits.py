@@ -97,6 +97,13 @@ def _finite(value: Any) -> float | None:
     return value
 
 
+def _check_yaw(yaw: float | None, where: str, path: Path | str) -> None:
+    """A heading in degrees (None: not a number, the parser's to name) within ±MAX_TURN_DEG; NaN
+    was read on into positions, then named as a route beyond ±1 km."""
+    if yaw is not None and not abs(yaw) <= MAX_TURN_DEG:
+        raise RouteError(f"{where} must be a finite number within ±{MAX_TURN_DEG:g}°, got {yaw!r}", path=path)
+
+
 def _check_values(doc: dict[str, Any], path: Path | str) -> None:
     start = doc.get("start")
     x_m = y_m = heading_rad = 0.0
@@ -110,8 +117,7 @@ def _check_values(doc: dict[str, Any], path: Path | str) -> None:
         x_m = _finite(start.get("x_m")) or 0.0
         y_m = _finite(start.get("y_m")) or 0.0
         yaw = _finite(start.get("yaw_deg"))
-        if yaw is not None and not abs(yaw) <= MAX_TURN_DEG:
-            raise RouteError(f"start.yaw_deg = {yaw!r} is beyond ±{MAX_TURN_DEG:g}°", path=path)
+        _check_yaw(yaw, "start.yaw_deg", path)
         heading_rad = math.radians(yaw or 0.0)
     actions = doc.get("actions")
     if not isinstance(actions, list):
@@ -136,6 +142,7 @@ def _check_values(doc: dict[str, Any], path: Path | str) -> None:
                     )
                 x_m, y_m = to_x, to_y
                 yaw = _finite(raw.get("yaw_deg", 0.0))
+                _check_yaw(yaw, f"actions[{i}]: kidnap yaw_deg", path)
                 heading_rad = math.radians(yaw) if yaw is not None else heading_rad
             continue
         if value is None:

@@ -220,7 +220,10 @@ def preset(name: str) -> Route:
 def _number(value: Any) -> float | None:
     if isinstance(value, bool) or not isinstance(value, int | float):
         return None
-    value = float(value)
+    try:
+        value = float(value)
+    except OverflowError:  # an integer literal beyond any float
+        return None
     return value if math.isfinite(value) else None
 
 

@@ -40,6 +40,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from aslam.recorder import textures as tex
+from aslam.recorder.config import GENERATED_CEILING_M
 from aslam.recorder.errors import WorldError
 
 if TYPE_CHECKING:
@@ -47,7 +48,7 @@ if TYPE_CHECKING:
 
 CELL_M = 0.25
 CORRIDOR_HALF_WIDTH_M = 1.0
-HEIGHT_M = 2.5
+HEIGHT_M = GENERATED_CEILING_M
 PANEL_CELLS = (6, 12)  # panel length in cells: 1.5–3 m
 N_SHARED_TEXTURES = 3
 DOOR_WIDTH_M = 0.9

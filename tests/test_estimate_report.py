@@ -215,6 +215,12 @@ def test_bad_option_values_are_one_line_exit_2(recording: Path, tmp_path: Path, 
         ("[estimator]\nobservation_model = 5\n", "observation_model must be a string"),
         ('[estimator]\nobservation_model = "nope"\n', "observation_model must be 'histogram' or"),
         ("[estimator]\nstep_m = -1.0\nbeta = 0\n", "beta must be a number in [0.001, 50]"),
+        # an integer beyond any float: float() raised OverflowError, exit 70
+        ("[estimator]\nstep_m = 1" + "0" * 400 + "\n", "step_m must be a number a float can hold"),
+        (
+            '[estimator]\nobservation_model = "histogram"\nhistogram_bins = 15\n',
+            "histogram_bins must be even",
+        ),
     ],
 )
 def test_bad_config_files_are_one_line_exit_2(recording: Path, tmp_path: Path, capsys, text, needle):
@@ -224,6 +230,39 @@ def test_bad_config_files_are_one_line_exit_2(recording: Path, tmp_path: Path, c
     err = capsys.readouterr().err
     one_error_line(err)
     assert needle in err
+
+
+def test_a_config_file_is_judged_on_its_own_values_and_read_once(recording: Path, tmp_path: Path, capsys):
+    """An option's bad value was blamed on the file (``--config b.toml --step-m 0``: "b.toml: …
+    step_m", which b.toml does not set); the file's bad value was hidden by an option setting the
+    same key; a second ``--config`` replaced the first in silence."""
+    good, bad = tmp_path / "good.toml", tmp_path / "bad.toml"
+    good.write_text("[estimator]\nturn_deg = 45\n")
+    bad.write_text("[estimator]\nstep_m = 0\n")
+    out = ["-o", str(tmp_path / "e.mcap")]
+    assert main(["estimate", str(recording), *out, "--config", str(good), "--step-m", "0"]) == 2
+    err = one_error_line(capsys.readouterr().err)
+    assert err.startswith("aslam: error: bad estimator configuration: step_m") and str(good) not in err
+    assert main(["estimate", str(recording), *out, "--config", str(bad), "--step-m", "1"]) == 2
+    assert one_error_line(capsys.readouterr().err).startswith(
+        f"aslam: error: {bad}: bad estimator configuration"
+    )
+    assert main(["estimate", str(recording), *out, "--config", str(good), "--config", str(bad)]) == 2
+    assert "--config given 2 times" in one_error_line(capsys.readouterr().err)
+    assert not (tmp_path / "e.mcap").exists()
+
+
+def test_histogram_settings_bind_only_the_histogram_model():
+    """``--histogram-bins 15`` was refused (must be even) with the thumbnail model, which reads no
+    histogram; the rules hold for the histogram model, and --help now says them."""
+    from aslam.core.config import EstimatorConfig
+    from aslam.core.errors import ConfigError
+
+    assert EstimatorConfig(histogram_bins=15, cells_x=32, cells_y=2).histogram_bins == 15
+    with pytest.raises(ConfigError, match="histogram_bins must be even"):
+        EstimatorConfig(observation_model="histogram", histogram_bins=15)
+    with pytest.raises(ConfigError, match="at most 16384"):
+        EstimatorConfig(observation_model="histogram", histogram_bins=360, cells_x=32, cells_y=2)
 
 
 def test_a_config_files_problems_are_reported_together(recording: Path, tmp_path: Path, capsys):

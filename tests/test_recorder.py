@@ -100,6 +100,15 @@ def test_route_json_round_trips(tmp_path):
         ([1, 2], "JSON object"),
         ({"name": 5, "actions": [{"turn_deg": 1}]}, "'name' must be a string, got 5"),
         ({"route": 1, "actions": [{"turn_deg": 1}]}, "(expected 'start', 'actions', 'name')"),
+        # an integer beyond any float: OverflowError and "math domain error", exit 70
+        ({"actions": [{"forward_m": 10**400}]}, "actions[0]: forward_m must be a number in (0, 1000]"),
+        (
+            {"actions": [{"forward_m": 1}, {"kidnap": {"yaw_deg": 10**400}}]},
+            "kidnap yaw_deg must be a finite",
+        ),
+        # a kidnap's heading within ±3600° as the start's; NaN was "beyond ±1000 m of the origin"
+        ({"actions": [{"forward_m": 1}, {"kidnap": {"yaw_deg": 1e300}}]}, "within ±3600°, got 1e+300"),
+        ({"actions": [{"forward_m": 1}, {"kidnap": {"yaw_deg": math.nan}}]}, "within ±3600°, got nan"),
     ],
 )
 def test_bad_route_files_name_the_file_and_the_entry(tmp_path, doc, needle):
@@ -117,6 +126,22 @@ def test_a_key_given_twice_in_a_route_file_is_refused(tmp_path):
     with pytest.raises(RouteError, match="key 'start' given twice") as info:
         routes.load_route_file(path)
     assert str(info.value).startswith(str(path))
+
+
+def test_a_camera_is_at_least_twice_the_near_plane_above_the_floor_and_fps_rounds_halves_up():
+    """``--camera-height-m 0.000001`` rendered the lower half of every image black (the floor
+    nearer than the 0.05 m near plane is clipped); ``--fps 2.5`` rendered 2 frames an action and
+    3.5 rendered 4 (round half to even), where the docs say the nearest whole number."""
+    from aslam.recorder.config import CameraSpec
+
+    def height_problems(height_m: float) -> list[str]:
+        return [p for p in RecordConfig(camera=CameraSpec(height_m=height_m)).problems() if "height" in p]
+
+    assert height_problems(0.1) == [] and height_problems(2.39) == []
+    assert "at least 0.1 m" in height_problems(0.099)[0] and "at least 0.1 m" in height_problems(1e-6)[0]
+    assert "below 2.4 m in a generated world" in height_problems(2.4)[0]
+    frames = {fps: RecordConfig(fps=fps).frames_per_action for fps in (1.0, 1.49, 1.5, 2.5, 3.5, 120.0)}
+    assert frames == {1.0: 1, 1.49: 1, 1.5: 2, 2.5: 3, 3.5: 4, 120.0: 120}
 
 
 def test_laps_on_an_open_route_are_refused():

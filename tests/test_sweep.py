@@ -1764,6 +1764,41 @@ def test_a_task_whose_recording_was_replaced_since_the_plan_fails_rather_than_sa
     assert not result.ok and "not the bytes the sweep planned" in result.error
 
 
+def test_a_render_the_recorder_would_refuse_is_refused_with_the_sweep_file(tmp_path):
+    """The file check missed what ``aslam record`` refuses only once it builds the route: the dry
+    run planned these renders and the run failed every one (exit 3 after starting a cluster).
+    Now each is a problem of the sweep file (exit 2), with the rest, before any work."""
+    (tmp_path / "open.json").write_text('{"actions": [{"forward_m": 2}]}')
+    (tmp_path / "odd.json").write_text('{"actions": [{"forward_m": 1}], "colour": "red"}')
+    renders = [
+        "camera_height_m = 2.4",
+        "camera_height_m = 0.01",
+        "odometry_reset_at = 69",
+        "laps = 5000",
+        'route = "open.json"\nlaps = 2',
+        'route = "odd.json"',
+        "noise = 1" + "0" * 400,
+    ]
+    sweep_file = tmp_path / "s.toml"
+    sweep_file.write_text("".join(f'[[render]]\nsize = "64x48"\n{r}\n\n' for r in renders))
+    with pytest.raises(ConfigError) as info:
+        read_sweep_file(sweep_file)
+    message = str(info.value)
+    for number, needle in enumerate(
+        [
+            "camera_height_m must be below 2.4 m",
+            "camera_height_m must be at least 0.1 m",
+            "odometry_reset_at must be a keyframe of the route (0..68), got 69",
+            "for 170,000 actions; at most 100,000",
+            "so laps 2 cannot repeat it",
+            "unknown key(s) 'colour'",
+            "noise must be a number a float can hold",
+        ],
+        start=1,
+    ):
+        assert f"render #{number}: " in message and needle in message, needle
+
+
 def test_a_dry_run_waits_for_no_scheduler_file(tmp_path, capsys, monkeypatch):
     """A dry run contacts no scheduler: with a scheduler file not yet written it waited 30 s, then
     exit 2. It still refuses what the run would (--workers beside a cluster's file)."""
