@@ -148,6 +148,29 @@ def import_pyrender():
     return pyrender
 
 
+def _check_pyopengl_calls() -> None:
+    """RenderError, one line saying what to install, where PyOpenGL cannot pass an array to OpenGL.
+
+    pyrender pins PyOpenGL 3.1.0, whose ctypes handlers predate Python 3.12: a plain ``pip install``
+    there makes a context, then fails pyrender's first texture with a ctypes ArgumentError, which
+    was exit 70 ("a bug") with a raw ctypes message. The same call, made here on the new context.
+    """
+    import platform
+    from importlib.metadata import version
+
+    from OpenGL import GL
+
+    try:
+        GL.glDeleteTextures([GL.glGenTextures(1)])
+    except ctypes.ArgumentError as err:
+        raise RenderError(
+            f"PyOpenGL {version('PyOpenGL')} cannot pass arrays to OpenGL on Python"
+            f" {platform.python_version()} (a ctypes ArgumentError in glGenTextures): install a newer"
+            " one, `pip install --no-deps PyOpenGL==3.1.10` (pyrender pins 3.1.0; pip reports the pin"
+            " as a conflict)"
+        ) from err
+
+
 # ----------------------------------------------------------------------------- generated worlds
 
 
@@ -484,6 +507,7 @@ class PyrenderRenderer:
             raise RenderError(
                 f"cannot create an OpenGL context with platform {platform!r}: {err}{hint}"
             ) from err
+        _check_pyopengl_calls()
         self._flags = pyrender.RenderFlags.NONE
 
     def _panel_key(self, lighting: Lighting) -> tuple:

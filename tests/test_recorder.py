@@ -506,6 +506,27 @@ def test_existing_output_is_refused_without_force(tmp_path, capsys):
 
 
 @pytest.mark.skipif(ctypes.util.find_library("OSMesa") is None, reason="libosmesa6 is not installed")
+def test_a_pyopengl_that_cannot_pass_arrays_is_one_line_saying_what_to_install(monkeypatch):
+    """A plain ``pip install`` on Python 3.12 gets pyrender's pin, PyOpenGL 3.1.0, which makes a
+    context and then fails pyrender's first texture with a ctypes ArgumentError: exit 70 with a raw
+    ctypes message. The renderer makes that call itself on its new context and says what to do.
+    (Measured on Python 3.12.1 with 3.1.0: the same ArgumentError from ``glGenTextures(1)``.)"""
+    import ctypes
+
+    from OpenGL import GL
+
+    from aslam.recorder.errors import RenderError
+    from aslam.recorder.render import _check_pyopengl_calls
+
+    def no_array_handler(_count):
+        raise ctypes.ArgumentError("argument 2: TypeError: No array-type handler for type _ctypes.type")
+
+    monkeypatch.setattr(GL, "glGenTextures", no_array_handler)
+    with pytest.raises(RenderError, match=r"pip install --no-deps PyOpenGL==3\.1\.10") as info:
+        _check_pyopengl_calls()
+    assert "cannot pass arrays to OpenGL on Python" in str(info.value) and "\n" not in str(info.value)
+
+
 def test_osmesa_fallback_writes_the_same_bytes_as_egl(tmp_path):
     """The OSMesa platform (the fallback when EGL cannot start) renders real views, and the very
     same files as EGL: both are Mesa's rasteriser drawing into a framebuffer object. (Drawn into
