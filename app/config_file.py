@@ -100,6 +100,11 @@ def build_config(
             problems.append(err.problem)
     if problems:
         raise ConfigError(f"bad estimator configuration: {'; '.join(problems)}", path=config_file)
+    known = {name for name, *_ in EstimatorConfig.parameters()}
+    if unknown := sorted(set(options) - known):  # a library caller's typo: not a TypeError
+        raise ConfigError(
+            f"unknown estimator parameter(s) {', '.join(unknown)} (known: {', '.join(sorted(known))})"
+        )
     values.update({k: v for k, v in options.items() if v is not None})
     try:
         return EstimatorConfig(**values)

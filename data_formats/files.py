@@ -76,27 +76,36 @@ _held: dict[Path, int] = {}
 renamed into place or removed: a live writer's file, whatever its process id says elsewhere."""
 
 
-def _temporary(target: Path) -> Path:
+def _temporary(target: Path, made: list[Path]) -> Path:
     """A temporary name of ``target`` no other writer holds: :func:`partial_name`, created empty
     and exclusively (``O_EXCL``), locked (``flock``) while it is written, and registered with the
     running command. A process id is unique on one machine only: two containers or hosts sharing a
     folder run processes of the same id, which opened one temporary file, each writing over the
     other's bytes and renaming it while the other still wrote (a torn output, exit 0). A name that
     is taken gets ``-2``, ``-3``, …; the lock tells a live writer's file from one left by a killed
-    run where the id cannot (:func:`_writer_gone`)."""
+    run where the id cannot (:func:`_writer_gone`).
+
+    ``made`` gets the name as soon as the file exists, for the caller's clean-up: a Ctrl-C landing
+    before this returned, or before its value was stored, left the file on disk with its descriptor
+    and lock held (a library caller has no command to remove it at the end)."""
     first = partial_name(target)
     for attempt in range(1, _NAME_ATTEMPTS + 1):
         partial = first if attempt == 1 else first.with_name(f"{first.name}-{attempt}")
+        # Named for the clean-ups before it exists: a signal handled just after os.open returned
+        # (a syscall's return is where a loaded machine switches processes) found it unnamed.
+        files = current()
+        registers = [made] if files is None else [made, files.temporaries]
+        for names in registers:
+            names.append(partial)
         try:
             descriptor = os.open(partial, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-        except FileExistsError:
+        except FileExistsError:  # another writer's: never ours to remove
+            for names in registers:
+                names.remove(partial)
             continue
         _held[partial] = descriptor
         with contextlib.suppress(OSError):  # a file system without locks: judged by the id alone
             fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        files = current()
-        if files is not None:
-            files.temporaries.append(partial)
         return partial
     raise FileExistsError(errno.EEXIST, f"its {_NAME_ATTEMPTS} temporary names are taken", str(first))
 
@@ -710,15 +719,16 @@ class AtomicFile:
             self.target = real_path(self.path)
             _claim_output(self.path, self.target, error)
             _warn_stale(self.target)
+        made: list[Path] = []
         try:
             if self.direct:  # appended to: a file stdout was sent to with ``>> log`` keeps its lines
                 self.file: IO[bytes] = cast(IO[bytes], _CountedStream(_open_stream(self.path)))
             else:
-                self.partial_path = _temporary(self.target)
+                self.partial_path = _temporary(self.target, made)
                 self.file = open(self.partial_path, "wb")  # noqa: SIM115 (closed by commit/abort)
         except BaseException as err:  # an interrupt between creating the file and holding it too
-            if self.partial_path != self.path:
-                _discard(self.partial_path)
+            for partial in made:
+                _discard(partial)
             if isinstance(err, OSError):
                 raise error(f"cannot write: {err.strerror or err}", path=self.path) from err
             raise
@@ -798,18 +808,18 @@ def write_atomically(
     target = real_path(path)
     _claim_output(path, target, error)
     _warn_stale(target)
-    temporary: Path | None = None
+    made: list[Path] = []
     try:
-        temporary = _temporary(target)
+        temporary = _temporary(target, made)
         write(temporary)
         _finish_output(temporary, target, path, error, replace=_forced(force))
     except OSError as err:
-        if temporary is not None:
-            _discard(temporary)
+        for partial in made:
+            _discard(partial)
         raise error(f"cannot write: {err.strerror or err}", path=path) from err
     except BaseException:
-        if temporary is not None:
-            _discard(temporary)
+        for partial in made:
+            _discard(partial)
         raise
 
 

@@ -7,9 +7,22 @@ them ``aslam --help``, imports no numpy.
 from __future__ import annotations
 
 from enum import StrEnum
+from typing import Any
+
+from aslam.core.errors import ConfigError
 
 
-class PoseFormat(StrEnum):
+class _Name(StrEnum):
+    """A name one of these formats takes. A library caller's other string (``"TUM"``, ``"sec"``) is
+    a ConfigError naming the choices, as the command line's is, never Enum's bare ValueError."""
+
+    @classmethod
+    def _missing_(cls, value: Any) -> Any:
+        choices = ", ".join(member.value for member in cls)
+        raise ConfigError(f"{value!r} is not a {cls.__name__} (one of: {choices})")
+
+
+class PoseFormat(_Name):
     """Pose files ``aslam import`` reads (see :mod:`aslam.data_formats.pose_files`)."""
 
     TUM = "tum"
@@ -17,7 +30,7 @@ class PoseFormat(StrEnum):
     CSV = "csv"
 
 
-class StampUnit(StrEnum):
+class StampUnit(_Name):
     """The unit of the stamps in pose files and file names, when ``aslam import`` is told it
     (see :func:`aslam.data_formats.pose_files.stamp_text_ns`)."""
 
@@ -27,7 +40,7 @@ class StampUnit(StrEnum):
     NS = "ns"
 
 
-class TrajectoryFormat(StrEnum):
+class TrajectoryFormat(_Name):
     """Trajectory files ``aslam report`` writes (see :mod:`aslam.data_formats.trajectory`)."""
 
     TUM = "tum"

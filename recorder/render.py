@@ -19,10 +19,11 @@ current one is visible).
 
 from __future__ import annotations
 
+import contextlib
 import ctypes.util
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -109,6 +110,41 @@ def camera_matrix(pose: np.ndarray, height_m: float) -> np.ndarray:
     return m
 
 
+@contextlib.contextmanager
+def _signals_after_imports() -> Iterator[None]:
+    """Hold SIGINT, SIGTERM and SIGHUP while pyrender is first imported, then deliver them.
+
+    trimesh (under pyrender) imports its optional dependencies under ``except BaseException``: a
+    Ctrl-C there was kept in a placeholder, so a library caller's ``record()`` rendered on to its
+    end, or, landing inside networkx's own imports, left modules half made and every later
+    ``record()`` of the process failing with AttributeError. The command line re-raises what a
+    library swallowed at its next checkpoint; a library caller has none. Only in the main thread,
+    where Python runs signal handlers, and only for handlers that are Python's (not the default
+    action, not ignored); ``sys.modules`` decides whether there is anything to import.
+    """
+    import signal
+    import sys
+    import threading
+
+    if "pyrender.renderer" in sys.modules or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held: list[int] = []
+    saved = {}
+    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        handler = signal.getsignal(signum)
+        if callable(handler):
+            saved[signum] = handler
+            signal.signal(signum, lambda number, _frame: held.append(number))
+    try:
+        yield
+    finally:
+        for signum, handler in saved.items():
+            signal.signal(signum, handler)
+        if held:
+            signal.raise_signal(held[0])  # to the caller's handler, now the imports are whole
+
+
 def import_pyrender():
     """pyrender on the platform :func:`select_platform` chose, rendering one sample per pixel.
 
@@ -127,9 +163,10 @@ def import_pyrender():
     """
     select_platform()
     try:
-        import pyrender
-        import pyrender.renderer
-        from pyrender.platforms.osmesa import OSMesaPlatform
+        with _signals_after_imports():
+            import pyrender
+            import pyrender.renderer
+            from pyrender.platforms.osmesa import OSMesaPlatform
     except Exception as err:  # PyOpenGL raises ImportError/AttributeError for missing libraries
         raise RenderError(
             f"cannot load pyrender with PYOPENGL_PLATFORM={os.environ.get('PYOPENGL_PLATFORM', '')!r}: {err}"

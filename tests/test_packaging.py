@@ -76,12 +76,14 @@ def test_packages_hold_modules_and_the_package_data_declared():
     data = {
         path.relative_to(ROOT)
         for name in PACKAGE_DIRS
-        if name != "aslam"  # the root's README, Makefile ... are the sdist's, not the package's
         for path in _package_files(name)
         if path.suffix != ".py"
+        # the root's README, Makefile ... are the sdist's, not the package's: its marker alone is
+        and (name != "aslam" or path.name == "py.typed")
     }
     assert data == declared
-    assert declared == {Path("app/sweep_example.toml")}  # `aslam sweep --example`
+    markers = {(folder / "py.typed").relative_to(ROOT) for folder in PACKAGE_DIRS.values()}
+    assert declared == {Path("app/sweep_example.toml"), *markers}  # `aslam sweep --example`; PEP 561
 
 
 def _imported_top_level_names() -> set[str]:

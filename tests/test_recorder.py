@@ -870,3 +870,40 @@ def test_a_pose_that_no_driven_step_reaches_is_refused(tmp_path, capsys):
     assert main(["record", "--route", str(route), "--size", "32x24", "-o", str(out)]) == 2
     err = one_error_line(capsys.readouterr().err)
     assert "the route" in err and "the start pose" in err and not out.exists()
+
+
+def test_a_ctrl_c_while_pyrender_is_first_imported_interrupts_record_and_leaves_it_whole(tmp_path):
+    """trimesh imports its optional dependencies under ``except BaseException``: a Ctrl-C there was
+    swallowed, so a library caller's first ``record()`` rendered on to its end (or, inside
+    networkx's imports, left every later ``record()`` failing). The signal is held through the
+    import and delivered after it. A real SIGINT, raised while trimesh imports networkx, in a
+    fresh interpreter (pyrender not yet imported)."""
+    script = """
+import importlib.abc, signal, sys
+from pathlib import Path
+
+class Hook(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        if name == "networkx":
+            sys.meta_path.remove(self)
+            signal.raise_signal(signal.SIGINT)
+        return None
+
+sys.meta_path.insert(0, Hook())
+from aslam.recorder.config import CameraSpec, RecordConfig
+from aslam.recorder.record import record
+
+out = Path(sys.argv[1])
+try:
+    record(RecordConfig(laps=1, camera=CameraSpec(32, 24)), out / "a.mcap")
+    print("returned")
+except KeyboardInterrupt:
+    print("interrupted")
+record(RecordConfig(laps=1, camera=CameraSpec(32, 24)), out / "b.mcap")
+print(sorted(p.name for p in out.iterdir()))
+"""
+    done = subprocess.run(
+        [sys.executable, "-c", script, str(tmp_path)], capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines() == ["interrupted", "['b.mcap']"]

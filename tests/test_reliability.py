@@ -1792,3 +1792,49 @@ def test_a_header_stamp_whose_nanosec_is_a_second_or_more_is_refused(tmp_path: P
     bag = write_rosbag2(tmp_path / "bag", messages=rows)
     assert main(["info", str(bag)]) == 2
     one_error_line(capsys, str(bag), "odometry message on '/odom'", "nanosec is 1500000000, not under 10⁹")
+
+
+# --- the application layer as a library ------------------------------------------------------------
+
+
+@pytest.mark.parametrize("writer", ["write_atomically", "AtomicFile"])
+def test_an_interrupt_as_a_temporary_file_is_made_leaves_neither_file_nor_descriptor(
+    tmp_path: Path, monkeypatch, writer: str
+):
+    """A Ctrl-C landing after the temporary file was created but before its name reached the
+    caller left ``.NAME.partial-PID`` on disk, its descriptor and lock held (2 runs in 40 of a
+    library caller's ``export_trajectories``); the command line's list of temporaries hid it."""
+    from aslam.data_formats import files
+
+    def interrupted(_descriptor, _operation):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(files.fcntl, "flock", interrupted)  # just after os.open made the file
+    held_before = dict(files._held)
+    target = tmp_path / "t.tum"
+    with pytest.raises(KeyboardInterrupt):
+        if writer == "write_atomically":
+            files.write_atomically(target, lambda path: path.write_text("x"), force=True)
+        else:
+            files.AtomicFile(target, force=True)
+    assert list(tmp_path.iterdir()) == []
+    assert files._held == held_before
+
+
+def test_a_library_callers_wrong_name_or_parameter_is_an_aslam_error(tmp_path: Path):
+    """``import_image_folder(..., fmt="tum ")``, ``stamp_unit="sec"``, ``export_trajectories(...,
+    "TUM")`` raised Enum's bare ValueError, and ``build_config(options={"bata": 3.0})`` a TypeError:
+    a caller catching AslamError (exit codes, messages) missed them."""
+    from aslam.app.config_file import build_config
+    from aslam.core.errors import ConfigError
+    from aslam.data_formats.format_names import PoseFormat, StampUnit, TrajectoryFormat
+
+    with pytest.raises(ConfigError, match=r"'tum ' is not a PoseFormat \(one of: tum, kitti, csv\)"):
+        PoseFormat("tum ")
+    with pytest.raises(ConfigError, match="'sec' is not a StampUnit"):
+        StampUnit("sec")
+    with pytest.raises(ConfigError, match="'TUM' is not a TrajectoryFormat"):
+        TrajectoryFormat("TUM")
+    assert TrajectoryFormat("tum") is TrajectoryFormat.TUM
+    with pytest.raises(ConfigError, match="unknown estimator parameter"):
+        build_config(paper_faithful=False, config_file=None, options={"bata": 3.0})
