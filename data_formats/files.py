@@ -85,9 +85,10 @@ def _temporary(target: Path, made: list[Path]) -> Path:
     is taken gets ``-2``, ``-3``, …; the lock tells a live writer's file from one left by a killed
     run where the id cannot (:func:`_writer_gone`).
 
-    ``made`` gets the name as soon as the file exists, for the caller's clean-up: a Ctrl-C landing
-    before this returned, or before its value was stored, left the file on disk with its descriptor
-    and lock held (a library caller has no command to remove it at the end)."""
+    ``made`` (and the running command's list) get the name before the file exists, for the
+    clean-ups: a Ctrl-C landing before this returned, or before its value was stored, left the
+    file on disk with its descriptor and lock held (a library caller has no command to remove it at
+    the end)."""
     first = partial_name(target)
     for attempt in range(1, _NAME_ATTEMPTS + 1):
         partial = first if attempt == 1 else first.with_name(f"{first.name}-{attempt}")
