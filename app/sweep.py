@@ -53,6 +53,7 @@ from aslam.data_formats.files import (
 )
 from aslam.data_formats.provenance import code_version, library_versions
 from aslam.data_formats.rosbag_source import SourceKind, open_source
+from aslam.data_formats.sources import not_an_input
 from aslam.data_formats.sweep_files import (
     HASHES_FILE,
     RESULTS_CSV,
@@ -252,9 +253,7 @@ def _check_inputs(sweep_file: Path, recordings: list[Path]) -> None:
             problems.append(str(err))
             continue
         if kind is SourceKind.IMAGE_FOLDER:
-            problems.append(
-                f"{path}: an image folder; make it a recording first: aslam import {path} -o REC.mcap"
-            )
+            problems.append(str(not_an_input(path)))
     if problems:
         raise ConfigError(
             "recordings.paths names what a sweep cannot read (a glob such as 'runs/**/*.mcap' names"

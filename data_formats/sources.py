@@ -213,6 +213,11 @@ def open_input(
         return RecordingInput(recording, topics.recording_topics(), warnings)
     if kind in BAG_KINDS:
         return BagInput(path, kind, topics, warnings)
-    raise BagError(
+    raise not_an_input(path)
+
+
+def not_an_input(path: Path) -> BagError:
+    """Why ``path``, an image folder, is no input to ``estimate``, ``info`` or a sweep."""
+    return BagError(
         f"is an image folder; make it a recording first: aslam import {path} -o REC.mcap", path=path
     )

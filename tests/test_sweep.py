@@ -1723,7 +1723,7 @@ def test_a_sweep_refuses_listed_paths_it_cannot_read_before_running_a_task(tmp_p
     dry = ["sweep", str(sweep_file), "-o", str(tmp_path / "out"), "--dry-run", "-q"]
     assert main(dry) == 2
     err = capsys.readouterr().err
-    assert "frames: an image folder; make it a recording first: aslam import" in err
+    assert "frames: is an image folder; make it a recording first: aslam import" in err
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
 
 
