@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from aslam.core.errors import InputError
+from aslam.data_formats.camera import DEFAULT_FOV_DEG
 from aslam.data_formats.image_folder import (
     SYNTHETIC_STEP_M,
     ImageFolderError,
@@ -28,10 +29,6 @@ from aslam.data_formats.image_folder import (
 )
 from aslam.data_formats.pose_files import PoseFormat, StampUnit
 from aslam.data_formats.provenance import tool_version
-
-#: Horizontal field of view written when none is given (image folders rarely say); the metadata
-#: records that it was assumed. The estimator's histograms do not use it.
-DEFAULT_FOV_DEG = 60.0
 
 Progress = Callable[[int, int], None]  # (images done, images total)
 

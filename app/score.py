@@ -303,6 +303,10 @@ def score(
     says what it is doing (a progress display: a long run's report takes a while).
     """
     check_report_tolerances(radius_m, heading_deg)
+    if truth_by_index and (recording is not None or ground_truth_topic is not None):
+        raise InputError(
+            "--truth-by-index reads no recording; leave out --recording and --ground-truth-topic"
+        )
     warn = on_warning or (lambda _line: None)
     stage = on_stage or (lambda _text: None)
     estimate = Path(estimate)

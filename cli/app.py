@@ -25,9 +25,10 @@ from aslam.data_formats.provenance import tool_version
 if TYPE_CHECKING:
     from aslam.data_formats.files import CommandFiles
 
+# An error raised on purpose carries its own code (``exit_code``: aslam.core.errors, and 3 for a
+# sweep's failed tasks, app.sweep.TasksFailed); the root command's --help lists every code.
 EXIT_OK = 0
 EXIT_BAD_INPUT = 2
-EXIT_TASKS_FAILED = 3  # `aslam sweep`: some tasks failed (app.sweep.TasksFailed); --help lists each EXIT_
 EXIT_INTERNAL = 70
 EXIT_INTERRUPTED = 130
 EXIT_CLOSED_PIPE = 141  # 128 + SIGPIPE, what a shell reports for a tool killed by a closed pipe

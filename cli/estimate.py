@@ -66,7 +66,7 @@ def estimate(**options: Any) -> None:
         image=fixed["image_topic"], odometry=fixed["odometry_topic"], ground_truth=fixed["ground_truth_topic"]
     )
     config = build_config(paper_faithful=fixed["paper_faithful"], config_file=config_file, options=options)
-    terminal.detail(f"configuration: {json.dumps(asdict(config))}")  # JSON, as the estimate file holds it
+    terminal.detail(f"configuration: {json.dumps(asdict(config))}")  # the values the estimate file holds
     progress, on_progress = _progress_bar(terminal)
     with progress:
         summary = run_estimate(
@@ -229,7 +229,7 @@ _FIXED: dict[str, tuple[Any, Any]] = {
                 help="Threads decoding and describing images (0: in the main thread).",
             ),
         ],
-        2,
+        2,  # app.pipeline.DEFAULT_WORKERS, whose import is not for every command's start (a test binds them)
     ),
     "quiet": (QuietOption, False),
     "verbose": (VerboseOption, False),

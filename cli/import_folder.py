@@ -20,6 +20,7 @@ from aslam.cli.output import (
     decimal_number,
     output_file,
 )
+from aslam.data_formats.camera import DEFAULT_FOV_DEG
 from aslam.data_formats.format_names import PoseFormat, StampUnit
 
 
@@ -66,7 +67,7 @@ def import_folder(
         typer.Option(
             parser=decimal_number,
             metavar="FLOAT",
-            help="Horizontal field of view, degrees. \\[default: 60, recorded as assumed]",
+            help=f"Horizontal field of view, degrees. \\[default: {DEFAULT_FOV_DEG:g}, recorded as assumed]",
         ),
     ] = None,
     force: ForceOption = False,

@@ -23,9 +23,9 @@ from aslam.cli.output import (
     output_file,
     whole_number,
 )
+from aslam.data_formats.camera import DEFAULT_FOV_DEG
 from aslam.recorder.config import (
     DEFAULT_CAMERA_HEIGHT_M,
-    DEFAULT_FOV_DEG,
     CameraSpec,
     NoiseModel,
     NoiseParams,

@@ -160,10 +160,6 @@ def report(
         for name in PLOT_NAMES:
             _check_output(plots / name, force=force, others=outputs, inputs=inputs)
 
-    if truth_by_index and (recording is not None or ground_truth_topic is not None):
-        raise InputError(
-            "--truth-by-index reads no recording; leave out --recording and --ground-truth-topic"
-        )
     with _status(terminal) as on_stage:
         result = score(
             estimate,

@@ -5,6 +5,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+DEFAULT_FOV_DEG = 60.0
+"""The recorder's camera, and the field of view assumed for images whose dataset gives none."""
+
 
 def fov_option_problem(fov_deg: float) -> str | None:
     """Why ``--fov-deg`` (``record``'s and ``import``'s) is refused, or None: 1–170 degrees, the

@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aslam.core.decimal_text import is_decimal
 from aslam.core.errors import InputError
 from aslam.data_formats.format_names import StampUnit
 from aslam.data_formats.images import ImageFormat, LazyImage, sniffed_format
@@ -165,6 +166,11 @@ def frame_order(images: list[Path]) -> list[Path]:
 
 
 def _number(text: str) -> Decimal | None:
+    """The name's value where it is a decimal number as :mod:`aslam.core.decimal_text` reads one
+    (``Decimal`` alone also takes ``1_0`` and other scripts' digits: such a folder was refused
+    as badly stamped instead of read in name order)."""
+    if not is_decimal(text):
+        return None
     try:
         value = Decimal(text)
     except InvalidOperation:

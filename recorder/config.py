@@ -14,9 +14,8 @@ from pathlib import Path
 from typing import Any
 
 from aslam.core.errors import ConfigError
-from aslam.data_formats.camera import fov_option_problem
+from aslam.data_formats.camera import DEFAULT_FOV_DEG, fov_option_problem
 
-DEFAULT_FOV_DEG = 60.0
 DEFAULT_SIZE = (320, 240)
 DEFAULT_CAMERA_HEIGHT_M = 1.2
 NEAR_PLANE_M = 0.05

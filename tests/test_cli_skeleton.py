@@ -23,7 +23,11 @@ def test_help_lists_every_exit_code_one_to_a_line(capsys):
 
     assert main(["--help"]) == 0
     lines = [line.strip(" │") for line in capsys.readouterr().out.splitlines()]
-    codes = {value for name, value in vars(cli_app).items() if name.startswith("EXIT_")} | {1}
+    from aslam.app.sweep import TasksFailed
+    from aslam.core.errors import AslamError, QualityGateFailed
+
+    codes = {value for name, value in vars(cli_app).items() if name.startswith("EXIT_")}
+    codes |= {error.exit_code for error in (AslamError, QualityGateFailed, TasksFailed)}
     listed = {int(line.split()[0]) for line in lines if line.split() and line.split()[0].isdigit()}
     assert listed == codes
 
@@ -133,3 +137,12 @@ def test_a_number_in_other_digits_is_refused_before_any_file_is_read(args, tmp_p
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "Traceback" not in err
     assert "not a decimal number" in err or "not a whole number" in err or "WIDTHxHEIGHT" in err
+
+
+def test_the_workers_default_is_the_pipelines():
+    """``--workers``' default is written out in the option (the pipeline's import is not for every
+    command's start): it must stay the one ``aslam.app.estimate`` uses."""
+    from aslam.app.pipeline import DEFAULT_WORKERS
+    from aslam.cli.estimate import _FIXED
+
+    assert _FIXED["workers"][1] == DEFAULT_WORKERS

@@ -811,3 +811,16 @@ def test_report_against_another_recording_says_so(estimate_file: Path, tmp_path:
     write_square_recording(other, seed=8)
     assert main(["report", str(estimate_file), "--recording", str(other)]) == 0
     assert "is not the recording the estimate was made from" in capsys.readouterr().err
+
+
+def test_truth_by_index_refuses_a_recording_from_python_too(estimate_file: Path, recording: Path, capsys):
+    """By index no recording is read: one given as well was ignored in silence from Python (the
+    command line alone refused it), so a script scored by index what it meant to score by poses."""
+    from aslam.app.score import score
+
+    with pytest.raises(InputError, match="reads no recording"):
+        score(estimate_file, truth_by_index=True, recording=recording)
+    with pytest.raises(InputError, match="reads no recording"):
+        score(estimate_file, truth_by_index=True, ground_truth_topic="/ground_truth")
+    assert main(["report", str(estimate_file), "--truth-by-index", "--recording", str(recording)]) == 2
+    assert "reads no recording" in one_error_line(capsys.readouterr().err)

@@ -386,6 +386,16 @@ def test_numbers_in_names_are_compared_as_numbers(numbers, prefix, suffix, paddi
     assert frame_order(images[::-1]) == [images[numbers.index(n)] for n in sorted(numbers)]
 
 
+def test_names_that_only_python_reads_as_numbers_are_names(tmp_path):
+    """``1_0`` is no number to aslam (``Decimal`` alone reads it as 10): the folder is read in name
+    order at the default rate, not refused because "stamp '1_0' is not a number"."""
+    names = ["1_0.png", "2.png", "3.png"]
+    write_images(tmp_path / "imgs", 3, name=lambda i: names[i])
+    folder = open_image_folder(tmp_path / "imgs")
+    assert folder.stamps == "default 1 Hz"
+    assert [s.image.path.name for s in folder.samples()] == names
+
+
 def test_default_stamps_without_anything(tmp_path):
     write_images(tmp_path / "imgs", 2, name=lambda i: f"img_{i}.jpg")
     folder = open_image_folder(tmp_path / "imgs")
