@@ -78,7 +78,7 @@ def seqslam(references: np.ndarray, queries: np.ndarray, length: int) -> dict[st
 def single_image(references: np.ndarray, queries: np.ndarray, model: ObservationModel) -> dict[str, float]:
     """One of aslam's observation models, best match per image alone (no sequence, no odometry)."""
     start = time.perf_counter()
-    stored = np.stack([model.describe(image) for image in references])
+    stored = np.stack([model.view(model.describe(image)) for image in references])
     match = np.empty(len(queries), int)
     confidence = np.empty(len(queries))
     for j, image in enumerate(queries):

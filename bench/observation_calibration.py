@@ -62,7 +62,7 @@ def calibrate(path: Path, names: list[str]) -> None:
         z = np.array([model.describe(image) for image, _ in frames])
         same, near, other, right, revisits = [], [], [], 0, 0
         for t in range(1, len(frames)):
-            d = model.distances(z[t], z[:t])
+            d = model.distances(z[t], np.array([model.view(v) for v in z[:t]]))
             metres = np.hypot(*(truth[:t, :2] - truth[t, :2]).T)
             degrees = np.degrees(np.abs(se2.wrap_angle(truth[:t, 2] - truth[t, 2])))
             true = (metres <= 0.5) & (degrees <= 45)
@@ -76,7 +76,7 @@ def calibrate(path: Path, names: list[str]) -> None:
             far = ~((metres <= 1.5) & (degrees <= 45))
             if far.any():
                 other.append(d[far].min())
-        consecutive = [model.distances(z[t], z[t - 1 : t])[0] for t in range(1, len(z))]
+        consecutive = [model.distances(z[t], model.view(z[t - 1]))[0] for t in range(1, len(z))]
 
         def pct(values: list[float], q: float) -> float:
             return float(np.percentile(values, q)) if values else float("nan")

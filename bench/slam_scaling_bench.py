@@ -30,7 +30,7 @@ import numpy as np
 from aslam.core import se2
 from aslam.core.config import EstimatorConfig
 from aslam.core.estimator import Estimator
-from aslam.core.observation import HistogramModel
+from aslam.core.observation import HistogramModel, ThumbnailModel
 
 WINDOW = 1000
 """Keyframes in each window of the ratio."""
@@ -87,13 +87,16 @@ class Run:
         model = self.estimator.observation_model
         self._length = model.length
         self._histogram = isinstance(model, HistogramModel)
+        # A query is compared at each of its phases (``thumbnail_phases``): as many noisy copies.
+        self._phases = model.phases if isinstance(model, ThumbnailModel) else 1
         self._signatures: dict[tuple[int, int, int], np.ndarray] = {}
         self._walk = block_walk(keyframes) if world == "blocks" else random_walk(keyframes, size, seed)
         self.keyframe = 0
         self.estimator.add_keyframe(0, np.zeros(3), self._observe(np.zeros(3)))
 
     def _observe(self, pose: np.ndarray) -> np.ndarray:
-        """A histogram (noisy copy of the place's) or a thumbnail-like vector (the place's plus noise)."""
+        """A histogram (noisy copy of the place's) or a thumbnail-like vector (the place's plus noise,
+        one copy per phase)."""
         key = (round(pose[0]), round(pose[1]), round(math.degrees(pose[2]) / 90) % 4)
         length, rng = self._length, self._rng
         if key not in self._signatures:
@@ -101,7 +104,8 @@ class Run:
                 rng.dirichlet(np.full(length, 2.0)) if self._histogram else rng.standard_normal(length)
             )
         if not self._histogram:
-            return (self._signatures[key] + 0.3 * rng.standard_normal(length)).astype(np.float32)
+            noise = 0.3 * rng.standard_normal((self._phases, length))
+            return (self._signatures[key] + noise).astype(np.float32).ravel()
         view = np.abs(self._signatures[key] * (1.0 + 0.05 * rng.standard_normal(length)))
         return (view / view.sum()).astype(np.float32)
 

@@ -151,6 +151,12 @@ class EstimatorConfig:
         8.0,
         "Sensitivity β of the thumbnail model, P(z|x) = d^-β (its distances span a narrower range than χ²).",
     )
+    thumbnail_phases: int = _param(
+        4,
+        "Sub-column phases a view is compared at by the thumbnail model: the query is also described"
+        " shifted by 1/N … (N−1)/N of a column, so a revisit a fraction of a column (3.75° of a 60° field of"
+        " view) off the first visit's heading still lines up; the places keep the unshifted view.",
+    )
     new_state_reference: str = _param(
         "online",
         "'online': the reference distance of an unseen place is calibrated on the run itself (a fixed"
@@ -445,6 +451,7 @@ RANGES: dict[str, Bounds] = {
     "max_hypotheses": Bounds(1, 10_000, integer=True),
     "merge_window": Bounds(1, 1000, integer=True),
     "thumbnail_beta": Bounds(1e-3, 50),
+    "thumbnail_phases": Bounds(1, 8, integer=True),
     "appearance_veto": Bounds(0, 100),
     "contradiction_ratio": Bounds(0, 1),
     "new_state_coverage": Bounds(0, 1, high_open=True),

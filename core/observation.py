@@ -36,7 +36,7 @@ class ObservationModel(Protocol):
 
     @property
     def length(self) -> int:
-        """Length of every vector ``describe`` returns."""
+        """Length of a place's view (:meth:`view`): what the map stores and the index keys."""
         ...
 
     @property
@@ -55,11 +55,17 @@ class ObservationModel(Protocol):
         ...
 
     def describe(self, gray: np.ndarray) -> np.ndarray:
-        """A float32 vector of ``length`` for a grey (H, W) or BGR (H, W, 3) image."""
+        """A float32 observation of a grey (H, W) or BGR (H, W, 3) image: its view (``length``
+        values), which a place keeps, then whatever else a query is compared with."""
+        ...
+
+    def view(self, observation: np.ndarray) -> np.ndarray:
+        """The part of an observation a place keeps: its first ``length`` values."""
         ...
 
     def distances(self, observation: np.ndarray, stored: np.ndarray) -> np.ndarray:
-        """Distance (≥ 0, 0 for identical views) of ``observation`` to each row of ``stored``."""
+        """Distance (≥ 0, 0 for identical views) of ``observation`` (or a view alone) to each view
+        in the rows of ``stored``."""
         ...
 
     def log_likelihood(self, distances: np.ndarray | float) -> np.ndarray:
@@ -104,6 +110,9 @@ class HistogramModel:
 
         return orientation_histogram(gray, self.histogram)
 
+    def view(self, observation: np.ndarray) -> np.ndarray:
+        return observation
+
     def distances(self, observation: np.ndarray, stored: np.ndarray) -> np.ndarray:
         from aslam.core.features import chi2_distances
 
@@ -142,6 +151,9 @@ class ThumbnailModel:
     patch_px: int = 5
     max_shift_px: int = 4
     """±4 of 16 columns: ±15° of a 60° field of view."""
+    phases: int = 4
+    """Sub-column phases a query is described at (``thumbnail_phases``): the shifts above are whole
+    columns, and a view a fraction of a column off differs in every column."""
     beta: float = 8.0
     floor: float = 0.02
     fixed_reference: float = 0.56
@@ -158,11 +170,22 @@ class ThumbnailModel:
         image = np.asarray(gray)
         if image.ndim == 3:
             image = cv2.cvtColor(image.astype(np.float32, copy=False), cv2.COLOR_BGR2GRAY)
-        small = cv2.resize(
-            image.astype(np.float32, copy=False),
-            (self.width_px, self.height_px),
-            interpolation=cv2.INTER_AREA,
-        ).astype(np.float64)
+        image = image.astype(np.float32, copy=False)
+        w, h = self.width_px, self.height_px
+        views = [self._normalised(cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA))]
+        if self.phases > 1:
+            # Phase k: the image moved k/phases of a column to the left (its right edge repeated).
+            fine = cv2.resize(image, (w * self.phases, h), interpolation=cv2.INTER_AREA)
+            for k in range(1, self.phases):
+                moved = np.concatenate([fine[:, k:], np.repeat(fine[:, -1:], k, axis=1)], axis=1)
+                views.append(self._normalised(moved.reshape(h, w, self.phases).mean(axis=2)))
+        return np.concatenate(views)
+
+    def _normalised(self, small: np.ndarray) -> np.ndarray:
+        """Each cell by its ``patch_px`` neighbourhood's mean and spread, flattened."""
+        import cv2
+
+        small = small.astype(np.float64)
         size = (self.patch_px, self.patch_px)
         mean = cv2.blur(small, size, borderType=cv2.BORDER_REFLECT)
         mean_sq = cv2.blur(small * small, size, borderType=cv2.BORDER_REFLECT)
@@ -171,22 +194,30 @@ class ThumbnailModel:
         normalised = (small - mean) / np.maximum(std, 1.0)
         return normalised.astype(np.float32).ravel()
 
+    def view(self, observation: np.ndarray) -> np.ndarray:
+        return observation[: self.length]
+
     def distances(self, observation: np.ndarray, stored: np.ndarray) -> np.ndarray:
+        """The least distance over the query's phases and the whole-column shifts."""
         stored = np.atleast_2d(stored)
         if stored.shape[0] == 0:
             return np.zeros(0)
         h, w = self.height_px, self.width_px
-        query = np.asarray(observation, dtype=np.float32).reshape(h, w)
+        queries = np.asarray(observation, dtype=np.float32).reshape(-1, h, w)
         rows = stored.reshape(-1, h, w)
         best = np.full(len(rows), np.inf)
         for shift in range(-self.max_shift_px, self.max_shift_px + 1):
             if shift >= 0:
-                a, b = query[:, shift:], rows[:, :, : w - shift]
+                a, b = queries[:, :, shift:], rows[:, :, : w - shift]
             else:
-                a, b = query[:, :shift], rows[:, :, -shift:]
+                a, b = queries[:, :, :shift], rows[:, :, -shift:]
             # np.mean's own arithmetic (a float64 sum, then one division) without its Python overhead.
-            total = np.add.reduce(np.abs(b - a), axis=(1, 2), dtype=np.float64)
-            best = np.minimum(best, total / (h * a.shape[1]))
+            if len(queries) == 1:
+                total = np.add.reduce(np.abs(b - a[0]), axis=(1, 2), dtype=np.float64)
+            else:
+                differences = np.abs(b[:, None] - a[None])
+                total = np.add.reduce(differences, axis=(2, 3), dtype=np.float64).min(axis=1)
+            best = np.minimum(best, total / (h * a.shape[2]))
         return best
 
     def log_likelihood(self, distances: np.ndarray | float) -> np.ndarray:
@@ -275,7 +306,9 @@ OBSERVATION_MODELS: dict[str, ObservationModelChoice] = {
         ),
         ("histogram_bins", "cells_x", "cells_y"),
     ),
-    "thumbnail": ObservationModelChoice(lambda config: ThumbnailModel(beta=config.thumbnail_beta)),
+    "thumbnail": ObservationModelChoice(
+        lambda config: ThumbnailModel(beta=config.thumbnail_beta, phases=config.thumbnail_phases)
+    ),
 }
 """Every observation model by its name: the one place a model is registered (the names
 ``EstimatorConfig`` accepts, the model it makes, what a prior map's views must share)."""

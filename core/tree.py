@@ -382,7 +382,8 @@ class HypothesisTree:
         been carried from one that drove on (``PAUSE_SHARE``). ``features``: the image's, for the
         geometric check (``geometric_check_m``); without them this keyframe is not checked.
         """
-        keyframe = self.views.append(observation)
+        view = self.model.view(observation)  # what the place keeps; the whole observation is the query
+        keyframe = self.views.append(view)
         self._offsets = {}
         if self._geometry is None:
             features = None
@@ -393,7 +394,7 @@ class HypothesisTree:
                 self._paused_at = keyframe
                 self._paused_tracked = bool(self.leaves) and not self.leaves[0].is_new
             self._intervals.append(float(elapsed_ns))
-        previous, self._previous_view = self._previous_view, np.array(observation, dtype=np.float32)
+        previous, self._previous_view = self._previous_view, np.array(view, dtype=np.float32)
         if keyframe == 0:
             self._index_place(0)
             root = self._new_node(0, 0, None, 0.0, True, IDENTITY_REL)
@@ -627,7 +628,8 @@ class HypothesisTree:
         start = self.leaves[0]
         log_new = self._log_new_prior + float(self.model.log_likelihood(self.reference.value))
         children: list[tuple[float, Node, int, bool]] = [(log_new, start, keyframe, True)]
-        top = self._index.search(observation, keyframe, self.config.relocalisation_candidates)
+        view = self.model.view(observation)
+        top = self._index.search(view, keyframe, self.config.relocalisation_candidates)
         if len(top):
             top = np.sort(top)
             distances = self._distances(observation, top)
@@ -779,7 +781,9 @@ class HypothesisTree:
     def _shortlist(self, observation: np.ndarray) -> np.ndarray:
         """The committed places the relocalisation index finds most like ``observation``."""
         return self._index.search(
-            observation, len(self.committed_state_of_keyframe), self.config.relocalisation_candidates
+            self.model.view(observation),
+            len(self.committed_state_of_keyframe),
+            self.config.relocalisation_candidates,
         )
 
     def _best_state_at(self, keyframe: int) -> int:

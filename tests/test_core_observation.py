@@ -34,12 +34,12 @@ def scene(seed: int, width: int = 320, height: int = 240) -> np.ndarray:
     return cv2.GaussianBlur(image, (5, 5), 1.5)
 
 
-@pytest.mark.parametrize("model", [HistogramModel(), ThumbnailModel()])
+@pytest.mark.parametrize("model", [HistogramModel(), ThumbnailModel(), ThumbnailModel(phases=1)])
 def test_both_models_fit_the_interface(model):
     assert isinstance(model, ObservationModel)
     z = model.describe(scene(1))
-    assert z.dtype == np.float32 and z.shape == (model.length,)
-    stored = np.stack([z, model.describe(scene(2))])
+    assert z.dtype == np.float32 and model.view(z).shape == (model.length,)
+    stored = np.stack([model.view(z), model.view(model.describe(scene(2)))])
     d = model.distances(z, stored)
     assert d.shape == (2,) and d[0] == 0.0 and d[1] > 0.0
     ll = model.log_likelihood(d)
@@ -91,6 +91,39 @@ def test_thumbnail_tolerates_a_small_pan_and_tells_places_apart():
     assert same < 0.3 * other and same < 0.5 * rigid_same
 
 
+def test_a_place_keeps_the_unshifted_view_and_a_query_holds_every_phase():
+    """Only a query is described at the sub-column phases: the view a place keeps is the one-phase
+    thumbnail to the bit, so maps, indexes and estimate files made with one phase stay comparable."""
+    image = scene(3)
+    one, four = ThumbnailModel(phases=1), ThumbnailModel(phases=4)
+    query = four.describe(image)
+    assert query.shape == (4 * four.length,)
+    np.testing.assert_array_equal(four.view(query), one.describe(image))
+    assert not np.array_equal(query[four.length : 2 * four.length], query[: four.length])
+
+
+@pytest.mark.parametrize("pan_px", [10, -10, 5, -15])
+def test_a_pan_by_a_fraction_of_a_column_lines_up_at_a_phase(pan_px):
+    """Half a column (10 of the 320 pixels' 20 a column) off: whole-column shifts leave every column
+    half wrong (0.77, near another place's 1.0); one of the query's phases lines it up."""
+    image, panned = scene(5), np.roll(scene(5), pan_px, axis=1)
+    one, four = ThumbnailModel(phases=1), ThumbnailModel(phases=4)
+    before = one.distances(one.describe(panned), one.describe(image)[None])[0]
+    now = four.distances(four.describe(panned), four.view(four.describe(image))[None])[0]
+    other = four.distances(four.describe(image), four.view(four.describe(scene(6)))[None])[0]
+    assert now < 0.25 * before and now < 0.1 * other
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**16), st.integers(0, 2**16), st.integers(-40, 40))
+def test_more_phases_never_make_a_view_less_alike(seed, other_seed, pan_px):
+    """A distance is the least over the query's phases, its unshifted view among them."""
+    model = ThumbnailModel(phases=4)
+    query = model.describe(np.roll(scene(seed), pan_px, axis=1))
+    stored = np.stack([model.view(model.describe(scene(s))) for s in (seed, other_seed)])
+    assert (model.distances(query, stored) <= model.distances(model.view(query), stored)).all()
+
+
 @settings(max_examples=30, deadline=None)
 @given(st.integers(0, 2**16), st.integers(-15, 15))
 def test_thumbnail_index_key_has_a_part_blind_to_a_sideways_shift(seed, shift):
@@ -116,7 +149,7 @@ def test_a_place_seen_panned_is_shortlisted_by_the_relocalisation_index():
 
     model = ThumbnailModel()
     blind_length = model.index_key_parts[0]
-    stored = [model.describe(scene(seed)) for seed in range(200)]
+    stored = [model.view(model.describe(scene(seed))) for seed in range(200)]
     indexes = {
         "blind": PlaceIndex((blind_length,), skip=0, key=lambda view: model.index_key(view)[:blind_length]),
         "projected": PlaceIndex(
@@ -132,7 +165,7 @@ def test_a_place_seen_panned_is_shortlisted_by_the_relocalisation_index():
     for seed, columns in queries:
         # A pan: the scene moves sideways and new content enters at the edge (not a roll).
         wide = np.concatenate([scene(seed), scene(1000 + seed)], axis=1)
-        panned = model.describe(wide[:, columns * 320 // model.width_px :][:, :320])
+        panned = model.view(model.describe(wide[:, columns * 320 // model.width_px :][:, :320]))
         for name, index in indexes.items():
             found[name] += seed in index.search(panned, 200, 12).tolist()
     assert found["blind"] >= 0.9 * len(queries)  # 154 of 160

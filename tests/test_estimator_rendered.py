@@ -78,7 +78,10 @@ def test_paper_faithful_is_the_papers_estimator_on_the_same_recording(recordings
 
 def test_off_pose_revisits_are_better_recognised_than_by_the_previous_defaults(recordings):
     """Revisits 0.15 m / 4° off the first visit (seed 41, as in issue 9): the thumbnail model and the
-    online reference beat the calibrated histogram on the same recording."""
+    online reference beat the calibrated histogram on the same recording, on the precision–recall
+    curve and in recall; a wrong claim of theirs names the right place of the route from under 1 m
+    (beyond the 0.5 m a claim is right within: what no view comparison tells, docs/estimator.md).
+    Precision alone is one claim of 30 either way (0.93 and 0.91 with the view's four phases)."""
     before = EstimatorConfig(
         observation_model="histogram",
         new_state_reference="fixed",
@@ -92,8 +95,8 @@ def test_off_pose_revisits_are_better_recognised_than_by_the_previous_defaults(r
     _, new = estimate(recordings["off-pose"], EstimatorConfig())
     print(f"before P {old.precision} R {old.recall} AUC {old.pr_curve().auc}")
     print(f"after  P {new.precision} R {new.recall} AUC {new.pr_curve().auc}")
-    assert new.precision >= old.precision and new.pr_curve().auc >= old.pr_curve().auc
-    assert new.recall >= 0.7
+    assert new.pr_curve().auc > old.pr_curve().auc and new.recall > old.recall >= 0.7
+    assert (np.hypot(*new.best_error[new.wrong, :2].T) < 1.0).all()
 
 
 def _scored(recording: Path, folder: Path):
