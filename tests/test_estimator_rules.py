@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from test_core_tree import BINS, synthetic_config
 
 from aslam.core.config import MotionNoise
 from aslam.core.motion import action_covariance, link_weight, mahalanobis2_and_logdet
@@ -68,7 +69,6 @@ def test_the_thumbnail_comparison_tries_every_shift_up_to_four_columns_either_wa
 
 # --- the tree (core/tree.py) --------------------------------------------------------------------
 
-from test_core_tree import BINS, synthetic_config  # noqa: E402
 
 from aslam.core.motion import IDENTITY_REL  # noqa: E402
 from aslam.core.tree import HypothesisTree, Node  # noqa: E402

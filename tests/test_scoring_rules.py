@@ -11,18 +11,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from test_core_metrics import claim, new
 from test_pose_sync import GAP, expected_pose, track, truth_gaps
 
 from aslam.core.metrics import evaluate, ground_truth_revisits, score_assignment
-from aslam.core.tree import Hypothesis
-
-
-def new(t: int) -> Hypothesis:
-    return Hypothesis(t, None, t, 1.0, True)
-
-
-def claim(state: int, belief: float = 1.0) -> Hypothesis:
-    return Hypothesis(0, None, state, belief, False)
 
 
 @pytest.mark.parametrize(
