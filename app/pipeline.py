@@ -361,6 +361,11 @@ class ReaderProcess:
                 kind, payload, counted = self._receiver.recv()
             except EOFError:  # the child died without a word: killed from outside
                 raise AslamError(self._death()) from None
+            except OSError:  # killed in the middle of a message ("got end of file during message")
+                self._process.join(timeout=10)
+                if self._process.exitcode is None:
+                    raise
+                raise AslamError(self._death()) from None
             self._counts.samples, self._counts.images = counted
             if kind == "items":
                 yield from payload
