@@ -171,28 +171,33 @@ class ThumbnailModel:
         if image.ndim == 3:
             image = cv2.cvtColor(image.astype(np.float32, copy=False), cv2.COLOR_BGR2GRAY)
         image = image.astype(np.float32, copy=False)
-        w, h = self.width_px, self.height_px
-        views = [self._normalised(cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA))]
-        if self.phases > 1:
+        w, h, phases = self.width_px, self.height_px, self.phases
+        # The phases as channels of one small image, normalised together (each channel by itself:
+        # the same arithmetic as one at a time, in a quarter of the calls).
+        cells = np.empty((h, w, phases), np.float32)
+        cells[:, :, 0] = cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA)
+        if phases > 1:
             # Phase k: the image moved k/phases of a column to the left (its right edge repeated).
-            fine = cv2.resize(image, (w * self.phases, h), interpolation=cv2.INTER_AREA)
-            for k in range(1, self.phases):
-                moved = np.concatenate([fine[:, k:], np.repeat(fine[:, -1:], k, axis=1)], axis=1)
-                views.append(self._normalised(moved.reshape(h, w, self.phases).mean(axis=2)))
-        return np.concatenate(views)
+            fine = cv2.resize(image, (w * phases, h), interpolation=cv2.INTER_AREA)
+            padded = np.concatenate([fine, np.repeat(fine[:, -1:], phases - 1, axis=1)], axis=1)
+            # (C order, so the mean adds each cell's columns in the order one phase at a time did.)
+            columns = np.ascontiguousarray(padded[:, _phase_columns(w, phases)])
+            cells[:, :, 1:] = columns.mean(axis=3).transpose(0, 2, 1)
+        return self._normalised(cells).reshape(h, w, phases).transpose(2, 0, 1).ravel()
 
     def _normalised(self, small: np.ndarray) -> np.ndarray:
-        """Each cell by its ``patch_px`` neighbourhood's mean and spread, flattened."""
+        """Each cell by its ``patch_px`` neighbourhood's mean and spread (each channel on its own)."""
         import cv2
 
         small = small.astype(np.float64)
         size = (self.patch_px, self.patch_px)
-        mean = cv2.blur(small, size, borderType=cv2.BORDER_REFLECT)
-        mean_sq = cv2.blur(small * small, size, borderType=cv2.BORDER_REFLECT)
+        # (OpenCV returns one channel as a plain 2-D image.)
+        mean = cv2.blur(small, size, borderType=cv2.BORDER_REFLECT).reshape(small.shape)
+        mean_sq = cv2.blur(small * small, size, borderType=cv2.BORDER_REFLECT).reshape(small.shape)
         std = np.sqrt(np.maximum(mean_sq - mean * mean, 0.0))
         # A flat patch has no contrast to normalise: it stays 0 rather than amplifying noise.
         normalised = (small - mean) / np.maximum(std, 1.0)
-        return normalised.astype(np.float32).ravel()
+        return normalised.astype(np.float32)
 
     def view(self, observation: np.ndarray) -> np.ndarray:
         return observation[: self.length]
@@ -202,23 +207,20 @@ class ThumbnailModel:
         stored = np.atleast_2d(stored)
         if stored.shape[0] == 0:
             return np.zeros(0)
-        h, w = self.height_px, self.width_px
+        h, w, most = self.height_px, self.width_px, self.max_shift_px
         queries = np.asarray(observation, dtype=np.float32).reshape(-1, h, w)
         rows = stored.reshape(-1, h, w)
-        best = np.full(len(rows), np.inf)
-        for shift in range(-self.max_shift_px, self.max_shift_px + 1):
+        totals = np.empty((2 * most + 1, len(rows), len(queries)))
+        for k, shift in enumerate(range(-most, most + 1)):
             if shift >= 0:
                 a, b = queries[:, :, shift:], rows[:, :, : w - shift]
             else:
                 a, b = queries[:, :, :shift], rows[:, :, -shift:]
+            differences = b[:, None] - a[None]
+            np.abs(differences, out=differences)
             # np.mean's own arithmetic (a float64 sum, then one division) without its Python overhead.
-            if len(queries) == 1:
-                total = np.add.reduce(np.abs(b - a[0]), axis=(1, 2), dtype=np.float64)
-            else:
-                differences = np.abs(b[:, None] - a[None])
-                total = np.add.reduce(differences, axis=(2, 3), dtype=np.float64).min(axis=1)
-            best = np.minimum(best, total / (h * a.shape[2]))
-        return best
+            np.add.reduce(differences, axis=(2, 3), dtype=np.float64, out=totals[k])
+        return (totals.min(axis=2) / _overlaps(h, w, most)[:, None]).min(axis=0)
 
     def log_likelihood(self, distances: np.ndarray | float) -> np.ndarray:
         return -self.beta * portable_math.log(np.maximum(distances, self.floor))
@@ -259,6 +261,20 @@ INDEX_FREQUENCIES = 3
 """Horizontal frequencies per thumbnail row in its index key (0, 1 and 2 cycles per width)."""
 INDEX_PROJECTION = 32
 """Dimensions a longer vector is randomly projected to for the index."""
+
+
+@functools.cache
+def _overlaps(height: int, width: int, most: int) -> np.ndarray:
+    """Cells two thumbnails share at each shift from ``-most`` to ``most`` columns."""
+    return height * (width - np.abs(np.arange(-most, most + 1)))
+
+
+@functools.cache
+def _phase_columns(width: int, phases: int) -> np.ndarray:
+    """``(phases − 1, width, phases)`` columns of the padded fine image: for phase k, cell c averages
+    fine columns ``c·phases + k`` to ``c·phases + k + phases − 1``."""
+    k = np.arange(1, phases)[:, None, None]
+    return k + (np.arange(width) * phases)[None, :, None] + np.arange(phases)[None, None, :]
 
 
 @functools.cache

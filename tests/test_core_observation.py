@@ -124,6 +124,74 @@ def test_more_phases_never_make_a_view_less_alike(seed, other_seed, pan_px):
     assert (model.distances(query, stored) <= model.distances(model.view(query), stored)).all()
 
 
+def described_one_phase_at_a_time(model: ThumbnailModel, gray: np.ndarray) -> np.ndarray:
+    """The thumbnail as it was first written: each phase resized, moved and normalised on its own."""
+    import cv2
+
+    image = gray.astype(np.float32)
+    w, h, p = model.width_px, model.height_px, model.phases
+
+    def normalised(small: np.ndarray) -> np.ndarray:
+        small = small.astype(np.float64)
+        size = (model.patch_px, model.patch_px)
+        mean = cv2.blur(small, size, borderType=cv2.BORDER_REFLECT)
+        mean_sq = cv2.blur(small * small, size, borderType=cv2.BORDER_REFLECT)
+        std = np.sqrt(np.maximum(mean_sq - mean * mean, 0))
+        return ((small - mean) / np.maximum(std, 1.0)).astype(np.float32).ravel()
+
+    views = [normalised(cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA))]
+    fine = cv2.resize(image, (w * p, h), interpolation=cv2.INTER_AREA)
+    for k in range(1, p):
+        moved = np.concatenate([fine[:, k:], np.repeat(fine[:, -1:], k, axis=1)], axis=1)
+        views.append(normalised(moved.reshape(h, w, p).mean(axis=2)))
+    return np.concatenate(views)
+
+
+def distances_one_shift_at_a_time(model: ThumbnailModel, query: np.ndarray, stored: np.ndarray) -> np.ndarray:
+    """Each stored view against each phase at each shift, the mean over the columns both hold."""
+    h, w = model.height_px, model.width_px
+    best = np.full(len(stored), np.inf)
+    for i, row in enumerate(stored.reshape(-1, h, w)):
+        for phase in query.reshape(-1, h, w):
+            for shift in range(-model.max_shift_px, model.max_shift_px + 1):
+                if shift >= 0:
+                    a, b = phase[:, shift:], row[:, : w - shift]
+                else:
+                    a, b = phase[:, :shift], row[:, -shift:]
+                best[i] = min(best[i], np.add.reduce(np.abs(b - a), axis=None, dtype=np.float64) / a.size)
+    return best
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.integers(0, 2**16),
+    st.sampled_from([(320, 240), (64, 32), (53, 37), (640, 480)]),
+    st.integers(1, 8),
+    st.integers(0, 5),
+)
+def test_the_thumbnail_is_the_same_to_the_bit_as_one_phase_and_one_shift_at_a_time(seed, size, phases, rows):
+    """describe() normalises its phases as channels of one image, and distances() takes every shift's
+    sums before one division: faster (2026-12-06: 270 → 160 µs a 320×240 image, 125 → 100 µs a
+    call), and bit for bit the arithmetic of one phase, one shift at a time, so maps and estimates
+    made before are read the same."""
+    model = ThumbnailModel(phases=phases)
+    rng = np.random.default_rng(seed)
+    gray = noisy_ramp(rng, size)
+    query = model.describe(gray)
+    np.testing.assert_array_equal(query, described_one_phase_at_a_time(model, gray))
+    others = [model.view(model.describe(noisy_ramp(rng, size))) for _ in range(rows)]
+    stored = np.stack([*others, model.view(query)])
+    expected = distances_one_shift_at_a_time(model, query, stored)
+    np.testing.assert_array_equal(model.distances(query, stored), expected)
+
+
+def noisy_ramp(rng: np.random.Generator, size: tuple[int, int]) -> np.ndarray:
+    """uint8 noise over a gradient: a view with texture at every scale, of ``size`` (width, height)."""
+    width, height = size
+    ramp = np.linspace(0, 200, width)[None, :] + np.linspace(0, 50, height)[:, None]
+    return np.clip(ramp + rng.normal(0, 30, (height, width)), 0, 255).astype(np.uint8)
+
+
 @settings(max_examples=30, deadline=None)
 @given(st.integers(0, 2**16), st.integers(-15, 15))
 def test_thumbnail_index_key_has_a_part_blind_to_a_sideways_shift(seed, shift):
