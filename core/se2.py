@@ -6,6 +6,8 @@ broadcasts, so the map code can move whole neighbourhoods at once.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 Pose2 = np.ndarray  # shape (3,) or (n, 3): x_m, y_m, yaw_rad
@@ -77,6 +79,13 @@ def interpolate(a: Pose2, b: Pose2, fraction: float, turn_rad: float | None = No
         turn = turn + 2.0 * np.pi * laps
     yaw = wrap_angle(a[2] + fraction * turn)
     return np.array([xy[0], xy[1], float(yaw)])
+
+
+def yaw_quaternion(yaw_rad: float) -> tuple[float, float, float, float]:
+    """``(w, x, y, z)`` of a rotation by ``yaw_rad`` about +z (REP 103: counter-clockwise seen from
+    above): how every file we write (ROS messages, Foxglove scenes, evo trajectories) holds a heading."""
+    half = 0.5 * float(yaw_rad)
+    return (math.cos(half), 0.0, 0.0, math.sin(half))
 
 
 def dead_reckoning(actions: np.ndarray, start: np.ndarray | None = None) -> np.ndarray:

@@ -23,13 +23,13 @@ Topics (all in frame ``map``, the embedding's frame: keyframe 0 at the origin, R
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from aslam.core import se2
 from aslam.data_formats import files
 from aslam.data_formats.errors import SceneError
 from aslam.data_formats.graph_json import is_loop_closure_link
@@ -91,8 +91,8 @@ def _pose(x: float, y: float, yaw: float) -> Any:
 
     pose = Pose()
     pose.position.x, pose.position.y, pose.position.z = float(x), float(y), 0.0
-    pose.orientation.w, pose.orientation.z = math.cos(yaw / 2.0), math.sin(yaw / 2.0)
-    pose.orientation.x = pose.orientation.y = 0.0
+    orientation = pose.orientation
+    orientation.w, orientation.x, orientation.y, orientation.z = se2.yaw_quaternion(yaw)
     return pose
 
 
@@ -204,8 +204,8 @@ def frame_transform(pose: np.ndarray, stamp_ns: int) -> Any:
     message.parent_frame_id = MAP_FRAME
     message.child_frame_id = BASE_FRAME
     message.translation.x, message.translation.y, message.translation.z = x, y, 0.0
-    message.rotation.w, message.rotation.z = math.cos(yaw / 2.0), math.sin(yaw / 2.0)
-    message.rotation.x = message.rotation.y = 0.0
+    rotation = message.rotation
+    rotation.w, rotation.x, rotation.y, rotation.z = se2.yaw_quaternion(yaw)
     return message
 
 

@@ -1,5 +1,5 @@
-"""JSON documents as the commands write them (``report``'s graph and summary JSON, ``info --json``,
-``sweep --dry-run --json``).
+"""JSON documents as aslam writes them (``report``'s graph and summary JSON, ``info --json``,
+``sweep --dry-run --json``, a sweep's task results and hashes).
 
 No negative zero: ``-0.0`` (a heading of −0.0, a KITTI ``y_m = −t_x`` of 0) is a sign no measured
 value has, and it makes two runs that agree differ in their bytes and in a diff. File names as
@@ -15,9 +15,9 @@ from typing import Any
 from aslam.data_formats.files import utf8_text
 
 
-def json_text(document: Any, *, indent: int | None = None) -> str:
-    """``document`` as JSON text (``json.dumps`` with ``indent``) ending in a newline."""
-    return json.dumps(_normalised(document), indent=indent) + "\n"
+def json_text(document: Any, *, indent: int | None = None, sort_keys: bool = False) -> str:
+    """``document`` as JSON text (``json.dumps`` with ``indent`` and ``sort_keys``) ending in a newline."""
+    return json.dumps(_normalised(document), indent=indent, sort_keys=sort_keys) + "\n"
 
 
 def _normalised(value: Any) -> Any:

@@ -12,6 +12,8 @@ import math
 
 import numpy as np
 
+from aslam.core import se2
+
 SEPARATOR = "=" * 80
 
 # The .msg text of every type used here (ROS 2 Humble), without comments.
@@ -152,12 +154,6 @@ def header_msg(stamp_ns: int, frame_id: str) -> dict[str, object]:
     return {"stamp": stamp_msg(stamp_ns), "frame_id": frame_id}
 
 
-def yaw_quaternion(yaw_rad: float) -> dict[str, float]:
-    """Quaternion of a rotation by ``yaw_rad`` about +z (REP 103: counter-clockwise seen from above)."""
-    half = 0.5 * float(yaw_rad)
-    return {"x": 0.0, "y": 0.0, "z": math.sin(half), "w": math.cos(half)}
-
-
 def yaw_of_quaternion(x: float, y: float, z: float, w: float) -> float:
     """Yaw (rotation about +z) of a quaternion, in (-π, π]. One that is not of unit length (a driver's
     rounding aside) is normalised first; a zero one is ValueError: it is no rotation."""
@@ -177,7 +173,8 @@ def yaw_of_quaternion(x: float, y: float, z: float, w: float) -> float:
 def planar_pose_msg(pose_xy_yaw: np.ndarray) -> dict[str, object]:
     """``geometry_msgs/Pose`` of a planar pose ``(x_m, y_m, yaw_rad)``: z = 0, yaw-only quaternion."""
     x, y, yaw = (float(v) for v in pose_xy_yaw)
-    return {"position": {"x": x, "y": y, "z": 0.0}, "orientation": yaw_quaternion(yaw)}
+    qw, qx, qy, qz = se2.yaw_quaternion(yaw)
+    return {"position": {"x": x, "y": y, "z": 0.0}, "orientation": {"x": qx, "y": qy, "z": qz, "w": qw}}
 
 
 def planar_pose_of(pose: object) -> np.ndarray:

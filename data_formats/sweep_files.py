@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from aslam.data_formats.files import write_atomically
+from aslam.data_formats.json_text import json_text
 
 RESULTS_PARQUET = "results.parquet"
 RESULTS_CSV = "results.csv"
@@ -31,7 +32,7 @@ def read_json_document(path: Path) -> Any:
 
 def write_json_document(path: Path, document: Any) -> None:
     """``document`` as indented, key-sorted JSON, written whole or not at all."""
-    text = json.dumps(document, sort_keys=True, indent=1) + "\n"
+    text = json_text(document, indent=1, sort_keys=True)
     write_atomically(path, lambda temporary: temporary.write_text(text))
 
 

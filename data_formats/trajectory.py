@@ -21,6 +21,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from aslam.core import se2
 from aslam.data_formats import files
 from aslam.data_formats.errors import TrajectoryError
 from aslam.data_formats.format_names import TrajectoryFormat
@@ -77,9 +78,7 @@ def evo_trajectory(poses: np.ndarray, stamps_ns: Sequence[int] | np.ndarray | No
     n = len(poses)
     xyz = np.zeros((n, 3))
     xyz[:, :2] = poses[:, :2]
-    quat_wxyz = np.zeros((n, 4))
-    quat_wxyz[:, 0] = np.cos(poses[:, 2] / 2.0)
-    quat_wxyz[:, 3] = np.sin(poses[:, 2] / 2.0)
+    quat_wxyz = np.array([se2.yaw_quaternion(yaw) for yaw in poses[:, 2]]).reshape(n, 4)
     if stamps_ns is None:
         return PosePath3D(positions_xyz=xyz, orientations_quat_wxyz=quat_wxyz)
     stamps_s = np.asarray(stamps_ns, dtype=np.int64) / 1e9
