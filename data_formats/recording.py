@@ -298,8 +298,11 @@ class Recording:
         """The ``aslam.recording`` metadata record (``{}`` if the file has none)."""
         return self.file.metadata(METADATA_NAME) or {}
 
-    def samples(self, topics: RecordingTopics = RecordingTopics()) -> Iterator[Sample]:
-        """One ``Sample`` per camera image, in time order, with poses interpolated to its stamp.
+    def samples(
+        self, topics: RecordingTopics = RecordingTopics(), *, ground_truth: bool = True
+    ) -> Iterator[Sample]:
+        """One ``Sample`` per camera image, in time order, with poses interpolated to its stamp;
+        with ``ground_truth=False`` the truth topic is not read and every sample's truth is None.
 
         Memory is bounded by a chunk of the file plus the images waiting for the next odometry
         message, whatever the recording's length.
@@ -328,8 +331,8 @@ class Recording:
         images = _Stream(path, "image", ros_msgs.IMAGE_TYPES, decode)
         odometry = _Stream(path, "odometry", ros_msgs.POSE_TYPES, decode)
         truth = _Stream(path, "ground-truth", ros_msgs.POSE_TYPES, decode)
-        wanted = (topics.image, topics.odometry, topics.ground_truth)
-        truth_messages = source.message_count(topics.ground_truth)
+        wanted = (topics.image, topics.odometry, *([topics.ground_truth] if ground_truth else []))
+        truth_messages = source.message_count(topics.ground_truth) if ground_truth else 0
         for schema, channel, message in source.messages(wanted):
             topic = channel.topic
             if not assembler.expect_ground_truth and topics.ground_truth in channels and truth_messages != 0:
@@ -343,7 +346,7 @@ class Recording:
                 stamp_ns, msg, datatype = odometry.read(schema, channel, message)
                 if assembler.odometry_stamps.admits(stamp_ns):
                     yield from assembler.add_odometry(stamp_ns, odometry.pose(topic, datatype, msg, stamp_ns))
-            if topic == topics.ground_truth:  # the odometry's own topic too, if named so (exact odometry)
+            if ground_truth and topic == topics.ground_truth:  # the odometry's own too, if named so
                 stamp_ns, msg, datatype = truth.read(schema, channel, message)
                 if assembler.ground_truth_stamps.admits(stamp_ns):
                     yield from assembler.add_ground_truth(

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Generator, Iterator
 from contextlib import contextmanager, suppress
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
 from pathlib import Path
 from typing import Any
@@ -365,8 +365,10 @@ def iter_bag_samples(
     *,
     on_warning: Callable[[str], None] | None = None,
     on_image_count: Callable[[int], None] | None = None,
+    ground_truth: bool = True,
 ) -> Iterator[Sample]:
-    """One ``Sample`` per camera image of a bag, in time order, with poses interpolated to its stamp.
+    """One ``Sample`` per camera image of a bag, in time order, with poses interpolated to its stamp;
+    with ``ground_truth=False`` the truth topic (still resolved and checked) is not read.
 
     Streams (rosbags reads chunk by chunk; only images waiting for the next odometry message are
     held). The path is checked at once; topic problems surface on the first ``next``. Warnings
@@ -375,7 +377,8 @@ def iter_bag_samples(
     """
     path = Path(path)
     check_bag_path(path)
-    return _iter_bag_samples(path, topics, on_warning or (lambda _message: None), on_image_count)
+    warn = on_warning or (lambda _message: None)
+    return _iter_bag_samples(path, topics, warn, on_image_count, ground_truth=ground_truth)
 
 
 def _iter_bag_samples(
@@ -383,9 +386,11 @@ def _iter_bag_samples(
     topics: BagTopics,
     warn: Callable[[str], None],
     on_image_count: Callable[[int], None] | None,
+    *,
+    ground_truth: bool,
 ) -> Iterator[Sample]:
     with _open_reader(path) as reader:
-        yield from _bag_samples(path, reader, topics, warn, on_image_count)
+        yield from _bag_samples(path, reader, topics, warn, on_image_count, ground_truth=ground_truth)
 
 
 def _bag_samples(
@@ -395,11 +400,16 @@ def _bag_samples(
     warn: Callable[[str], None],
     on_image_count: Callable[[int], None] | None,
     read_counts: dict[str, int] | None = None,
+    *,
+    ground_truth: bool = True,
 ) -> Iterator[Sample]:
     """The samples of the bag ``reader`` has open, then the pairing's warnings; ``on_image_count``
-    as :func:`iter_bag_samples`'s. ``read_counts``, if given, gets the messages read per topic."""
+    and ``ground_truth`` as :func:`iter_bag_samples`'s. ``read_counts``, if given, gets the messages
+    read per topic."""
     types = _topic_types(reader)
     resolved = resolve_topics(path, types, topics)
+    if not ground_truth:  # resolved, so a named topic the bag lacks is still an error
+        resolved = replace(resolved, ground_truth=None)
     counts = {topic: info.msgcount for topic, info in reader.topics.items()}
     if on_image_count is not None:
         on_image_count(int(counts[resolved.image]))

@@ -10,6 +10,7 @@ from test_rosbag_source import (
     IMAGE_TOPIC,
     N_IMAGES,
     assert_driver_samples,
+    true_pose,
     write_rosbag1,
     write_rosbag2,
 )
@@ -17,18 +18,20 @@ from test_rosbag_source import (
 from aslam.data_formats.camera import CameraIntrinsics
 from aslam.data_formats.images import EncodedImage, ImageFormat
 from aslam.data_formats.recording_writer import RecordingWriter
-from aslam.data_formats.rosbag_source import BagError
+from aslam.data_formats.rosbag_source import BagError, iter_bag_samples
 from aslam.data_formats.sources import TopicChoice, open_input
 
 
 def test_recording_and_bags_agree(tmp_path):
-    """The recording holds the bag's samples re-written (lossless PNG): the same stream comes back."""
+    """The recording holds the bag's samples re-written (lossless PNG): the same stream comes back,
+    and the same ground truth. The samples an estimate reads carry no truth (it has no use for it:
+    ``report`` reads it with ``ground_truth()``)."""
     import cv2
 
     bag = write_rosbag2(tmp_path / "bag", storage="sqlite3")
     ros1 = write_rosbag1(tmp_path / "bag.bag")
     choice = TopicChoice(ground_truth="/ground_truth")
-    from_bag = list(open_input(bag, choice).samples())
+    from_bag = list(iter_bag_samples(bag, choice.bag_topics()))
     recording = tmp_path / "rec.mcap"
     with RecordingWriter(recording, camera=CameraIntrinsics(24, 16, 60.0), metadata={}) as writer:
         for sample in from_bag:
@@ -43,10 +46,15 @@ def test_recording_and_bags_agree(tmp_path):
     from_recording = list(open_input(recording, TopicChoice()).samples())
     from_ros1 = list(open_input(ros1, choice).samples())
     assert_driver_samples(from_bag)
-    assert_driver_samples(from_ros1)
-    assert_driver_samples(from_recording)
+    assert_driver_samples(from_ros1, ground_truth=False)
+    assert_driver_samples(from_recording, ground_truth=False)
     for a, b in zip(from_bag, from_recording, strict=True):
         np.testing.assert_array_equal(a.odometry_pose, b.odometry_pose)
+    truths = [list(open_input(recording).ground_truth())]
+    truths += [list(open_input(path, choice).ground_truth()) for path in (bag, ros1)]
+    assert all(truths) and [stamp for stamp, _ in truths[0]] == [s.stamp_ns for s in from_bag]
+    for stamp_ns, pose in (one for truth in truths for one in truth):
+        np.testing.assert_allclose(pose, true_pose(stamp_ns), atol=1e-9)
     for source in (open_input(bag), open_input(recording), open_input(bag, TopicChoice(image=IMAGE_TOPIC))):
         counted: list[int | None] = []
         assert len(list(source.samples(on_image_count=counted.append))) == N_IMAGES
@@ -77,7 +85,8 @@ def test_estimate_gives_the_same_result_from_a_recording_and_its_bags(tmp_path, 
     }
     recording = tmp_path / "rec.mcap"
     with RecordingWriter(recording, camera=CameraIntrinsics(24, 16, 60.0), metadata={}) as writer:
-        for sample in open_input(sources["mcap"], TopicChoice(ground_truth="/ground_truth")).samples():
+        with_truth = TopicChoice(ground_truth="/ground_truth").bag_topics()
+        for sample in iter_bag_samples(sources["mcap"], with_truth):
             ok, png = cv2.imencode(".png", sample.image.decode_gray())
             assert ok
             writer.write(
@@ -116,12 +125,17 @@ def test_one_topic_may_be_both_odometry_and_ground_truth(tmp_path, kind):
     to the odometry alone), while ``report`` read it."""
     from conftest import random_frames, square_route, write_recording, write_square_bag
 
+    from aslam.data_formats.recording import Recording
+
     path = tmp_path / "in.mcap"
+    choice = TopicChoice(odometry="/odom", ground_truth="/odom")
     if kind == "recording":
         write_recording(path, random_frames(4))
+        samples = list(Recording(path).samples(choice.recording_topics()))
     else:
         write_square_bag(path, square_route()[:6], 3, ground_truth_topic="/truth")
-    source = open_input(path, TopicChoice(odometry="/odom", ground_truth="/odom"))
-    samples = list(source.samples())
+        samples = list(iter_bag_samples(path, choice.bag_topics()))
     assert samples and all(sample.ground_truth_pose is not None for sample in samples)
     assert [tuple(s.ground_truth_pose) for s in samples] == [tuple(s.odometry_pose) for s in samples]
+    truth = dict(open_input(path, choice).ground_truth())
+    assert all(tuple(truth[s.stamp_ns]) == tuple(s.odometry_pose) for s in samples)
