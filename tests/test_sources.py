@@ -139,3 +139,21 @@ def test_one_topic_may_be_both_odometry_and_ground_truth(tmp_path, kind):
     assert [tuple(s.ground_truth_pose) for s in samples] == [tuple(s.odometry_pose) for s in samples]
     truth = dict(open_input(path, choice).ground_truth())
     assert all(tuple(truth[s.stamp_ns]) == tuple(s.odometry_pose) for s in samples)
+
+
+def test_an_estimate_reads_no_ground_truth_so_a_broken_one_stops_only_the_report(tmp_path):
+    """The samples an estimate reads leave the truth unread (0.1 s of 0.3 s of reading 721
+    keyframes): a truth pose at 1e300 m stops the reader that reads it, not the estimate's."""
+    from test_rosbag_source import _damaged
+
+    def far(msgs):
+        msgs[0].pose.position.x = 1e300
+
+    bag = _damaged(tmp_path, "/ground_truth", far)
+    choice = TopicChoice(ground_truth="/ground_truth")
+    samples = list(open_input(bag, choice).samples())
+    assert len(samples) == N_IMAGES and all(s.ground_truth_pose is None for s in samples)
+    with pytest.raises(BagError, match="beyond the plausible"):
+        list(iter_bag_samples(bag, choice.bag_topics()))
+    with pytest.raises(BagError, match="beyond the plausible"):
+        list(open_input(bag, choice).ground_truth())
