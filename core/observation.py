@@ -266,7 +266,9 @@ INDEX_PROJECTION = 32
 @functools.cache
 def _overlaps(height: int, width: int, most: int) -> np.ndarray:
     """Cells two thumbnails share at each shift from ``-most`` to ``most`` columns."""
-    return height * (width - np.abs(np.arange(-most, most + 1)))
+    overlaps = height * (width - np.abs(np.arange(-most, most + 1)))
+    overlaps.flags.writeable = False  # shared by every comparison
+    return overlaps
 
 
 @functools.cache
@@ -274,7 +276,9 @@ def _phase_columns(width: int, phases: int) -> np.ndarray:
     """``(phases − 1, width, phases)`` columns of the padded fine image: for phase k, cell c averages
     fine columns ``c·phases + k`` to ``c·phases + k + phases − 1``."""
     k = np.arange(1, phases)[:, None, None]
-    return k + (np.arange(width) * phases)[None, :, None] + np.arange(phases)[None, None, :]
+    columns = k + (np.arange(width) * phases)[None, :, None] + np.arange(phases)[None, None, :]
+    columns.flags.writeable = False  # shared by every description
+    return columns
 
 
 @functools.cache

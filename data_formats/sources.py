@@ -92,9 +92,9 @@ class RecordingInput:
         return asdict(self.topics)
 
     def samples(self, on_image_count: Callable[[int | None], None] | None = None) -> Iterator[Sample]:
-        """The samples, without ground truth (an estimate has no use for it: a third of the poses
-        it decoded, 0.1 s of the 0.3 s of reading 721 keyframes; ``report`` reads it with
-        :meth:`ground_truth`); ``on_image_count(n)`` at once, from the summary already read."""
+        """The samples, without ground truth (an estimate has no use for it, and it was a third of
+        the poses decoded; ``report`` reads it with :meth:`ground_truth`); ``on_image_count(n)`` at
+        once, from the summary already read."""
         if on_image_count is not None:
             on_image_count(self.recording.image_count(self.topics))
         return self.recording.samples(self.topics, ground_truth=False)

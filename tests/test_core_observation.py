@@ -171,9 +171,9 @@ def distances_one_shift_at_a_time(model: ThumbnailModel, query: np.ndarray, stor
 )
 def test_the_thumbnail_is_the_same_to_the_bit_as_one_phase_and_one_shift_at_a_time(seed, size, phases, rows):
     """describe() normalises its phases as channels of one image, and distances() takes every shift's
-    sums before one division: faster (2026-12-06: 270 → 160 µs a 320×240 image, 125 → 100 µs a
-    call), and bit for bit the arithmetic of one phase, one shift at a time, so maps and estimates
-    made before are read the same."""
+    sums before one division: fewer calls (docs/estimator.md, "Shifts by a fraction of a column"),
+    and bit for bit the arithmetic of one phase, one shift at a time, so maps and estimates made
+    before are read the same."""
     model = ThumbnailModel(phases=phases)
     rng = np.random.default_rng(seed)
     gray = noisy_ramp(rng, size)
