@@ -7,7 +7,8 @@ estimate = the ``aslam estimate REC -o OUT --no-timing --quiet`` process, start-
 Runs alternate (floor, estimate, floor, …) so page cache, CPU frequency and other load treat both
 alike; the ratio of medians is reported with the spread of the per-pair ratios. A per-stage
 breakdown of the estimate (in-process, each stage alone) says where the time goes, and the
-start-up costs are measured as processes too (`aslam --help`; `estimate` on a one-image recording).
+start-up costs are measured as processes too (`aslam --help`; `estimate` on a one-image recording;
+a process importing the floor's libraries, and one importing the estimate's).
 
     python bench/estimate_bench.py [--recording R.mcap] [--route grid] [--size 320x240] [--repeats 5]
     python bench/estimate_bench.py --laps 8 --config bench/configs/geometric-check.toml   # a setting's cost
@@ -47,6 +48,18 @@ from aslam.data_formats.recording_writer import RecordingWriter
 from aslam.data_formats.sources import open_input
 from aslam.recorder.config import CameraSpec, RecordConfig, parse_size
 from aslam.recorder.record import record
+
+#: What the libraries alone cost, each set imported by a fresh process that does nothing else: the
+#: floor's own imports (bench/floor.py), and those with every other library an ``aslam estimate``
+#: process and its reader load (typer, imagecodecs, mcap's writer, mcap-protobuf, GTSAM for the
+#: metric view, Foxglove's schemas). On a short recording the second takes about as long as the
+#: floor's whole run: the bound the estimate's start-up cannot go under.
+FLOOR_LIBRARIES = "import cv2, numpy, mcap.reader, mcap_ros2.decoder"
+ESTIMATE_LIBRARIES = (
+    FLOOR_LIBRARIES + ", typer, imagecodecs, mcap.writer, mcap_protobuf.schema, gtsam,"
+    " foxglove_schemas_protobuf.FrameTransform_pb2, foxglove_schemas_protobuf.LinePrimitive_pb2,"
+    " foxglove_schemas_protobuf.PosesInFrame_pb2, foxglove_schemas_protobuf.SceneUpdate_pb2"
+)
 
 BENCH = Path(__file__).resolve().parent
 CACHE = BENCH / ".cache"
@@ -165,6 +178,7 @@ def main() -> None:
     packages = [str(BENCH.parent / name) for name in ("app", "cli", "core", "data_formats", "recorder")]
     subprocess.run([sys.executable, "-m", "compileall", "-q", *packages], check=True)
     floors, estimates, ratios, helps, startups = [], [], [], [], []
+    floor_libraries, estimate_libraries = [], []
     with tempfile.TemporaryDirectory() as folder:
         output = Path(folder) / "estimate.mcap"
         one = one_image_recording(Path(folder))
@@ -188,6 +202,8 @@ def main() -> None:
             ratios.append(estimates[-1] / floors[-1])
             helps.append(wall([str(ASLAM), "--help"]))
             startups.append(wall(startup_cmd))
+            floor_libraries.append(wall([sys.executable, "-c", FLOOR_LIBRARIES]))
+            estimate_libraries.append(wall([sys.executable, "-c", ESTIMATE_LIBRARIES]))
         parts = stages(recording, config, output)
     result = {
         "recording": str(recording),
@@ -199,6 +215,8 @@ def main() -> None:
         "pair_ratio": spread(ratios),
         "help_s": spread(helps),
         "estimate_startup_s": spread(startups),
+        "floor_libraries_s": spread(floor_libraries),
+        "estimate_libraries_s": spread(estimate_libraries),
         "stages": parts,
         "keyframes_per_second": parts["keyframes"] / statistics.median(estimates),
     }

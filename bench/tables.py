@@ -213,6 +213,7 @@ def estimate_rows(speed: dict[str, Any]) -> list[list[str]]:
         ratio = f"**{d['ratio_of_medians']:.3f}** ({pairs['min']:.2f}–{pairs['max']:.2f})"
         verdict = [ratio, met(d["ratio_of_medians"] <= 1.0), f"{d['keyframes_per_second']:.0f}"]
         startup = [f"{d['estimate_startup_s']['median']:.2f}", f"{d['help_s']['median']:.2f}"]
+        startup.append(f"{d['floor_libraries_s']['median']:.2f} / {d['estimate_libraries_s']['median']:.2f}")
         rows.append([*recording, *seconds, *verdict, *startup])
     return rows
 
