@@ -97,6 +97,8 @@ def speed() -> dict[str, Any]:
         "pair_ratio": {"median": 1.5, "min": 1.4, "max": 1.6},
         "help_s": {"median": 0.21, "min": 0.2, "max": 0.25},
         "estimate_startup_s": {"median": 0.45, "min": 0.4, "max": 0.5},
+        "floor_libraries_s": {"median": 0.18, "min": 0.17, "max": 0.2},
+        "estimate_libraries_s": {"median": 0.42, "min": 0.4, "max": 0.45},
         "keyframes_per_second": 466.0,
         "stages": {
             "read_and_sync_s": 0.01,
@@ -231,6 +233,10 @@ def test_values_land_in_their_tables(results: dict[str, Any], tmp_path: Path) ->
     record = row(text, "paper | 137")
     assert record[4:7] == ["71.1 keyframes/s", "48.9 keyframes/s", "**1.10**"]  # bare, stock, ratio
     assert "Estimate ÷ floor is 0.900" not in text  # a met target gets no note
+    # the libraries alone, the floor's / the estimate's, and against the floor's whole paper-route run
+    assert row(text, "grid route, 320×240, 2 laps")[-1] == "0.18 / 0.42"
+    assert "**The libraries alone** take 0.420 s to import in one process" in text
+    assert "where the floor's own take 0.180 s" in text
     # per keyframe past the fixed costs, grid 2 → 8 laps: (0.76 − 0.3) / 435 and (0.8 − 0.2) / 435 s
     assert "1.06 ms a keyframe against the floor's 1.38 ms" in text
     assert "more than one at keyframes 40–42 (at most 2, mean 1.2; back to one from keyframe 43 on)" in text
