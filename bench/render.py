@@ -64,6 +64,7 @@ ROBUST_TABLES = {
     "robust_phases_88_91": "robust_matrix_seeds_88_91_phases.md",
     "robust_seeds_92_93": "robust_matrix_seeds_92_93.md",
     "robust_seeds_94_95": "robust_matrix_seeds_94_95.md",
+    "robust_seeds_96_97": "robust_matrix_seeds_96_97.md",
     "robust_geometric_check": "robust_matrix_geometric_check.md",
     "robust_seeds_82_83": "robust_matrix_seeds_82_83.md",
     "robust_seeds_82_83_geometric_check": "robust_matrix_seeds_82_83_geometric_check.md",
