@@ -236,6 +236,8 @@ def main() -> None:
         "pair_ratio": spread(ratios),
         "help_s": spread(helps),
         "estimate_startup_s": spread(startups),
+        "help_samples_s": helps,
+        "estimate_startup_samples_s": startups,
         "floor_libraries_s": spread(floor_libraries),
         "estimate_libraries_s": spread(estimate_libraries),
         "libraries_not_listed": sorted(missing),

@@ -258,6 +258,15 @@ RECORD_WORLDS = ("record", "record_grid")
 """The keys of the record benches: the paper world and a generated grid world."""
 
 
+def pooled(speed: dict[str, Any], key: str) -> tuple[float, int, float, float]:
+    """One command timed in every estimate bench (``help`` or ``estimate_startup``), all its runs
+    together: (median, runs, the lowest and highest bench's median). The benches run the same
+    command, so their runs are one sample; one bench's five were at the mercy of its moment."""
+    samples = [x for name, _ in ESTIMATES for x in speed[name][f"{key}_samples_s"]]
+    medians = [speed[name][f"{key}_s"]["median"] for name, _ in ESTIMATES]
+    return float(np.median(samples)), len(samples), min(medians), max(medians)
+
+
 def target_rows(speed: dict[str, Any]) -> list[tuple[str, str, str, bool]]:
     """(target, goal, measured, met) for every speed and memory target."""
     big = speed["scaling_big"]
@@ -265,16 +274,13 @@ def target_rows(speed: dict[str, Any]) -> list[tuple[str, str, str, bool]]:
         (f"estimate ÷ floor, {label}", "≤ 1.0", f"{d['ratio_of_medians']:.3f}", d["ratio_of_medians"] <= 1.0)
         for d, label in ((speed[key], label) for key, label in ESTIMATES)
     ]
-    first = speed[ESTIMATES[0][0]]
-    rows += [
-        ("`aslam --help`", "≤ 0.3 s", f"{first['help_s']['median']:.2f} s", first["help_s"]["median"] <= 0.3),
-        (
-            "`aslam estimate` start-up (one-image recording, whole process)",
-            "≤ 0.5 s",
-            f"{first['estimate_startup_s']['median']:.2f} s",
-            first["estimate_startup_s"]["median"] <= 0.5,
-        ),
-    ]
+    for label, key, goal in (
+        ("`aslam --help`", "help", 0.3),
+        ("`aslam estimate` start-up (one-image recording, whole process)", "estimate_startup", 0.5),
+    ):
+        median, runs, low, high = pooled(speed, key)
+        measured = f"{median:.2f} s (median of {runs} runs; each bench's {low:.2f}–{high:.2f})"
+        rows.append((label, f"≤ {goal} s", measured, median <= goal))
     rows += [
         (
             f"SLAM step, last ÷ first 1,000, {d['world']} ({d['keyframes']:,})",

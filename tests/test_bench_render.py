@@ -97,6 +97,8 @@ def speed() -> dict[str, Any]:
         "pair_ratio": {"median": 1.5, "min": 1.4, "max": 1.6},
         "help_s": {"median": 0.21, "min": 0.2, "max": 0.25},
         "estimate_startup_s": {"median": 0.45, "min": 0.4, "max": 0.5},
+        "help_samples_s": [0.2, 0.21, 0.25],
+        "estimate_startup_samples_s": [0.4, 0.45, 0.45],
         "floor_libraries_s": {"median": 0.18, "min": 0.17, "max": 0.2},
         "estimate_libraries_s": {"median": 0.42, "min": 0.4, "max": 0.45},
         "keyframes_per_second": 466.0,
@@ -297,3 +299,18 @@ def test_a_library_the_estimate_loads_but_the_bench_does_not_import_is_said(resu
     results["speed"]["estimate_320x240_paper"]["libraries_not_listed"] = ["somelib"]
     text = render.render_text(results)
     assert "but the estimate also imported somelib, which that process did not: the figure is low" in text
+
+
+def test_the_start_up_targets_are_judged_on_every_bench_s_runs(results: dict[str, Any]) -> None:
+    """Each estimate bench times the same one-image start-up and ``--help``: the targets take all
+    their runs, not the first bench's five, and say each bench's median beside them."""
+    import tables
+
+    slow = results["speed"]["estimate_320x240"]
+    slow["estimate_startup_s"] = {"median": 0.7, "min": 0.69, "max": 0.71}
+    slow["estimate_startup_samples_s"] = [0.69, 0.7, 0.71]
+    rows = {label: (measured, met) for label, _goal, measured, met in tables.target_rows(results["speed"])}
+    measured, met = rows["`aslam estimate` start-up (one-image recording, whole process)"]
+    assert measured == "0.45 s (median of 12 runs; each bench's 0.45–0.70)"
+    assert met
+    assert rows["`aslam --help`"] == ("0.21 s (median of 12 runs; each bench's 0.21–0.21)", True)
