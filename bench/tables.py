@@ -261,7 +261,7 @@ RECORD_WORLDS = ("record", "record_grid")
 def pooled(speed: dict[str, Any], key: str) -> tuple[float, int, float, float]:
     """One command timed in every estimate bench (``help`` or ``estimate_startup``), all its runs
     together: (median, runs, the lowest and highest bench's median). The benches run the same
-    command, so their runs are one sample; one bench's five were at the mercy of its moment."""
+    command, so their runs are one sample; one bench's few were at the mercy of its moment."""
     samples = [x for name, _ in ESTIMATES for x in speed[name][f"{key}_samples_s"]]
     medians = [speed[name][f"{key}_s"]["median"] for name, _ in ESTIMATES]
     return float(np.median(samples)), len(samples), min(medians), max(medians)
