@@ -57,7 +57,9 @@ FAMILIES: dict[str, dict[str, Any]] = {
     # (no jitter on top, as `aslam record --noise-model paper` defaults).
     "papernoise3": {"model": "paper", "noise": 0.03, "jitter_m": 0.0, "jitter_deg": 0.0},
     "papernoise5": {"model": "paper", "noise": 0.05, "jitter_m": 0.0, "jitter_deg": 0.0},
-    # Derived from the default recording (see ``derive``): the recorder cannot make these yet.
+    # Derived from the default recording (see ``derive``), so the event is the only change from
+    # the run beside them; the recorder's own kidnap action and --odometry-reset-at are measured by
+    # ``bench/recorder_events.py``.
     "kidnap": {},
     "reset": {},
 }
