@@ -5,8 +5,9 @@
 This bench makes them as a user would: a route driven twice with a ``kidnap`` action three
 quarters of the way (``routes.kidnapped``: carried back to the commanded pose 30 % of the way,
 in the first lap, and driven on from there), and ``aslam record --odometry-reset-at K`` at 70 % of
-the keyframes. Each recording is estimated with the defaults and scored through the application
-layer; the event is the first keyframe after the carry (the true path's largest jump) or K.
+the keyframes (``--lighting-change`` lights each lap anew, as ``aslam record``'s). Each recording is
+estimated with the defaults and scored through the application layer; the event is the first
+keyframe after the carry (the true path's largest jump) or K.
 
     python bench/recorder_events.py --routes paper figure8 grid bench/routes/hexagon.json \
         --seeds 96 97 --markdown bench/results/recorder_events.md --json bench/results/recorder_events.json
@@ -37,28 +38,37 @@ KIDNAP_AT, KIDNAP_TO, RESET_AT = 0.75, 0.3, 0.7
 KINDS = ("kidnap", "reset")
 
 
-def recording(route_spec: str, seed: int, kind: str, folder: Path) -> tuple[Path, int | None]:
+def recording(
+    route_spec: str, seed: int, kind: str, folder: Path, lighting_change: float = 0.0
+) -> tuple[Path, int | None]:
     """The rendered recording, and the reset's keyframe (None for a kidnap: found from the truth)."""
     twice = routes.resolve_route(route_spec).repeated(2)
     count = len(twice.actions)
-    path = folder / f"{Path(route_spec).stem}-seed{seed}-{kind}.mcap"
+    light = f"-lighting{lighting_change:g}" if lighting_change else ""
+    path = folder / f"{Path(route_spec).stem}-seed{seed}{light}-{kind}.mcap"
     route_file = path.with_suffix(".json")
     if kind == "kidnap":
         carried = routes.kidnapped(twice, int(KIDNAP_AT * count), int(KIDNAP_TO * count))
         route_file.write_text(carried.to_json())
-        config = RecordConfig(route=str(route_file), laps=1, seed=seed)
+        config = RecordConfig(route=str(route_file), laps=1, seed=seed, lighting_change=lighting_change)
         reset_at = None
     else:
         route_file.write_text(twice.to_json())
         reset_at = int(RESET_AT * count)
-        config = RecordConfig(route=str(route_file), laps=1, seed=seed, odometry_reset_at=reset_at)
+        config = RecordConfig(
+            route=str(route_file),
+            laps=1,
+            seed=seed,
+            lighting_change=lighting_change,
+            odometry_reset_at=reset_at,
+        )
     if not path.exists():
         record(config, path)
     return path, reset_at
 
 
-def run(route_spec: str, seed: int, kind: str, folder: Path) -> dict[str, Any]:
-    rec, reset_at = recording(route_spec, seed, kind, folder)
+def run(route_spec: str, seed: int, kind: str, folder: Path, lighting_change: float = 0.0) -> dict[str, Any]:
+    rec, reset_at = recording(route_spec, seed, kind, folder, lighting_change)
     out = rec.with_suffix(".estimate.mcap")
     estimate(rec, out, EstimatorConfig(), timing=False, force=True)
     report = score(out, recording=rec)
@@ -111,6 +121,12 @@ def main() -> None:
     parser.add_argument("--routes", nargs="+", default=["paper", "figure8", "grid"])
     parser.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3])
     parser.add_argument("--kinds", nargs="+", choices=KINDS, default=list(KINDS))
+    parser.add_argument(
+        "--lighting-change",
+        type=float,
+        default=0.0,
+        help="as aslam record's (each lap lit anew)",
+    )
     parser.add_argument("--cache", type=Path, help="keep the recordings here (default: a temporary folder)")
     parser.add_argument("--json", type=Path)
     parser.add_argument("--markdown", type=Path)
@@ -122,7 +138,7 @@ def main() -> None:
         for route_spec in args.routes:
             for seed in args.seeds:
                 for kind in args.kinds:
-                    rows.append(run(route_spec, seed, kind, folder))
+                    rows.append(run(route_spec, seed, kind, folder, args.lighting_change))
                     print(json.dumps(rows[-1]), flush=True)
     text = table(rows)
     sys.stdout.write(text)
