@@ -5,9 +5,10 @@
 This bench makes them as a user would: a route driven twice with a ``kidnap`` action three
 quarters of the way (``routes.kidnapped``: carried back to the commanded pose 30 % of the way,
 in the first lap, and driven on from there), and ``aslam record --odometry-reset-at K`` at 70 % of
-the keyframes (``--lighting-change`` lights each lap anew, as ``aslam record``'s). Each recording is
+the keyframes (``--lighting-change`` and ``--fps`` as ``aslam record``'s). Each recording is
 estimated with the defaults and scored through the application layer; the event is the first
-keyframe after the carry (the true path's largest jump) or K.
+keyframe after the carry (the true path's largest jump) or the first at or after the frame whose
+odometry restarted (reads zero).
 
     python bench/recorder_events.py --routes paper figure8 grid bench/routes/hexagon.json \
         --seeds 96 97 --markdown bench/results/recorder_events.md --json bench/results/recorder_events.json
@@ -29,6 +30,7 @@ import numpy as np
 from aslam.app.estimate import estimate
 from aslam.app.score import score
 from aslam.core.config import EstimatorConfig
+from aslam.data_formats.recording import Recording
 from aslam.recorder import routes
 from aslam.recorder.config import RecordConfig
 from aslam.recorder.record import record
@@ -38,47 +40,57 @@ KIDNAP_AT, KIDNAP_TO, RESET_AT = 0.75, 0.3, 0.7
 KINDS = ("kidnap", "reset")
 
 
-def recording(
-    route_spec: str, seed: int, kind: str, folder: Path, lighting_change: float = 0.0
-) -> tuple[Path, int | None]:
-    """The rendered recording, and the reset's keyframe (None for a kidnap: found from the truth)."""
+def recording(route_spec: str, seed: int, kind: str, folder: Path, knobs: dict[str, float]) -> Path:
+    """The rendered recording; ``knobs``: other RecordConfig settings (``lighting_change``, ``fps``)."""
     twice = routes.resolve_route(route_spec).repeated(2)
     count = len(twice.actions)
-    light = f"-lighting{lighting_change:g}" if lighting_change else ""
-    path = folder / f"{Path(route_spec).stem}-seed{seed}{light}-{kind}.mcap"
+    tag = "".join(f"-{name.replace('_', '')}{value:g}" for name, value in sorted(knobs.items()))
+    path = folder / f"{Path(route_spec).stem}-seed{seed}{tag}-{kind}.mcap"
     route_file = path.with_suffix(".json")
     if kind == "kidnap":
-        carried = routes.kidnapped(twice, int(KIDNAP_AT * count), int(KIDNAP_TO * count))
-        route_file.write_text(carried.to_json())
-        config = RecordConfig(route=str(route_file), laps=1, seed=seed, lighting_change=lighting_change)
-        reset_at = None
+        route = routes.kidnapped(twice, int(KIDNAP_AT * count), int(KIDNAP_TO * count))
+        event: dict[str, Any] = {}
     else:
-        route_file.write_text(twice.to_json())
-        reset_at = int(RESET_AT * count)
-        config = RecordConfig(
-            route=str(route_file),
-            laps=1,
-            seed=seed,
-            lighting_change=lighting_change,
-            odometry_reset_at=reset_at,
-        )
+        route = twice
+        event = {"odometry_reset_at": int(RESET_AT * count)}
+    route_file.write_text(route.to_json())
     if not path.exists():
-        record(config, path)
-    return path, reset_at
+        record(RecordConfig(route=str(route_file), laps=1, seed=seed, **knobs, **event), path)
+    return path
 
 
-def run(route_spec: str, seed: int, kind: str, folder: Path, lighting_change: float = 0.0) -> dict[str, Any]:
-    rec, reset_at = recording(route_spec, seed, kind, folder, lighting_change)
+def reset_stamp(rec: Path) -> int:
+    """The stamp of the frame where the odometry restarted: the first after the start to read zero
+    (re-expressed in its own frame there, it is exactly (0, 0, 0); the noise leaves no other)."""
+    from contextlib import closing
+
+    with closing(Recording(rec).samples(ground_truth=False)) as samples:
+        for index, sample in enumerate(samples):
+            if index > 0 and not np.any(sample.odometry_pose):
+                return sample.stamp_ns
+    raise ValueError(f"{rec}: no frame's odometry restarts from zero")
+
+
+def run(route_spec: str, seed: int, kind: str, folder: Path, knobs: dict[str, float]) -> dict[str, Any]:
+    """The event is the first keyframe after the carry (the true path's largest jump between
+    keyframes), or the first keyframe at or after the frame whose odometry restarted."""
+    from contextlib import closing
+
+    from aslam.data_formats.estimate import iter_keyframes
+
+    rec = recording(route_spec, seed, kind, folder, knobs)
     out = rec.with_suffix(".estimate.mcap")
     estimate(rec, out, EstimatorConfig(), timing=False, force=True)
     report = score(out, recording=rec)
     evaluation = report.evaluation
-    if reset_at is None:
+    if kind == "kidnap":
         assert report.true_poses is not None
         jumps = np.hypot(*np.diff(report.true_poses[:, :2], axis=0).T)
         event = int(np.argmax(jumps)) + 1
     else:
-        event = reset_at
+        with closing(iter_keyframes(out)) as keyframes:
+            stamps = [keyframe.stamp_ns for keyframe in keyframes]
+        event = int(np.searchsorted(stamps, reset_stamp(rec)))
     right_after = np.flatnonzero(evaluation.correct[event:])
     closure = report.summary["loop_closure"]
     return {
@@ -121,16 +133,15 @@ def main() -> None:
     parser.add_argument("--routes", nargs="+", default=["paper", "figure8", "grid"])
     parser.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3])
     parser.add_argument("--kinds", nargs="+", choices=KINDS, default=list(KINDS))
-    parser.add_argument(
-        "--lighting-change",
-        type=float,
-        default=0.0,
-        help="as aslam record's (each lap lit anew)",
-    )
+    parser.add_argument("--lighting-change", type=float, default=0.0, help="as aslam record's")
+    parser.add_argument("--fps", type=float, help="as aslam record's (images per action)")
     parser.add_argument("--cache", type=Path, help="keep the recordings here (default: a temporary folder)")
     parser.add_argument("--json", type=Path)
     parser.add_argument("--markdown", type=Path)
     args = parser.parse_args()
+    knobs = {"lighting_change": args.lighting_change} if args.lighting_change else {}
+    if args.fps is not None:
+        knobs["fps"] = args.fps
     rows = []
     with tempfile.TemporaryDirectory() as scratch:
         folder = args.cache or Path(scratch)
@@ -138,7 +149,7 @@ def main() -> None:
         for route_spec in args.routes:
             for seed in args.seeds:
                 for kind in args.kinds:
-                    rows.append(run(route_spec, seed, kind, folder, args.lighting_change))
+                    rows.append(run(route_spec, seed, kind, folder, knobs))
                     print(json.dumps(rows[-1]), flush=True)
     text = table(rows)
     sys.stdout.write(text)

@@ -67,6 +67,7 @@ ROBUST_TABLES = {
     "robust_seeds_96_97": "robust_matrix_seeds_96_97.md",
     "recorder_events": "recorder_events.md",
     "recorder_events_lighting50": "recorder_events_lighting50.md",
+    "recorder_events_fps5": "recorder_events_fps5.md",
     "robust_geometric_check": "robust_matrix_geometric_check.md",
     "robust_seeds_82_83": "robust_matrix_seeds_82_83.md",
     "robust_seeds_82_83_geometric_check": "robust_matrix_seeds_82_83_geometric_check.md",
