@@ -7,8 +7,7 @@ quarters of the way (``routes.kidnapped``: carried back to the commanded pose 30
 in the first lap, and driven on from there), and ``aslam record --odometry-reset-at K`` at 70 % of
 the keyframes (``--lighting-change`` and ``--fps`` as ``aslam record``'s). Each recording is
 estimated with the defaults and scored through the application layer; the event is the first
-keyframe after the carry (the true path's largest jump) or the first at or after the frame whose
-odometry restarted (reads zero).
+keyframe whose odometry disagrees with the true motion by over 1 m, as the matrix finds its own.
 
     python bench/recorder_events.py --routes paper figure8 grid bench/routes/hexagon.json \
         --seeds 96 97 --markdown bench/results/recorder_events.md --json bench/results/recorder_events.json
@@ -30,10 +29,12 @@ import numpy as np
 from aslam.app.estimate import estimate
 from aslam.app.score import score
 from aslam.core.config import EstimatorConfig
-from aslam.data_formats.recording import Recording
 from aslam.recorder import routes
 from aslam.recorder.config import RecordConfig
 from aslam.recorder.record import record
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from robust_matrix import event_keyframe
 
 KIDNAP_AT, KIDNAP_TO, RESET_AT = 0.75, 0.3, 0.7
 """Shares of a twice-driven route's keyframes: carried at the first to the second; reset at the third."""
@@ -59,38 +60,16 @@ def recording(route_spec: str, seed: int, kind: str, folder: Path, knobs: dict[s
     return path
 
 
-def reset_stamp(rec: Path) -> int:
-    """The stamp of the frame where the odometry restarted: the first after the start to read zero
-    (re-expressed in its own frame there, it is exactly (0, 0, 0); the noise leaves no other)."""
-    from contextlib import closing
-
-    with closing(Recording(rec).samples(ground_truth=False)) as samples:
-        for index, sample in enumerate(samples):
-            if index > 0 and not np.any(sample.odometry_pose):
-                return sample.stamp_ns
-    raise ValueError(f"{rec}: no frame's odometry restarts from zero")
-
-
 def run(route_spec: str, seed: int, kind: str, folder: Path, knobs: dict[str, float]) -> dict[str, Any]:
-    """The event is the first keyframe after the carry (the true path's largest jump between
-    keyframes), or the first keyframe at or after the frame whose odometry restarted."""
-    from contextlib import closing
-
-    from aslam.data_formats.estimate import iter_keyframes
-
+    """The event is found as the matrix finds its own (``robust_matrix.event_keyframe``): the first
+    keyframe whose odometry disagrees with the true motion by over 1 m."""
     rec = recording(route_spec, seed, kind, folder, knobs)
     out = rec.with_suffix(".estimate.mcap")
     estimate(rec, out, EstimatorConfig(), timing=False, force=True)
     report = score(out, recording=rec)
     evaluation = report.evaluation
-    if kind == "kidnap":
-        assert report.true_poses is not None
-        jumps = np.hypot(*np.diff(report.true_poses[:, :2], axis=0).T)
-        event = int(np.argmax(jumps)) + 1
-    else:
-        with closing(iter_keyframes(out)) as keyframes:
-            stamps = [keyframe.stamp_ns for keyframe in keyframes]
-        event = int(np.searchsorted(stamps, reset_stamp(rec)))
+    event = event_keyframe(report.actions, report.true_poses)
+    assert event is not None, f"{rec}: no keyframe's odometry disagrees with the truth"
     right_after = np.flatnonzero(evaluation.correct[event:])
     closure = report.summary["loop_closure"]
     return {

@@ -385,7 +385,7 @@ def run_one(
     near = int((wrong & (distance < 1.0)).sum()) if evaluation.has_ground_truth else None
     row = Row(scenario, estimator, report.summary, wall, near)
     if is_event(scenario.family) and report.true_poses is not None:
-        event = _event_keyframe(report.actions, report.true_poses)
+        event = event_keyframe(report.actions, report.true_poses)
         if event is not None:
             hits = np.flatnonzero(evaluation.correct[event:])
             row.event_delay = int(hits[0]) if hits.size else None
@@ -437,7 +437,7 @@ def run_nearest_neighbour(scenario: Scenario, rec: Path, threshold: float) -> Ro
     return Row(scenario, "nn", summary, time.perf_counter() - start)
 
 
-def _event_keyframe(actions, true_poses) -> int | None:
+def event_keyframe(actions, true_poses) -> int | None:
     """The first keyframe whose odometry action disagrees with the true motion by over 1 m."""
     import numpy as np
 
