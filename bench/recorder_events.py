@@ -7,7 +7,7 @@ quarters of the way (``routes.kidnapped``: carried back to the commanded pose 30
 in the first lap, and driven on from there), and ``aslam record --odometry-reset-at K`` at 70 % of
 the keyframes (``--lighting-change`` and ``--fps`` as ``aslam record``'s). Each recording is
 estimated with the defaults and scored through the application layer; the event is the first
-keyframe whose odometry disagrees with the true motion by over 1 m, as the matrix finds its own.
+keyframe whose odometry disagrees with the true motion by over 1 m or 45°, as the matrix finds its own.
 
     python bench/recorder_events.py --routes paper figure8 grid bench/routes/hexagon.json \
         --seeds 96 97 --markdown bench/results/recorder_events.md --json bench/results/recorder_events.json
@@ -62,7 +62,7 @@ def recording(route_spec: str, seed: int, kind: str, folder: Path, knobs: dict[s
 
 def run(route_spec: str, seed: int, kind: str, folder: Path, knobs: dict[str, float]) -> dict[str, Any]:
     """The event is found as the matrix finds its own (``robust_matrix.event_keyframe``): the first
-    keyframe whose odometry disagrees with the true motion by over 1 m."""
+    keyframe whose odometry disagrees with the true motion by over 1 m or 45°."""
     rec = recording(route_spec, seed, kind, folder, knobs)
     out = rec.with_suffix(".estimate.mcap")
     estimate(rec, out, EstimatorConfig(), timing=False, force=True)

@@ -280,8 +280,10 @@ class EstimatorConfig:
     )
     odometry_jump_factor: float = _param(
         4.0,
-        "An odometry step over this × the median of the run's recent steps is an odometry failure (a reset,"
-        " a driver restart), not a motion: nothing is predicted from it and the robot may be at any of the"
+        "An odometry step whose length in medians of the run's recent steps, plus its turn in turn_deg,"
+        " exceeds this is an odometry failure (a reset, a driver restart), not a motion (a keyframe is taken"
+        " at a step or a turn, so no motion is both long and turned far; a turn in place is never a jump):"
+        " nothing is predicted from it and the robot may be at any of the"
         " map_relocalisation_candidates places most alike. Independent of relocalisation_prior, so a robot"
         " that is never carried can turn appearance jumps off and still survive a reset (0 = never; else"
         " above 1).",

@@ -658,13 +658,22 @@ class HypothesisTree:
         return bool(np.any(proposals[index][0] == state))
 
     def _odometry_jumped(self, action: np.ndarray) -> bool:
-        """Whether ``action`` is an odometry failure rather than a motion: over ``odometry_jump_factor``
-        times the median of the run's recent keyframe steps (an odometry reset, a driver restart). Judged
-        against the run's own steps, so a dataset with long steps between frames is not flagged."""
+        """Whether ``action`` is an odometry failure rather than a motion (an odometry reset, a driver
+        restart): a step whose length in medians of the run's recent keyframe steps, plus its turn in
+        ``turn_deg``, exceeds ``odometry_jump_factor``. Judged against the run's own steps, so a dataset
+        with long steps between frames is not flagged. The turn counts because a keyframe is taken at
+        a step or a turn, whichever comes first, so no motion is both long and turned far; but a reset
+        near odometry's origin is (3.3 m and 176°, where the run's steps were 1 m: taken for a motion,
+        no place fitted it, and the robot relocalised only after a look-alike's five confirmations).
+        A turn in place is no step, and no jump."""
         length = math.hypot(float(action[0]), float(action[1]))
         recent = self._recent_steps
-        jumped = len(recent) >= JUMP_WARMUP and length > self._jump_factor * recent.median
-        if not jumped and length >= 0.25 * self.config.step_m:  # turns in place are no step
+        is_step = length >= 0.25 * self.config.step_m
+        jumped = False
+        if is_step and len(recent) >= JUMP_WARMUP:
+            turns = abs(math.remainder(float(action[2]), math.tau)) / math.radians(self.config.turn_deg)
+            jumped = length / recent.median + turns > self._jump_factor
+        if is_step and not jumped:
             recent.append(length)
         return jumped
 

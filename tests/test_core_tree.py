@@ -624,8 +624,9 @@ def test_without_relocalisation_a_kidnap_is_never_recovered():
     assert all(r.best.is_new_state for r in results[kidnap_at:])
 
 
-def _reset_run(world: SyntheticWorld, reset_at: int, config: EstimatorConfig, view_at=None):
-    """Two laps of the rectangle; odometry restarts from zero at keyframe ``reset_at``.
+def _reset_run(world: SyntheticWorld, reset_at: int, config: EstimatorConfig, view_at=None, jump=None):
+    """Two laps of the rectangle; odometry restarts from zero at keyframe ``reset_at`` (or, with
+    ``jump``, reads that action there: a restart where odometry's origin lay that far from the robot).
     ``view_at(i, truths, view)`` may replace keyframe i's own view."""
     actions = rectangle_actions(2)
     estimator = Estimator(config)
@@ -635,7 +636,10 @@ def _reset_run(world: SyntheticWorld, reset_at: int, config: EstimatorConfig, vi
     for i, action in enumerate(actions, start=1):
         truths.append(se2.compose(truths[-1], action))
         measured = action * (1 + 0.03 * rng.standard_normal(3))
-        odometry.append(np.zeros(3) if i == reset_at else se2.compose(odometry[-1], measured))
+        if i != reset_at:
+            odometry.append(se2.compose(odometry[-1], measured))
+        else:
+            odometry.append(np.zeros(3) if jump is None else se2.compose(odometry[-1], np.asarray(jump)))
         step = se2.between(odometry[-2], odometry[-1])
         view = world.observe(truths[-1])
         results.append(estimator.add_keyframe(i, step, view if view_at is None else view_at(i, truths, view)))
@@ -659,6 +663,39 @@ def test_an_odometry_reset_is_a_jump_not_a_motion(relocalisation_prior):
     reset_at = 8  # lap 1: nothing to relocalise to yet
     estimator, _, _ = _reset_run(SyntheticWorld(5), reset_at, config)
     assert _link_across(estimator, reset_at).covariance[0][0] >= 1e5
+
+
+@pytest.mark.parametrize("jump", [(-2.5, 0.5, math.radians(170)), (2.6, 1.2, math.radians(-120))])
+def test_a_reset_near_odometrys_origin_is_a_jump_by_its_turn(jump):
+    """A restart where the robot stood 2.6–2.9 m from odometry's origin, turned 120–170° from its
+    axes: under 4 steps long, so by length alone a motion (no place fits it, and a look-alike's five
+    confirmations came before the map: the reversal route's reset, seed 99, 6 keyframes late). No
+    keyframe is both long and turned far (one is taken at a step or a turn, whichever comes first),
+    so length in steps plus turn in ``turn_deg`` over 4 is a jump: relocalised within two keyframes,
+    every claim right, and on lap 1 the link across it is no constraint."""
+    reset_at = 34 + 7
+    _, results, truths = _reset_run(SyntheticWorld(5), reset_at, synthetic_config(), jump=jump)
+    claims = [t for t in range(reset_at, len(results)) if not results[t].best.is_new_state]
+    assert claims and claims[0] - reset_at <= 2
+    for t in claims:
+        assert math.hypot(*(truths[t][:2] - truths[results[t].best.state][:2])) < 0.5
+    estimator, _, _ = _reset_run(SyntheticWorld(5), 8, synthetic_config(), jump=jump)
+    assert _link_across(estimator, 8).covariance[0][0] >= 1e5
+
+
+@pytest.mark.parametrize(
+    "factor, turned", [(4.0, (1.0, 0.2, math.pi / 2)), (1.5, (1.0, 0.0, math.radians(30)))]
+)
+def test_a_turn_in_place_or_a_turned_step_is_no_jump(factor, turned):
+    """A U-turn in place is no step, so no jump, even where the factor is low enough that its turn
+    alone would pass it; a step with a corner's turn is a motion at the default factor."""
+    estimator = Estimator(synthetic_config(odometry_jump_factor=factor))
+    rng = np.random.default_rng(2)
+    steps = [np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, math.pi]), np.array(turned)]
+    for k in range(30):
+        view = rng.dirichlet(np.ones(BINS)).astype(np.float32)
+        estimator.add_keyframe(k, steps[k % 3] if k else np.zeros(3), view)
+    assert all(link.covariance[0][0] < 1.0 for link in estimator.result().links)
 
 
 def test_past_an_odometry_jump_a_look_alike_does_not_rule_out_what_the_jumps_predict():
