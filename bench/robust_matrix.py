@@ -147,9 +147,19 @@ def kidnap_window(family: str) -> tuple[float, float] | None:
     return (int(match[1]) / 100, int(match[2]) / 100) if match else None
 
 
+def reset_share(family: str) -> float | None:
+    """The share of the run at which a reset family's odometry restarts from zero: ``reset`` 70 %,
+    ``resetNN`` NN % (``--reset-shares``); None for any other family."""
+    event = family.partition("@")[0]
+    if event == "reset":
+        return 0.7
+    match = re.fullmatch(r"reset(\d+)", event)
+    return int(match[1]) / 100 if match else None
+
+
 def is_event(family: str) -> bool:
     """A kidnap or an odometry reset: an event the estimate must recover from (a stop is none)."""
-    return family.partition("@")[0] == "reset" or kidnap_window(family) is not None
+    return reset_share(family) is not None or kidnap_window(family) is not None
 
 
 def is_derived(family: str) -> bool:
@@ -275,9 +285,9 @@ def recording(scenario: Scenario, cache: Path, log=print) -> Path:
 
     path = cache / f"{scenario.name}.mcap"
     if is_derived(scenario.family) and not path.exists():
-        window = kidnap_window(scenario.family)
-        kind = scenario.family.partition("@")[0] if window is None else "kidnap"
-        derive(recording(scenario.base, cache, log), kind, path, window or (0.6, 0.8))
+        window, share = kidnap_window(scenario.family), reset_share(scenario.family)
+        kind = "kidnap" if window is not None else "reset" if share is not None else "stop"
+        derive(recording(scenario.base, cache, log), kind, path, window or (0.6, 0.8), share or 0.7)
         log(f"  derived {path.name}")
     if not path.exists():
         cache.mkdir(parents=True, exist_ok=True)
@@ -287,13 +297,21 @@ def recording(scenario: Scenario, cache: Path, log=print) -> Path:
     return path
 
 
-def derive(source: Path, kind: str, output: Path, window: tuple[float, float] = (0.6, 0.8)) -> None:
+def derive(
+    source: Path,
+    kind: str,
+    output: Path,
+    window: tuple[float, float] = (0.6, 0.8),
+    reset_at_share: float = 0.7,
+) -> None:
     """A kidnap, an odometry reset or stops made from a rendered recording (images and truth untouched).
 
     ``kidnap``: the frames from ``window[0]`` to ``window[1]`` of the run (60 % to 80 %: from one
     place of the second lap to another) are dropped — the robot is carried — and odometry sees
     nothing (it continues from where it was, then integrates the motion after the jump).
-    ``reset``: at 70 % of the run odometry restarts from zero (x = y = yaw = 0). ``stop``: at each of
+    ``reset``: at ``reset_at_share`` of the run (70 %) odometry restarts from zero (x = y = yaw = 0),
+    wherever the robot stands from odometry's origin (near it, only the turn tells a reset from a
+    motion: docs/estimator.md, "The turn counts too"). ``stop``: at each of
     ``STOP_SHARES`` of the run the robot stands still ``STOP_SECONDS`` with its camera on (that frame
     again once a second, the later stamps shifted): no event, and no claim should change. Written
     with the project's recording writer.
@@ -310,7 +328,7 @@ def derive(source: Path, kind: str, output: Path, window: tuple[float, float] = 
     source_recording = Recording(source)
     total = source_recording.image_count()
     assert total is not None
-    jump_from, jump_to, reset_at = int(window[0] * total), int(window[1] * total), int(0.7 * total)
+    jump_from, jump_to, reset_at = int(window[0] * total), int(window[1] * total), int(reset_at_share * total)
     metadata = dict(source_recording.metadata())
     camera = source_recording.camera()
     stops = {int(share * total) for share in STOP_SHARES} if kind == "stop" else set()
@@ -671,6 +689,14 @@ def main(argv: list[str] | None = None) -> int:
         metavar="FROM:TO",
         help="also kidnaps at these shares of the run (e.g. 0.4:0.75), made from the default renders",
     )
+    parser.add_argument(
+        "--reset-shares",
+        nargs="+",
+        type=float,
+        default=[],
+        metavar="SHARE",
+        help="also odometry resets at these shares of the run (e.g. 0.85), made from the default renders",
+    )
     args = parser.parse_args(argv)
     for route in args.routes:
         if route not in ROUTES and not (is_route_file(route) and Path(route).is_file()):
@@ -680,6 +706,7 @@ def main(argv: list[str] | None = None) -> int:
     for window in args.kidnap_windows:
         start, _, stop = window.partition(":")
         args.families.append(f"kidnap{round(float(start) * 100)}-{round(float(stop) * 100)}")
+    args.families.extend(f"reset{round(share * 100)}" for share in args.reset_shares)
     overrides = {}
     for item in args.set:
         name, _, value = item.partition("=")

@@ -16,7 +16,9 @@ from robust_matrix import (  # noqa: E402
     STOP_SHARES,
     Scenario,
     event_keyframe,
+    is_event,
     main,
+    reset_share,
     run_one,
 )
 
@@ -66,6 +68,17 @@ def test_mixes_and_events_on_other_renders_are_scenarios():
     assert kidnap.command().endswith("derive kidnap@noise5")
     assert Scenario("reset@fps5", "paper", 6).base.name == "fps5-paper-seed6"
     assert Scenario("kidnap", "paper", 6).base.name == "default-paper-seed6"
+
+
+def test_resets_at_other_shares_are_events_made_from_the_default_render():
+    """``--reset-shares 0.85`` adds the family ``reset85``: odometry restarts 85 % of the way, made
+    from the same default render as ``reset`` (70 %), on whatever other render ``@`` names."""
+    assert reset_share("reset") == 0.7 and reset_share("reset85") == 0.85
+    assert reset_share("reset@fps5") == 0.7
+    assert reset_share("kidnap") is None and reset_share("resets") is None
+    assert is_event("reset85") and is_event("reset55@lighting50") and not is_event("stop")
+    assert Scenario("reset85", "grid", 7).base.name == "default-grid-seed7"
+    assert Scenario("reset55@lighting50", "grid", 7).base.name == "lighting50-grid-seed7"
 
 
 def test_recorder_settings_families_set_the_camera_and_their_command_says_so():
