@@ -1182,7 +1182,9 @@ class HypothesisTree:
 
         Children that sit at the same state and agree on the states of the last
         ``merge_window`` keyframes predict the same future: the evidence to come can never
-        separate them, so they are merged into the likelier one (their beliefs add up).
+        separate them, so they are merged into the likelier one (their beliefs add up). At one
+        belief (lines under the jump ceiling) the one that settles first is kept: the others are the
+        same jump made later, and keeping one of them would throw the first's confirmations away.
         """
         merged: dict[tuple[int, ...], list] = {}
         for log_belief, parent, state, is_new in children:
@@ -1192,7 +1194,8 @@ class HypothesisTree:
                 merged[key] = [log_belief, parent, state, is_new, log_belief]
             else:
                 total = np.logaddexp(entry[4], log_belief)
-                if (log_belief, -parent.id) > (entry[0], -entry[1].id):
+                kept = entry[1]
+                if (log_belief, -parent.settled_at, -parent.id) > (entry[0], -kept.settled_at, -kept.id):
                     entry[:4] = [log_belief, parent, state, is_new]
                 entry[4] = total
         candidates = [(entry[4], *entry[1:4]) for entry in merged.values()]

@@ -102,6 +102,23 @@ def test_children_that_agree_on_the_last_merge_window_keyframes_merge_and_their_
     ]
 
 
+def test_lines_merged_at_one_belief_keep_the_one_confirmed_soonest():
+    """Doubted jumps born at successive keyframes to one place all sit at the jump ceiling (equal
+    beliefs) and merge once they agree on the window. The merged line keeps the one that settles
+    first, whatever the node ids: keeping a younger one threw away the oldest's confirmations (the
+    figure-8's reset at 75 %, seed 5: relocalised 8 keyframes late, 6 with this rule)."""
+    config = synthetic_config()
+    tree = HypothesisTree(config)
+    history = list(range(10, 10 + config.merge_window - 1))
+    older = _line([100, *history], 0)
+    younger = _line([200, *history], 50)
+    for settles_first, settles_later in ((older, younger), (younger, older)):
+        settles_first.settled_at, settles_later.settled_at = 87, 89
+        children = [(math.log(0.2), younger, 7, False), (math.log(0.2), older, 7, False)]
+        [(log_belief, parent, _, _)] = tree._prune(children)
+        assert parent is settles_first and math.exp(log_belief) == pytest.approx(1.0)
+
+
 def _chain_tree(config, actions, seed=0) -> HypothesisTree:
     rng = np.random.default_rng(seed)
     tree = HypothesisTree(config)
