@@ -279,11 +279,21 @@ class Row:
     """Kidnap / reset: wrong claims from the event on."""
 
 
+def recording_path(scenario: Scenario, cache: Path) -> Path:
+    """Where ``scenario``'s recording is cached."""
+    return cache / f"{scenario.name}.mcap"
+
+
+def render(scenario: Scenario, cache: Path) -> None:
+    """``scenario``'s recording in the cache (a task: nothing returned)."""
+    recording(scenario, cache)
+
+
 def recording(scenario: Scenario, cache: Path, log=print) -> Path:
     """The cached recording of ``scenario``, rendered (or derived) now if missing."""
     from aslam.recorder.record import record
 
-    path = cache / f"{scenario.name}.mcap"
+    path = recording_path(scenario, cache)
     if is_derived(scenario.family) and not path.exists():
         window, share = kidnap_window(scenario.family), reset_share(scenario.family)
         kind = "kidnap" if window is not None else "reset" if share is not None else "stop"
@@ -574,6 +584,13 @@ def run_all(
         return
     from dask_tasks import as_tasks
 
+    # A render two scenarios share (a derived family's base, often another scenario itself) is made
+    # first, once: two tasks rendering it at once made one of them fail ("written by another process").
+    bases = dict.fromkeys(scenario.base for scenario in scenarios)
+    missing = [(base, cache) for base in bases if not recording_path(base, cache).exists()]
+    if missing:
+        for _ in as_tasks(render, missing, workers):
+            pass
     calls = [(scenario, estimators, cache, overrides, threshold) for scenario in scenarios]
     for _, rows in as_tasks(run_scenario, calls, workers):
         yield from rows
@@ -721,7 +738,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     scenarios = [Scenario(f, r, s) for f in args.families for r in args.routes for s in args.seeds]
     if args.cached_only:
-        cached = [s for s in scenarios if (args.cache / f"{s.base.name}.mcap").exists()]
+        cached = [s for s in scenarios if recording_path(s.base, args.cache).exists()]
         if not cached:  # a table of nothing, exit 0, was what an empty or wrong cache gave
             print(
                 f"robust_matrix: none of the {len(scenarios)} scenarios is rendered in {args.cache}",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -127,3 +128,19 @@ def test_stops_derived_from_a_render_change_no_claim(tmp_path):
     assert frames[1] == frames[0] + len(STOP_SHARES) * STOP_SECONDS
     assert stopped.summary["loop_closure"] == plain.summary["loop_closure"]
     assert stopped.summary["keyframes"] == plain.summary["keyframes"] and stopped.event_delay is None
+
+
+def test_a_render_two_scenarios_share_is_made_once_before_them(tmp_path):
+    """A kidnap and a reset are both made from the default render of their route and seed. As Dask
+    tasks on two workers each rendered it at once when it was not cached, and one failed ("written by
+    another process while this command ran"): the shared render is made first, once."""
+    out = tmp_path / "rows.json"
+    argv = ["--families", "kidnap", "reset", "--routes", "paper", "--seeds", "4", "--estimators", "default"]
+    assert main([*argv, "--workers", "2", "--cache", str(tmp_path / "rec"), "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())
+    assert sorted(row["family"] for row in rows) == ["kidnap", "reset"]
+    assert sorted(p.name for p in (tmp_path / "rec").glob("*.mcap")) == [
+        "default-paper-seed4.mcap",
+        "kidnap-paper-seed4.mcap",
+        "reset-paper-seed4.mcap",
+    ]
