@@ -74,6 +74,7 @@ ROBUST_TABLES = {
     "recorder_events_98_99_fps5": "recorder_events_seeds_98_99_fps5.md",
     "robust_reset_shares": "robust_matrix_reset_shares.md",
     "robust_kidnap_windows_96_99": "robust_matrix_kidnap_windows_96_99.md",
+    "robust_exceptions_rechecked": "robust_matrix_exceptions_rechecked.md",
     "robust_geometric_check": "robust_matrix_geometric_check.md",
     "robust_seeds_82_83": "robust_matrix_seeds_82_83.md",
     "robust_seeds_82_83_geometric_check": "robust_matrix_seeds_82_83_geometric_check.md",
