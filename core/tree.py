@@ -288,6 +288,9 @@ class HypothesisTree:
         odometry jumped. Driving off the end of mapped ground is exploring, not losing track."""
         self._odometry_jumped_at = -1
         """The keyframe odometry last jumped (a reset): no track leads past it."""
+        self._lost_against_travel = False
+        """Whether the action of the keyframe the robot last lost track at was a step against the
+        direction of travel (``_against_travel``): odometry, not the robot, is then what failed."""
         self._paused_at = -math.inf
         """The keyframe that last came after a pause (``PAUSE_SHARE``): time for a carry."""
         self._paused_tracked = False
@@ -538,7 +541,10 @@ class HypothesisTree:
                 # carried, is a look-alike stretch until it outlasts one. Born while exploring, or
                 # from a doubted line not yet settled, a jump is doubted too (confirmed twice).
                 drove_on = keyframe - self._paused_at > self.config.lost_window
-                ruled_out = drove_on and self._ruled_out_by_odometry(state, action, action_cov)
+                # Lost at a step against the direction of travel, odometry's own map is no proof:
+                # a reset read as a motion (under the jump test's factor) links the map wrongly.
+                trusted = not (lost_track and self._lost_against_travel)
+                ruled_out = drove_on and trusted and self._ruled_out_by_odometry(state, action, action_cov)
                 node.doubted = (
                     ruled_out or (best.is_new and not lost_track) or self._unsettled(best, keyframe)
                 )
@@ -552,14 +558,18 @@ class HypothesisTree:
                     node.carried_at = int(self._paused_at)
             leaves.append(node)
         was_best = self.leaves[0]
+        # A step against the direction of travel where the track ends is odometry failing (a reset
+        # under the jump test's factor), not the robot driving off its map's end, wherever it says.
+        against_travel = self._jump_factor > 0 and not jumped and _against_travel(action, self.config.step_m)
         # The end of an unsettled doubted line is no loss of track: the robot was never shown to be there.
         if (
             not was_best.is_new
             and leaves[0].is_new
             and not self._unsettled(was_best, keyframe)
-            and (jumped or self._best_in_map)
+            and (jumped or against_travel or self._best_in_map)
         ):
             self._lost_at = keyframe
+            self._lost_against_travel = against_travel
         if not leaves[0].is_new:
             self._tracked_at = keyframe
         self.leaves = leaves
@@ -668,7 +678,7 @@ class HypothesisTree:
         A turn in place is no step, and no jump."""
         length = math.hypot(float(action[0]), float(action[1]))
         recent = self._recent_steps
-        is_step = length >= 0.25 * self.config.step_m
+        is_step = length >= STEP_SHARE * self.config.step_m
         jumped = False
         if is_step and len(recent) >= JUMP_WARMUP:
             turns = abs(math.remainder(float(action[2]), math.tau)) / math.radians(self.config.turn_deg)
@@ -1310,6 +1320,12 @@ CHAIN_FOR_KIDNAP = 3
 robot was tracked or paused, are taken as a kidnap's sign even where odometry says it left the map
 or explored: their jump gets the lost prior (``relocalisation_lost_prior``)."""
 
+STEP_SHARE = 0.25
+"""An action is a step when it moves at least this share of ``step_m``; shorter, a turn in place."""
+AGAINST_TRAVEL_DEG = 120.0
+"""A step whose chord points more than this far from the mean of its start and end headings goes
+against the direction of travel (``_against_travel``)."""
+
 JUMP_CONFIRMATIONS = 2
 """Keyframes a jump's line stays under the ceiling while the track it left still explains the view
 with another place, or when it was born while the robot explored without having lost track: born
@@ -1376,6 +1392,19 @@ def _rel_along(paths: dict[int, tuple[int, Rel, float, float]], state: int, rels
     for node in reversed(chain):
         rels[node] = compose_rel(rels[paths[node][0]], paths[node][1])
     return rels[chain[0]] if chain else rels[state]
+
+
+def _against_travel(action: np.ndarray, step_m: float) -> bool:
+    """Whether ``action`` is a step against the direction of travel. A robot that drives forward
+    and turns, in any order, moves along a chord within 90° of the mean of its start and end
+    headings (a U-turn then a step: 90°); an odometry reset reads as a step in any direction (the
+    inverse of the pose it left), half the time backwards (the figure-8's at 75 %, seed 5: 152°
+    off; the B-shaped route's at 55 %, seed 100: 159°)."""
+    if math.hypot(float(action[0]), float(action[1])) < STEP_SHARE * step_m:
+        return False
+    chord = math.atan2(float(action[1]), float(action[0]))
+    mean_heading = math.remainder(float(action[2]), math.tau) / 2
+    return abs(math.remainder(chord - mean_heading, math.tau)) > math.radians(AGAINST_TRAVEL_DEG)
 
 
 def _flat(covariance: np.ndarray) -> list[float]:

@@ -15,7 +15,7 @@ from aslam.core.errors import ConfigError
 from aslam.core.estimator import Estimator, Keyframer
 from aslam.core.mapgraph import KeyframeViews
 from aslam.core.motion import compose_rel, inverse_rel, link_weight, rel_covariance, revisit_residuals, to_rel
-from aslam.core.tree import ALARM_EPISODE_GAP, AlarmCount, HypothesisTree, WindowMedian
+from aslam.core.tree import ALARM_EPISODE_GAP, AlarmCount, HypothesisTree, WindowMedian, _against_travel
 
 BINS = 16
 CARRY_TIME = 5
@@ -681,6 +681,51 @@ def test_a_reset_near_odometrys_origin_is_a_jump_by_its_turn(jump):
         assert math.hypot(*(truths[t][:2] - truths[results[t].best.state][:2])) < 0.5
     estimator, _, _ = _reset_run(SyntheticWorld(5), 8, synthetic_config(), jump=jump)
     assert _link_across(estimator, 8).covariance[0][0] >= 1e5
+
+
+@pytest.mark.parametrize("reset_at", [34 + 5, 34 + 11, 34 + 20])
+def test_a_reset_read_as_a_step_backwards_relocalises_within_two_keyframes(reset_at):
+    """A restart where odometry's origin lay 2.8 m ahead of the robot, turned 11°: under the jump
+    test's factor, so a motion, and one against the direction of travel (``_against_travel``). The
+    track ends there, and the jumps back onto the map that follow are not doubted on the word of
+    that link: relocalised within two keyframes, every claim right (before: after 11 or 13
+    keyframes, or never; with the merge keeping the first jump's line, after 5)."""
+    jump = (-2.51, -1.25, math.radians(11))
+    _, results, truths = _reset_run(SyntheticWorld(5), reset_at, synthetic_config(), jump=jump)
+    claims = [t for t in range(reset_at, len(results)) if not results[t].best.is_new_state]
+    assert claims and claims[0] - reset_at <= 2
+    for t in claims:
+        assert math.hypot(*(truths[t][:2] - truths[results[t].best.state][:2])) < 0.5
+
+
+def test_a_reset_read_as_a_step_forwards_relocalises_once_the_first_jump_is_confirmed():
+    """A restart read as 2.9 m forwards: a motion, along the direction of travel, that no place
+    fits. Each keyframe after it jumps back onto the map by appearance, each jump doubted (five
+    confirmations); merged at one belief, the lines keep the first jump's (``_prune``), so the robot
+    relocalises after 5 keyframes (it never did when a younger line was kept), every claim right."""
+    reset_at, jump = 34 + 11, (2.9, 0.3, math.radians(20))
+    _, results, truths = _reset_run(SyntheticWorld(5), reset_at, synthetic_config(), jump=jump)
+    claims = [t for t in range(reset_at, len(results)) if not results[t].best.is_new_state]
+    assert claims and claims[0] - reset_at <= 5
+    for t in claims:
+        assert math.hypot(*(truths[t][:2] - truths[results[t].best.state][:2])) < 0.5
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    before=st.floats(-89.9, 89.9),
+    after=st.floats(-89.9, 89.9),
+    forward=st.floats(0.25, 3.0),
+)
+def test_driving_forwards_and_turning_is_never_against_the_direction_of_travel(before, after, forward):
+    """A turn, a drive forwards and a turn, under half a turn in all (a keyframe is taken at a
+    quarter): the chord lies within 90° of the mean heading, under ``AGAINST_TRAVEL_DEG``; a drive
+    backwards with a turn of up to a quarter is against it."""
+    turned = se2.compose(np.array([0.0, 0.0, math.radians(before)]), np.array([forward, 0.0, 0.0]))
+    action = se2.compose(turned, np.array([0.0, 0.0, math.radians(after)]))
+    assert not _against_travel(action, step_m=1.0)
+    assert _against_travel(np.array([-forward, 0.0, math.radians(after)]), step_m=1.0)
+    assert not _against_travel(np.array([0.1, 0.0, math.pi]), step_m=1.0)  # a U-turn in place: no step
 
 
 @pytest.mark.parametrize(
