@@ -1396,10 +1396,10 @@ def _rel_along(paths: dict[int, tuple[int, Rel, float, float]], state: int, rels
 
 def _against_travel(action: np.ndarray, step_m: float) -> bool:
     """Whether ``action`` is a step against the direction of travel. A robot that drives forward
-    and turns, in any order, moves along a chord within 90° of the mean of its start and end
-    headings (a U-turn then a step: 90°); an odometry reset reads as a step in any direction (the
-    inverse of the pose it left), half the time backwards (the figure-8's at 75 %, seed 5: 152°
-    off; the B-shaped route's at 55 %, seed 100: 159°)."""
+    and turns, in any order and under half a turn in all (a keyframe is taken at a quarter), moves
+    along a chord within 90° of the mean of its start and end headings; an odometry reset reads as
+    a step in any direction (the inverse of the pose it left), half the time backwards (the
+    figure-8's at 75 %, seed 5: 152° off; the B-shaped route's at 55 %, seed 100: 159°)."""
     if math.hypot(float(action[0]), float(action[1])) < STEP_SHARE * step_m:
         return False
     chord = math.atan2(float(action[1]), float(action[0]))
