@@ -649,10 +649,19 @@ def family_table(rows: list[Row], estimators: list[str]) -> str:
         for family in sorted({r.scenario.family for r in events}):
             members = [r for r in events if r.scenario.family == family]
             delays = [r.event_delay for r in members if r.event_delay is not None]
-            never = sum(r.event_delay is None for r in members)
+            # No event found (``event_wrong`` None): odometry never misjudged a step, as where a reset
+            # falls where odometry's origin is. Nothing to relocalise from; not a "never".
+            never = sum(r.event_delay is None and r.event_wrong is not None for r in members)
             wrong = sum(r.event_wrong or 0 for r in members)
             worst = f"{max(delays)}" if delays else "–"
             lines.append(f"| {family} | {len(members)} | {worst} | {never} | {wrong} |")
+        unmoved = [r.scenario.name for r in events if r.event_delay is None and r.event_wrong is None]
+        if unmoved:
+            lines += [
+                "",
+                f"No event in {len(unmoved)} run(s), odometry never off the true motion by 1 m or 45°"
+                f" (a reset where odometry's origin was): {', '.join(unmoved)}.",
+            ]
     return "\n".join(lines) + "\n"
 
 
