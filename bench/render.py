@@ -78,6 +78,7 @@ ROBUST_TABLES = {
     "recorder_events_100_101_lighting50": "recorder_events_seeds_100_101_lighting50.md",
     "recorder_events_100_101_fps5": "recorder_events_seeds_100_101_fps5.md",
     "robust_reset_shares": "robust_matrix_reset_shares.md",
+    "robust_resets_102_103": "robust_matrix_resets_102_103.md",
     "robust_kidnap_windows_96_99": "robust_matrix_kidnap_windows_96_99.md",
     "robust_exceptions_rechecked": "robust_matrix_exceptions_rechecked.md",
     "robust_geometric_check": "robust_matrix_geometric_check.md",
