@@ -558,18 +558,16 @@ class HypothesisTree:
                     node.carried_at = int(self._paused_at)
             leaves.append(node)
         was_best = self.leaves[0]
-        # A step against the direction of travel where the track ends is odometry failing (a reset
-        # under the jump test's factor), not the robot driving off its map's end, wherever it says.
-        against_travel = self._jump_factor > 0 and not jumped and _against_travel(action, self.config.step_m)
         # The end of an unsettled doubted line is no loss of track: the robot was never shown to be there.
-        if (
-            not was_best.is_new
-            and leaves[0].is_new
-            and not self._unsettled(was_best, keyframe)
-            and (jumped or against_travel or self._best_in_map)
-        ):
-            self._lost_at = keyframe
-            self._lost_against_travel = against_travel
+        if not was_best.is_new and leaves[0].is_new and not self._unsettled(was_best, keyframe):
+            # A step against the direction of travel where the track ends is odometry failing (a reset
+            # under the jump test's factor), not the robot driving off its map's end, wherever it says.
+            against_travel = (
+                self._jump_factor > 0 and not jumped and _against_travel(action, self.config.step_m)
+            )
+            if jumped or against_travel or self._best_in_map:
+                self._lost_at = keyframe
+                self._lost_against_travel = against_travel
         if not leaves[0].is_new:
             self._tracked_at = keyframe
         self.leaves = leaves
