@@ -284,11 +284,6 @@ def recording_path(scenario: Scenario, cache: Path) -> Path:
     return cache / f"{scenario.name}.mcap"
 
 
-def render(scenario: Scenario, cache: Path) -> None:
-    """``scenario``'s recording in the cache (a task: nothing returned)."""
-    recording(scenario, cache)
-
-
 def recording(scenario: Scenario, cache: Path, log=print) -> Path:
     """The cached recording of ``scenario``, rendered (or derived) now if missing."""
     from aslam.recorder.record import record
@@ -589,7 +584,7 @@ def run_all(
     bases = dict.fromkeys(scenario.base for scenario in scenarios)
     missing = [(base, cache) for base in bases if not recording_path(base, cache).exists()]
     if missing:
-        for _ in as_tasks(render, missing, workers):
+        for _ in as_tasks(recording, missing, workers):
             pass
     calls = [(scenario, estimators, cache, overrides, threshold) for scenario in scenarios]
     for _, rows in as_tasks(run_scenario, calls, workers):
