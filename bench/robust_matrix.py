@@ -3,7 +3,8 @@
 The hard cases of issue 9 that today's recorder can make (off-pose revisits with ``--jitter``,
 video-rate keyframes with ``--fps``, odometry noise, aliasing) on the paper, figure-8 and grid
 routes (``--routes`` also takes route files: ``bench/routes/`` holds three more 90° loops that no
-setting was chosen on, for held-out checks, and seventeen of other turns, steps, curves and directions).
+setting was chosen on, for held-out checks, and eighteen of other turns, steps, curves, directions
+and layouts).
 Recordings are rendered once and cached (``--cache``, default /tmp/robust/rec); estimates are made and
 scored through the application layer (``aslam.app``), not the CLI.
 
