@@ -527,6 +527,7 @@ def test_a_pyopengl_that_cannot_pass_arrays_is_one_line_saying_what_to_install(m
     assert "cannot pass arrays to OpenGL on Python" in str(info.value) and "\n" not in str(info.value)
 
 
+@pytest.mark.skipif(ctypes.util.find_library("OSMesa") is None, reason="libosmesa6 is not installed")
 def test_osmesa_fallback_writes_the_same_bytes_as_egl(tmp_path):
     """The OSMesa platform (the fallback when EGL cannot start) renders real views, and the very
     same files as EGL: both are Mesa's rasteriser drawing into a framebuffer object. (Drawn into
