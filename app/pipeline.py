@@ -32,7 +32,7 @@ import numpy as np
 
 from aslam.core import se2
 from aslam.core.errors import AslamError, InputError
-from aslam.core.estimator import Estimator, Keyframer, StepResult, StillClock
+from aslam.core.estimator import Estimator, Keyframer, RestartCount, StepResult, StillClock
 from aslam.core.geometry import PinholeCamera, ViewFeatures, view_features
 from aslam.core.observation import ObservationModel
 from aslam.data_formats.images import LazyImage
@@ -50,6 +50,8 @@ class Frame(NamedTuple):
     view: np.ndarray
     still_ns: int
     """The stream's :class:`StillClock` at this frame."""
+    odometry_restarts: int = 0
+    """The stream's :class:`RestartCount` at this frame."""
     features: ViewFeatures | None = None
     """The image's features, for the geometric check (``geometric_check_m``); None without it."""
 
@@ -61,17 +63,29 @@ class Keyframe(NamedTuple):
     view: np.ndarray
     still_ns: int
     """The stream's :class:`StillClock` at this keyframe."""
+    odometry_restarts: int = 0
+    """The stream's :class:`RestartCount` at this keyframe."""
     features: ViewFeatures | None = None
     """The image's features, for the geometric check (``geometric_check_m``); None without it."""
 
 
-def still_clocked(samples: Iterable[Sample], counts: PipelineCounts) -> Iterator[tuple[Sample, int]]:
-    """``(sample, still_ns)``: each sample, counted, with the stream's :class:`StillClock` at it,
-    clocked before any sample is skipped."""
-    clock = StillClock()
+class Clocked(NamedTuple):
+    """A sample with the stream's odometry clocks at it, clocked before any sample is skipped."""
+
+    sample: Sample
+    still_ns: int
+    """The stream's :class:`StillClock`."""
+    odometry_restarts: int
+    """The stream's :class:`RestartCount`."""
+
+
+def still_clocked(samples: Iterable[Sample], counts: PipelineCounts) -> Iterator[Clocked]:
+    """Each sample, counted, with the stream's odometry clocks at it."""
+    clock, restarts = StillClock(), RestartCount()
     for sample in samples:
         counts.samples += 1
-        yield sample, clock.tick(sample.stamp_ns, sample.odometry_pose)
+        pose = sample.odometry_pose
+        yield Clocked(sample, clock.tick(sample.stamp_ns, pose), restarts.tick(pose))
 
 
 @dataclass
@@ -108,21 +122,18 @@ def _near(a: np.ndarray, b: np.ndarray, window_m: float, heading_rad: float) -> 
     return math.hypot(float(a[0] - b[0]), float(a[1] - b[1])) <= window_m and abs(turn) <= heading_rad
 
 
-def dense_samples(
-    samples: Iterable[Sample], window_m: float, counts: PipelineCounts
-) -> Iterator[tuple[Sample, int]]:
-    """The samples worth describing on a dense stream, each with the stream's :class:`StillClock`:
-    each one at least ``FRAME_SPACING`` of the window away from the last one kept (in distance or
-    heading)."""
+def dense_samples(samples: Iterable[Sample], window_m: float, counts: PipelineCounts) -> Iterator[Clocked]:
+    """The samples worth describing on a dense stream, each with the stream's clocks: each one at
+    least ``FRAME_SPACING`` of the window away from the last one kept (in distance or heading)."""
     spacing_m = FRAME_SPACING * window_m
     spacing_rad = FRAME_SPACING * math.radians(WINDOW_HEADING_DEG)
     last: np.ndarray | None = None
-    for sample, still_ns in still_clocked(samples, counts):
-        pose = np.asarray(sample.odometry_pose, dtype=float)
+    for clocked in still_clocked(samples, counts):
+        pose = np.asarray(clocked.sample.odometry_pose, dtype=float)
         if last is not None and _near(pose, last, spacing_m, spacing_rad):
             continue
         last = pose
-        yield sample, still_ns
+        yield clocked
 
 
 def keyframes_taken(
@@ -267,10 +278,12 @@ def keyframe_views(
     features too (the geometric check's camera).
     """
     counts = counts if counts is not None else PipelineCounts()
-    keyframes = keyframer.keyframes(still_clocked(samples, counts), lambda clocked: clocked[0].odometry_pose)
-    items = ((sample, (action, still_ns)) for (sample, still_ns), action in keyframes)
-    for sample, (action, still_ns), (vector, features) in _described(items, model, workers, depth, camera):
-        yield Keyframe(sample.stamp_ns, action, vector, still_ns, features)
+    keyframes = keyframer.keyframes(
+        still_clocked(samples, counts), lambda clocked: clocked.sample.odometry_pose
+    )
+    items = ((clocked.sample, (action, clocked)) for clocked, action in keyframes)
+    for sample, (action, clocked), (vector, features) in _described(items, model, workers, depth, camera):
+        yield Keyframe(sample.stamp_ns, action, vector, clocked.still_ns, clocked.odometry_restarts, features)
 
 
 def frame_views(
@@ -286,10 +299,10 @@ def frame_views(
     """Every frame of a dense stream worth describing (:func:`dense_samples`), with its view (and
     features, with ``camera``)."""
     counts = counts if counts is not None else PipelineCounts()
-    items = dense_samples(samples, window_m, counts)
-    for sample, still_ns, (vector, features) in _described(items, model, workers, depth, camera):
+    items = ((clocked.sample, clocked) for clocked in dense_samples(samples, window_m, counts))
+    for sample, clocked, (vector, features) in _described(items, model, workers, depth, camera):
         pose = np.asarray(sample.odometry_pose, dtype=float)
-        yield Frame(sample.stamp_ns, pose, vector, still_ns, features)
+        yield Frame(sample.stamp_ns, pose, vector, clocked.still_ns, clocked.odometry_restarts, features)
 
 
 def _computed(function: Callable[..., Described], *args: Any) -> Future[Described]:
@@ -431,11 +444,14 @@ class EstimateSteps:
             )
         else:
             taken = ((keyframe, keyframe.action) for keyframe in self._reader)  # type: ignore[union-attr]  # keyframes
+        restarts: int | None = None  # the stream's count at the keyframe before
         try:
             for frame, action in taken:
                 start = time.perf_counter()
+                restarted = restarts is not None and frame.odometry_restarts != restarts
+                restarts = frame.odometry_restarts
                 step = estimator.add_keyframe(
-                    frame.stamp_ns, action, frame.view, frame.still_ns, frame.features
+                    frame.stamp_ns, action, frame.view, frame.still_ns, frame.features, restarted
                 )
                 counts.slam_s += time.perf_counter() - start
                 counts.keyframes += 1

@@ -359,7 +359,9 @@ def derive(
             elif kind == "reset" and index >= reset_at:
                 if anchor is None:
                     anchor = odometry
-                odometry = se2.between(anchor, odometry)
+                # Odometry restarted reports its origin exactly, as a driver's does and the recorder's
+                # (``noise.reset_odometry``); ⊖a ⊕ a rounds to some 1e-17 m.
+                odometry = se2.between(anchor, odometry) if index > reset_at else np.zeros(3)
             previous = odometry
             fmt = ImageFormat.PNG if sample.image.encoding == "png" else ImageFormat.JPEG
             image = EncodedImage(fmt, bytes(sample.image.data))

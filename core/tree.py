@@ -377,6 +377,7 @@ class HypothesisTree:
         elapsed_ns: int | None = None,
         still_ns: int = 0,
         features: ViewFeatures | None = None,
+        odometry_restarted: bool = False,
     ) -> list[Hypothesis]:
         """Advance every hypothesis by one keyframe; returns the surviving leaves, best first.
 
@@ -384,6 +385,9 @@ class HypothesisTree:
         ``still_ns``: how much of it odometry stood still. Together they tell a robot that may have
         been carried from one that drove on (``PAUSE_SHARE``). ``features``: the image's, for the
         geometric check (``geometric_check_m``); without them this keyframe is not checked.
+        ``odometry_restarted``: odometry started again from its origin since the keyframe before
+        (:class:`aslam.core.estimator.RestartCount`), so ``action`` measures no motion: an odometry
+        jump, however short or straight it reads.
         """
         view = self.model.view(observation)  # what the place keeps; the whole observation is the query
         keyframe = self.views.append(view)
@@ -416,7 +420,7 @@ class HypothesisTree:
         log_new = self._log_new_prior + float(self.model.log_likelihood(self.reference.value))
         action = np.asarray(action, dtype=float)
         action_cov = action_covariance(action, self._noise)
-        jumped = self._jump_factor > 0 and self._odometry_jumped(action)
+        jumped = self._jump_factor > 0 and (odometry_restarted or self._odometry_jumped(action))
         after_odometry_jump = self._odometry_jumped_at == keyframe - 1
         self._best_paths = {}
         if jumped:  # not a motion: nothing to predict from it

@@ -624,10 +624,13 @@ def test_without_relocalisation_a_kidnap_is_never_recovered():
     assert all(r.best.is_new_state for r in results[kidnap_at:])
 
 
-def _reset_run(world: SyntheticWorld, reset_at: int, config: EstimatorConfig, view_at=None, jump=None):
+def _reset_run(
+    world: SyntheticWorld, reset_at: int, config: EstimatorConfig, view_at=None, jump=None, restarted=False
+):
     """Two laps of the rectangle; odometry restarts from zero at keyframe ``reset_at`` (or, with
     ``jump``, reads that action there: a restart where odometry's origin lay that far from the robot).
-    ``view_at(i, truths, view)`` may replace keyframe i's own view."""
+    ``view_at(i, truths, view)`` may replace keyframe i's own view. ``restarted``: the reader saw the
+    restart (odometry on its origin) and says so with the keyframe."""
     actions = rectangle_actions(2)
     estimator = Estimator(config)
     rng = np.random.default_rng(0)
@@ -642,7 +645,8 @@ def _reset_run(world: SyntheticWorld, reset_at: int, config: EstimatorConfig, vi
             odometry.append(np.zeros(3) if jump is None else se2.compose(odometry[-1], np.asarray(jump)))
         step = se2.between(odometry[-2], odometry[-1])
         view = world.observe(truths[-1])
-        results.append(estimator.add_keyframe(i, step, view if view_at is None else view_at(i, truths, view)))
+        view = view if view_at is None else view_at(i, truths, view)
+        results.append(estimator.add_keyframe(i, step, view, odometry_restarted=restarted and i == reset_at))
     return estimator, results, truths
 
 
@@ -709,6 +713,23 @@ def test_a_reset_read_as_a_step_forwards_relocalises_once_the_first_jump_is_conf
     assert claims and claims[0] - reset_at <= 5
     for t in claims:
         assert math.hypot(*(truths[t][:2] - truths[results[t].best.state][:2])) < 0.5
+
+
+@pytest.mark.parametrize("jump", [(2.9, 0.3, math.radians(20)), (-1.2, 0.8, math.radians(60))])
+def test_a_restart_the_reader_saw_is_a_jump_however_it_reads(jump):
+    """The same restarts, read as a step forwards (five confirmations without the reader's word) and
+    as a short step back and aside, with the reader's word that odometry restarted from its origin:
+    the action measures nothing, whatever it reads, and the robot relocalises at the next keyframe,
+    every claim right; on lap 1 the map's link across the restart is no constraint."""
+    reset_at = 34 + 11
+    config = synthetic_config()
+    _, results, truths = _reset_run(SyntheticWorld(5), reset_at, config, jump=jump, restarted=True)
+    claims = [t for t in range(reset_at, len(results)) if not results[t].best.is_new_state]
+    assert claims and claims[0] - reset_at <= 1
+    for t in claims:
+        assert math.hypot(*(truths[t][:2] - truths[results[t].best.state][:2])) < 0.5
+    estimator, _, _ = _reset_run(SyntheticWorld(5), 8, synthetic_config(), jump=jump, restarted=True)
+    assert _link_across(estimator, 8).covariance[0][0] >= 1e5
 
 
 @settings(max_examples=200, deadline=None)

@@ -142,3 +142,25 @@ def test_a_look_alike_stretch_before_any_revisit_is_never_believed(tmp_path):
     )
     loop_closure = _scored(symmetric, tmp_path).summary["loop_closure"]
     assert loop_closure["precision"] == 1.0 and loop_closure["recall"] >= 0.9
+
+
+def test_odometry_restarted_from_its_origin_is_no_motion_however_short_it_reads(tmp_path):
+    """``aslam record --odometry-reset-at 3``: odometry starts again from its origin three steps on,
+    so the reset reads as a 3 m step backwards, short enough to pass for a motion (and too early:
+    the jump test waits for five steps). Read through the pipeline, odometry landing on its origin
+    says it restarted: the estimate's link across it is no constraint. The same recording without
+    the reset has no such link."""
+    from aslam.app.estimate import estimate as run_estimate
+    from aslam.app.metric_view import JUMP_VARIANCE
+    from aslam.data_formats.estimate import read_estimate
+
+    for name, extra, loose in (("restarted", ["--odometry-reset-at", "3"], [(2, 3)]), ("plain", [], [])):
+        recording = record(tmp_path, name, "--seed", "4", "--laps", "1", *extra)
+        out = tmp_path / f"{name}-estimate.mcap"
+        run_estimate(recording, out, EstimatorConfig(), timing=False, reader_process=False)
+        links = read_estimate(out).graph.links
+        assert len(links) == LAP
+        unconstrained = [
+            (link.from_state, link.to_state) for link in links if link.covariance[0][0] >= JUMP_VARIANCE
+        ]
+        assert unconstrained == loose

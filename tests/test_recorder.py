@@ -781,6 +781,26 @@ def test_kidnap_jumps_the_truth_while_the_odometry_sees_nothing(tmp_path):
 
 
 @pytest.mark.parametrize("fps", [None, 3.0])
+def test_an_odometry_reset_read_back_is_one_restart_at_its_keyframe(tmp_path, fps):
+    """Read back from a recording, ``--odometry-reset-at 7`` is one restart of the stream's count,
+    at keyframe 7's frame (with ``--fps`` the frames before it still move in the old frame); the
+    same route without it, noise and all, none, though its odometry passes near its origin."""
+    route = _write_json(tmp_path / "loop.json", json.loads(routes.parse_route(LOOP).to_json()))
+    args = ["record", "--route", str(route), "--laps", "2", "--size", "32x24", "--seed", "3"]
+    args += [*(["--fps", str(fps)] if fps else [])]
+    for name, extra in (("reset", ["--odometry-reset-at", "7"]), ("plain", [])):
+        assert main([*args, *extra, "-o", str(tmp_path / f"{name}.mcap")]) == 0
+        clocked = list(still_clocked(_samples(tmp_path / f"{name}.mcap"), PipelineCounts()))
+        restarts = [c.odometry_restarts for c in clocked]
+        if name == "plain":
+            assert restarts[-1] == 0
+            continue
+        first = restarts.index(1)
+        assert restarts[-1] == 1 and first == 7 * int(fps or 1)
+        assert [float(v) for v in clocked[first].sample.odometry_pose] == [0.0, 0.0, 0.0]
+
+
+@pytest.mark.parametrize("fps", [None, 3.0])
 def test_a_carry_is_still_time_and_a_drive_is_none(tmp_path, fps):
     """Read back from a recording, the stream's still clock (what tells the estimator a robot may have
     been carried) counts the carry's second and nothing else: not the drive, its turns or their noise."""
@@ -791,7 +811,7 @@ def test_a_carry_is_still_time_and_a_drive_is_none(tmp_path, fps):
     args += ["--noise", "0.05", "--jitter-m", "0.1", "--jitter-deg", "3"]
     assert main([*args, *(["--fps", str(fps)] if fps else []), "-o", str(tmp_path / "a.mcap")]) == 0
     counts = PipelineCounts()
-    clock = [still_ns for _, still_ns in still_clocked(_samples(tmp_path / "a.mcap"), counts)]
+    clock = [clocked.still_ns for clocked in still_clocked(_samples(tmp_path / "a.mcap"), counts)]
     assert counts.samples == len(clock)
     laps_carried = 2  # the route, carried once a lap
     assert clock[-1] == laps_carried * ACTION_DURATION_NS

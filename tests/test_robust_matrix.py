@@ -17,6 +17,7 @@ from robust_matrix import (  # noqa: E402
     STOP_SHARES,
     Row,
     Scenario,
+    derive,
     event_keyframe,
     family_table,
     is_event,
@@ -82,6 +83,27 @@ def test_resets_at_other_shares_are_events_made_from_the_default_render():
     assert is_event("reset85") and is_event("reset55@lighting50") and not is_event("stop")
     assert Scenario("reset85", "grid", 7).base.name == "default-grid-seed7"
     assert Scenario("reset55@lighting50", "grid", 7).base.name == "lighting50-grid-seed7"
+
+
+def test_a_derived_reset_restarts_odometry_on_its_origin_exactly(tmp_path):
+    """As a driver's restart and the recorder's ``--odometry-reset-at``: the frame at the reset reads
+    (0, 0, 0) to the last bit (⊖a ⊕ a rounded to -5.6e-17 m there), every later one the motion
+    since it, every earlier one the render's (to the rounding of a heading written as a quaternion)."""
+    import numpy as np
+
+    from aslam.cli.app import main as aslam
+
+    source, reset = tmp_path / "default.mcap", tmp_path / "reset.mcap"
+    args = ["record", "--route", "grid", "--laps", "1", "--size", "32x24", "--seed", "5", "-o", str(source)]
+    assert aslam(args) == 0
+    derive(source, "reset", reset, reset_at_share=0.7)
+    before = [np.asarray(s.odometry_pose, float) for s in Recording(source).samples()]
+    after = [np.asarray(s.odometry_pose, float) for s in Recording(reset).samples()]
+    at = int(0.7 * len(before))
+    assert all(np.allclose(a, b, atol=1e-12) for a, b in zip(before[:at], after[:at], strict=True))
+    assert [float(v) for v in after[at]] == [0.0, 0.0, 0.0] and any(before[at])
+    for b, a in zip(before[at + 1 :], after[at + 1 :], strict=True):
+        assert np.allclose(a, se2.between(before[at], b), atol=1e-9)
 
 
 def test_recorder_settings_families_set_the_camera_and_their_command_says_so():
