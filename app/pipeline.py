@@ -32,7 +32,7 @@ import numpy as np
 
 from aslam.core import se2
 from aslam.core.errors import AslamError, InputError
-from aslam.core.estimator import Estimator, Keyframer, RestartCount, StepResult, StillClock
+from aslam.core.estimator import Estimator, Keyframer, StepResult, StillClock
 from aslam.core.geometry import PinholeCamera, ViewFeatures, view_features
 from aslam.core.observation import ObservationModel
 from aslam.data_formats.images import LazyImage
@@ -51,7 +51,7 @@ class Frame(NamedTuple):
     still_ns: int
     """The stream's :class:`StillClock` at this frame."""
     odometry_restarts: int = 0
-    """The stream's :class:`RestartCount` at this frame."""
+    """The odometry's restarts up to this frame (``Sample.odometry_restarts``)."""
     features: ViewFeatures | None = None
     """The image's features, for the geometric check (``geometric_check_m``); None without it."""
 
@@ -64,28 +64,24 @@ class Keyframe(NamedTuple):
     still_ns: int
     """The stream's :class:`StillClock` at this keyframe."""
     odometry_restarts: int = 0
-    """The stream's :class:`RestartCount` at this keyframe."""
+    """The odometry's restarts up to this keyframe (``Sample.odometry_restarts``)."""
     features: ViewFeatures | None = None
     """The image's features, for the geometric check (``geometric_check_m``); None without it."""
 
 
 class Clocked(NamedTuple):
-    """A sample with the stream's odometry clocks at it, clocked before any sample is skipped."""
+    """A sample with the stream's :class:`StillClock` at it, clocked before any sample is skipped."""
 
     sample: Sample
     still_ns: int
-    """The stream's :class:`StillClock`."""
-    odometry_restarts: int
-    """The stream's :class:`RestartCount`."""
 
 
 def still_clocked(samples: Iterable[Sample], counts: PipelineCounts) -> Iterator[Clocked]:
-    """Each sample, counted, with the stream's odometry clocks at it."""
-    clock, restarts = StillClock(), RestartCount()
+    """Each sample, counted, with the stream's still clock at it."""
+    clock = StillClock()
     for sample in samples:
         counts.samples += 1
-        pose = sample.odometry_pose
-        yield Clocked(sample, clock.tick(sample.stamp_ns, pose), restarts.tick(pose))
+        yield Clocked(sample, clock.tick(sample.stamp_ns, sample.odometry_pose))
 
 
 @dataclass
@@ -283,7 +279,7 @@ def keyframe_views(
     )
     items = ((clocked.sample, (action, clocked)) for clocked, action in keyframes)
     for sample, (action, clocked), (vector, features) in _described(items, model, workers, depth, camera):
-        yield Keyframe(sample.stamp_ns, action, vector, clocked.still_ns, clocked.odometry_restarts, features)
+        yield Keyframe(sample.stamp_ns, action, vector, clocked.still_ns, sample.odometry_restarts, features)
 
 
 def frame_views(
@@ -302,7 +298,7 @@ def frame_views(
     items = ((clocked.sample, clocked) for clocked in dense_samples(samples, window_m, counts))
     for sample, clocked, (vector, features) in _described(items, model, workers, depth, camera):
         pose = np.asarray(sample.odometry_pose, dtype=float)
-        yield Frame(sample.stamp_ns, pose, vector, clocked.still_ns, clocked.odometry_restarts, features)
+        yield Frame(sample.stamp_ns, pose, vector, clocked.still_ns, sample.odometry_restarts, features)
 
 
 def _computed(function: Callable[..., Described], *args: Any) -> Future[Described]:

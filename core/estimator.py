@@ -153,29 +153,6 @@ class StillClock:
         return self.still_ns
 
 
-class RestartCount:
-    """How many times a stream's odometry has started again from its origin: a pose of exactly
-    (0, 0, 0) after one that was not. A driver restarted, or odometry reset by a service or by
-    ``aslam record --odometry-reset-at``, reports the robot at the origin, so the difference to the
-    pose before measures no motion: it reads as a step to wherever the origin lies, in any direction,
-    and one short enough passes the estimator's jump test for a motion. Exact, because nothing else
-    lands on the origin to the last bit: a robot driving past it misses by some fraction of a
-    millimetre. (A reset while the robot moves, whose first pose is already off the origin, is left
-    to the jump test.)"""
-
-    def __init__(self) -> None:
-        self._at_origin = True  # a stream starting at the origin has not restarted
-        self.restarts = 0
-
-    def tick(self, odometry_pose: np.ndarray) -> int:
-        """Count the sample's pose; returns the restarts up to it."""
-        at_origin = all(float(v) == 0.0 for v in odometry_pose)
-        if at_origin and not self._at_origin:
-            self.restarts += 1
-        self._at_origin = at_origin
-        return self.restarts
-
-
 WINDOW_LEAF_BELIEF = 0.05
 """Hypotheses with at least this belief (and the best) say where a dense stream's keyframe is taken."""
 SPARSE_CHOICE_ODDS = 10.0
@@ -395,7 +372,8 @@ class Estimator:
         ``still_ns``: the stream's :class:`StillClock` at this keyframe (the time its odometry had
         stood still so far), which tells a robot that may have been carried from one that drove on.
         ``features``: the image's (:func:`aslam.core.geometry.view_features`), for ``geometric_check_m``.
-        ``odometry_restarted``: the stream's :class:`RestartCount` grew since the keyframe before.
+        ``odometry_restarted``: odometry restarted on its origin since the keyframe before
+        (``aslam.data_formats.pose_sync.PoseTrack``).
         """
         elapsed = int(stamp_ns) - self._stamps[-1] if self._stamps else None
         still = int(still_ns) - self._still_ns

@@ -386,7 +386,7 @@ class HypothesisTree:
         been carried from one that drove on (``PAUSE_SHARE``). ``features``: the image's, for the
         geometric check (``geometric_check_m``); without them this keyframe is not checked.
         ``odometry_restarted``: odometry started again from its origin since the keyframe before
-        (:class:`aslam.core.estimator.RestartCount`), so ``action`` measures no motion: an odometry
+        (``aslam.data_formats.pose_sync.PoseTrack``), so ``action`` measures no motion: an odometry
         jump, however short or straight it reads.
         """
         view = self.model.view(observation)  # what the place keeps; the whole observation is the query

@@ -55,32 +55,63 @@ class Sample(NamedTuple):
     image: LazyImage
     odometry_pose: np.ndarray  # (x_m, y_m, yaw_rad) in the odom frame, at stamp_ns
     ground_truth_pose: np.ndarray | None  # (x_m, y_m, yaw_rad) in the world frame, or None
+    odometry_restarts: int = 0  # times odometry restarted on its origin up to stamp_ns (PoseTrack)
 
 
 _WAIT, _BEFORE, _LATE, _GAP = "wait", "before", "late", "gap"
 
 
 class PoseTrack:
-    """Recent poses of one topic, for interpolation to image stamps."""
+    """Recent poses of one topic, for interpolation to image stamps.
+
+    An odometry track (``restarts``) also counts the topic's *restarts*: a pose of exactly (0, 0, 0)
+    after one that was not. A driver restarted, or odometry reset by a service or by ``aslam record
+    --odometry-reset-at``, reports the robot at its origin, so the difference to the pose before
+    measures no motion: it reads as a step to wherever the origin lies, in any direction, and one
+    short enough passes the estimator's jump test for a motion. Exact, because nothing else lands on
+    the origin to the last bit: a robot driving past it misses by some fraction of a millimetre.
+    Counted on the messages, before any interpolation, and never interpolated across: an image
+    stamped between the last pose before a restart and the restart takes the pose before (the old
+    frame's), the next one the new frame's, and each sample says how many restarts came before it
+    (the estimator takes the keyframe after one for an odometry jump: docs/estimator.md, "Odometry
+    on its origin is a restart"). A restart made while the robot moves, whose first pose is already
+    off the origin, is not seen.
+    """
 
     def __init__(
-        self, history: int = POSE_HISTORY, history_ns: int = POSE_HISTORY_NS, most: int = POSE_HISTORY_MAX
+        self,
+        history: int = POSE_HISTORY,
+        history_ns: int = POSE_HISTORY_NS,
+        most: int = POSE_HISTORY_MAX,
+        *,
+        restarts: bool = False,
     ) -> None:
+        self._counts_restarts = restarts  # odometry's; a true pose on the origin is a place like any
         self._stamps: deque[int] = deque(maxlen=most)
         self._poses: deque[np.ndarray] = deque(maxlen=most)
+        self._restarts: deque[int] = deque(maxlen=most)  # the count at each pose
         self._history = history
         self._history_ns = history_ns
         self.first_ns: int | None = None
         self.last_ns: int | None = None
         self.count = 0
+        self.restarts = 0
+        self._at_origin = True  # a track starting at the origin has not restarted
 
     def add(self, stamp_ns: int, pose: np.ndarray) -> None:
+        if self._counts_restarts:
+            at_origin = all(float(v) == 0.0 for v in pose)
+            if at_origin and not self._at_origin:
+                self.restarts += 1
+            self._at_origin = at_origin
         stamps = self._stamps
         stamps.append(stamp_ns)
         self._poses.append(pose)
+        self._restarts.append(self.restarts)
         while len(stamps) > self._history and stamps[0] < stamp_ns - self._history_ns:
             stamps.popleft()
             self._poses.popleft()
+            self._restarts.popleft()
         if self.first_ns is None:
             self.first_ns = stamp_ns
         self.last_ns = stamp_ns
@@ -100,7 +131,13 @@ class PoseTrack:
         t0, t1 = stamps[j], stamps[j + 1]
         if max_gap_ns is not None and t1 - t0 > max_gap_ns:
             return _GAP
+        if self._restarts[j] != self._restarts[j + 1]:  # two frames: the pose before holds
+            return self._poses[j].copy()
         return se2.interpolate(self._poses[j], self._poses[j + 1], (stamp_ns - t0) / (t1 - t0))
+
+    def restarts_at(self, stamp_ns: int) -> int:
+        """The restarts up to ``stamp_ns``, a stamp ``lookup`` found a pose at."""
+        return self._restarts[bisect_right(self._stamps, stamp_ns) - 1]
 
     def span_around(self, stamp_ns: int) -> tuple[int, int]:
         """The stamps of the two poses a ``lookup`` of ``stamp_ns`` found interpolated between (both
@@ -193,6 +230,7 @@ class _Pending:
     image: LazyImage
     ground_truth_done: bool = False
     odometry: np.ndarray | None = None
+    odometry_restarts: int = 0
     ground_truth: np.ndarray | None = None
     dropped: bool = False
 
@@ -220,7 +258,7 @@ class SampleAssembler:
     # Whether images wait for a ground-truth pose; set once the ground-truth channel is known
     # (on a linear read it may be met after the first images).
     expect_ground_truth: bool = False
-    odometry: PoseTrack = field(default_factory=PoseTrack)
+    odometry: PoseTrack = field(default_factory=lambda: PoseTrack(restarts=True))
     ground_truth: PoseTrack = field(default_factory=PoseTrack)
     counts: _Counts = field(default_factory=_Counts)
     # Which messages are kept. A reader asks a pose topic's before it reads the pose (a dropped
@@ -302,6 +340,7 @@ class SampleAssembler:
                 return
             if not isinstance(found, str):
                 item.odometry = found
+                item.odometry_restarts = self.odometry.restarts_at(item.stamp_ns)
                 self._count_gap(item.stamp_ns)
         if self.expect_ground_truth and not item.ground_truth_done:
             found = self.ground_truth.lookup(item.stamp_ns, TRUTH_MAX_GAP_NS)
@@ -350,7 +389,7 @@ class SampleAssembler:
             # Counted here, among the samples: an image that odometry drops after its truth was found
             # missing is one dropped image, not also one without ground truth.
             self.counts.no_ground_truth += 1
-        return Sample(item.stamp_ns, item.image, item.odometry, item.ground_truth)
+        return Sample(item.stamp_ns, item.image, item.odometry, item.ground_truth, item.odometry_restarts)
 
     def finish(self) -> Iterator[Sample]:
         self.counts.after_last += self._let_go_waiting

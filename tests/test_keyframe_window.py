@@ -24,14 +24,7 @@ from aslam.app.pipeline import (
 )
 from aslam.core import estimator as estimator_module
 from aslam.core import se2
-from aslam.core.estimator import (
-    STILL_DEG_PER_S,
-    STILL_M_PER_S,
-    Estimator,
-    Keyframer,
-    RestartCount,
-    StillClock,
-)
+from aslam.core.estimator import STILL_DEG_PER_S, STILL_M_PER_S, Estimator, Keyframer, StillClock
 from aslam.data_formats.pose_sync import Sample
 
 
@@ -192,23 +185,6 @@ def test_the_still_clock_counts_exactly_the_intervals_below_both_speeds(steps):
         readings.append(clock.tick(stamp, pose))
     assert readings[-1] == expected
     assert all(b >= a for a, b in itertools.pairwise(readings)) and readings[-1] <= stamp - 10**9
-
-
-off_origin = st.tuples(*(st.floats(-50, 50, allow_nan=False) for _ in range(3))).filter(any)
-
-
-@settings(max_examples=100, deadline=None)
-@given(st.lists(st.one_of(off_origin, st.just((0.0, 0.0, 0.0)), st.just((-0.0, 0.0, -0.0))), max_size=40))
-def test_the_restart_count_counts_each_landing_on_the_origin_once(stream):
-    """Odometry restarts where a pose is exactly the origin after one that was not: a run of such
-    poses (a robot standing where it restarted) is one restart, a stream starting there none, and
-    a pose off the origin by the least amount is no restart."""
-    poses = [(0.0, 0.0, 0.0), *stream]
-    counter = RestartCount()
-    counts = [counter.tick(np.array(pose)) for pose in poses]
-    landings = sum(1 for before, pose in itertools.pairwise(poses) if not any(pose) and any(before))
-    assert counts[-1] == landings and all(b - a in (0, 1) for a, b in itertools.pairwise(counts))
-    assert counts[0] == 0 and RestartCount().tick(np.array([1e-300, 0.0, 0.0])) == 0
 
 
 def test_on_a_sparse_stream_the_frames_either_side_of_a_keyframe_are_its_alternatives():

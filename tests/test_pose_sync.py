@@ -25,12 +25,16 @@ pose_values = st.tuples(
 
 
 @st.composite
-def track(draw, gaps: st.SearchStrategy[int], min_size: int) -> list[tuple[int, np.ndarray]]:
-    """Poses at strictly increasing stamps."""
+def track(
+    draw, gaps: st.SearchStrategy[int], min_size: int, origin: bool = False
+) -> list[tuple[int, np.ndarray]]:
+    """Poses at strictly increasing stamps; with ``origin``, now and then exactly the origin (an
+    odometry restart, where the pose before was not)."""
+    values = st.one_of(pose_values, st.just((0.0, 0.0, 0.0))) if origin else pose_values
     stamp = draw(st.integers(0, 5 * GAP))
     rows = []
     for _ in range(draw(st.integers(min_size, 12))):
-        rows.append((stamp, np.array(draw(pose_values))))
+        rows.append((stamp, np.array(draw(values))))
         stamp += draw(gaps)
     return rows
 
@@ -39,11 +43,17 @@ def track(draw, gaps: st.SearchStrategy[int], min_size: int) -> list[tuple[int, 
 truth_gaps = st.one_of(st.sampled_from([GAP - 1, GAP, GAP + 1]), st.integers(1, 3 * GAP))
 
 
+def restarted(rows: list[tuple[int, np.ndarray]], j: int) -> bool:
+    """Whether odometry message ``j`` restarts odometry: exactly the origin after one that was not."""
+    return j > 0 and not rows[j][1].any() and bool(rows[j - 1][1].any())
+
+
 def expected_pose(
-    rows: list[tuple[int, np.ndarray]], stamp: int, max_gap_ns: int | None
+    rows: list[tuple[int, np.ndarray]], stamp: int, max_gap_ns: int | None, restarts: bool = False
 ) -> np.ndarray | None:
     """The pose at ``stamp``: a message's own at its stamp, else interpolated between the two around
-    it (unless they are more than ``max_gap_ns`` apart); None outside the messages."""
+    it (unless they are more than ``max_gap_ns`` apart, or, with ``restarts``, the later one
+    restarted odometry: then the earlier one's); None outside the messages."""
     stamps = [s for s, _ in rows]
     if not rows or not stamps[0] <= stamp <= stamps[-1]:
         return None
@@ -53,21 +63,24 @@ def expected_pose(
     (t0, p0), (t1, p1) = rows[j - 1], rows[j]
     if max_gap_ns is not None and t1 - t0 > max_gap_ns:
         return None
+    if restarts and restarted(rows, j):
+        return p0
     return se2.interpolate(p0, p1, (stamp - t0) / (t1 - t0))
 
 
 @settings(max_examples=150, deadline=None)
 @given(
-    odometry=track(st.integers(1, 3 * GAP), min_size=0),
+    odometry=track(st.integers(1, 3 * GAP), min_size=0, origin=True),
     truth=track(truth_gaps, min_size=0),
     expect_truth=st.booleans(),
     data=st.data(),
 )
 def test_every_image_gets_the_poses_at_its_stamp_or_is_counted_dropped(odometry, truth, expect_truth, data):
     """Each image in stamp order is a sample with the odometry at its stamp (a message's own pose at
-    its stamp, interpolated between two otherwise) and the truth likewise, unknown outside the truth
-    or across a gap of more than ``TRUTH_MAX_GAP_NS``; or it is dropped before the first or after
-    the last odometry message, or as a repeat of the image before (the same stamp). Every image is
+    its stamp, interpolated between two otherwise, never across a restart on the origin: the pose
+    before holds) and the restarts up to it, and the truth likewise, unknown outside the truth or
+    across a gap of more than ``TRUTH_MAX_GAP_NS``; or it is dropped before the first or after the
+    last odometry message, or as a repeat of the image before (the same stamp). Every image is
     counted once: a sample or a reason."""
     known = [s for s, _ in odometry + truth]
     span = (min(known, default=0) - GAP, max(known, default=0) + GAP)
@@ -98,14 +111,16 @@ def test_every_image_gets_the_poses_at_its_stamp_or_is_counted_dropped(odometry,
     unique = sorted(set(stamps))
     expected = []
     for stamp in unique:
-        odometry_pose = expected_pose(odometry, stamp, None)
+        odometry_pose = expected_pose(odometry, stamp, None, restarts=True)
         if odometry_pose is not None:
             expected.append(
                 (stamp, odometry_pose, expected_pose(truth, stamp, GAP) if expect_truth else None)
             )
     assert [s.stamp_ns for s in samples] == [stamp for stamp, _, _ in expected]
-    for sample, (_, odometry_pose, truth_pose) in zip(samples, expected, strict=True):
+    for sample, (stamp, odometry_pose, truth_pose) in zip(samples, expected, strict=True):
         assert np.array_equal(sample.odometry_pose, odometry_pose)
+        before = [j for j, (s, _) in enumerate(odometry) if s <= stamp]
+        assert sample.odometry_restarts == sum(restarted(odometry, j) for j in before)
         assert (sample.ground_truth_pose is None) == (truth_pose is None)
         if truth_pose is not None:
             assert np.array_equal(sample.ground_truth_pose, truth_pose)

@@ -791,7 +791,7 @@ def test_an_odometry_reset_read_back_is_one_restart_at_its_keyframe(tmp_path, fp
     for name, extra in (("reset", ["--odometry-reset-at", "7"]), ("plain", [])):
         assert main([*args, *extra, "-o", str(tmp_path / f"{name}.mcap")]) == 0
         clocked = list(still_clocked(_samples(tmp_path / f"{name}.mcap"), PipelineCounts()))
-        restarts = [c.odometry_restarts for c in clocked]
+        restarts = [c.sample.odometry_restarts for c in clocked]
         if name == "plain":
             assert restarts[-1] == 0
             continue

@@ -1151,3 +1151,36 @@ def test_a_topic_of_two_types_names_both(tmp_path):
         BagError, match="'/odom' has type 'geometry_msgs/msg/PoseStamped and nav_msgs/msg/Odometry'"
     ):
         list(iter_bag_samples(path, BagTopics(odometry="/odom")))
+
+
+def test_an_odometry_restart_between_images_is_counted_and_never_interpolated_across(tmp_path):
+    """A bag's odometry at 50 Hz restarts on its origin between two 10 Hz images (a driver restarted:
+    that message reads exactly (0, 0, 0), the ones after it the motion since). The images before the
+    restart have the old frame's poses, and the one between the last message before it and the
+    restart takes that last pose, not a blend of the two frames; the ones after, the new frame's,
+    and every sample after the restart says so (the estimator's odometry jump)."""
+    from rosbags.typesys import Stores, get_typestore
+
+    from aslam.core import se2
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    rows = bag_messages(ts, Options(ground_truth=False))
+    stamps = odometry_stamps()
+    restart_ns, held_ns = stamps[31], stamps[30]  # 613 and 593 ms in: image 6, at 600 ms, between
+    origin = odometry_pose(restart_ns)
+
+    def pose(stamp: int) -> np.ndarray:
+        return odometry_pose(stamp) if stamp < restart_ns else se2.between(origin, odometry_pose(stamp))
+
+    for k, (log, topic, msgtype, _) in enumerate(rows):
+        if topic == "/odom":
+            stamp = log - 1_000_000
+            message = odometry_msg(ts, stamp, np.zeros(3) if stamp == restart_ns else pose(stamp))
+            rows[k] = (log, topic, msgtype, message)
+    samples = list(iter_bag_samples(write_rosbag2(tmp_path / "bag", messages=rows)))
+    assert [s.stamp_ns for s in samples] == image_stamps()
+    assert [s.odometry_restarts for s in samples] == [0] * 7 + [1] * (N_IMAGES - 7)
+    for sample in samples:
+        stamp = sample.stamp_ns
+        expected = odometry_pose(held_ns) if held_ns < stamp < restart_ns else pose(stamp)
+        assert np.allclose(sample.odometry_pose, expected, atol=1e-9), stamp
