@@ -119,8 +119,8 @@ def _near(a: np.ndarray, b: np.ndarray, window_m: float, heading_rad: float) -> 
 
 
 def dense_samples(samples: Iterable[Sample], window_m: float, counts: PipelineCounts) -> Iterator[Clocked]:
-    """The samples worth describing on a dense stream, each with the stream's clocks: each one at
-    least ``FRAME_SPACING`` of the window away from the last one kept (in distance or heading)."""
+    """The samples worth describing on a dense stream, each with the stream's still clock: each one
+    at least ``FRAME_SPACING`` of the window away from the last one kept (in distance or heading)."""
     spacing_m = FRAME_SPACING * window_m
     spacing_rad = FRAME_SPACING * math.radians(WINDOW_HEADING_DEG)
     last: np.ndarray | None = None

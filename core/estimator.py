@@ -377,8 +377,9 @@ class Estimator:
         """
         elapsed = int(stamp_ns) - self._stamps[-1] if self._stamps else None
         still = int(still_ns) - self._still_ns
-        restarted = odometry_restarted
-        hypotheses = self._tree.add_keyframe(action, observation, elapsed, still, features, restarted)
+        hypotheses = self._tree.add_keyframe(
+            action, observation, elapsed, still, features, odometry_restarted
+        )
         self._stamps.append(int(stamp_ns))
         self._still_ns = int(still_ns)
         a = tuple(float(v) for v in action)
