@@ -66,6 +66,9 @@ class EstimateSummary:
     recording_sha256: str
     """SHA-256 of the bytes read (the file opened, whatever is at its name now), as the estimate
     file records it: a sweep checks it against the hash it planned the task with."""
+    odometry_restarts: int = 0
+    """Keyframes after an odometry restart on its origin, each taken as an odometry jump (the
+    estimator's; ``data_formats.pose_sync.PoseTrack``): a user learns the bag's odometry restarted."""
 
     @property
     def keyframes_per_second(self) -> float:
@@ -245,6 +248,7 @@ def estimate(
         slam_s=counts.slam_s,
         embed_s=embed_s,
         recording_sha256=metadata.recording.sha256,
+        odometry_restarts=counts.odometry_restarts,
     )
 
 

@@ -90,6 +90,8 @@ class PipelineCounts:
 
     samples: int = 0
     keyframes: int = 0
+    odometry_restarts: int = 0
+    """Keyframes after which odometry had restarted on its origin: each an odometry jump."""
     slam_s: float = 0.0
     images: int | None = None
     """Images in the source, once its reader has opened it (its index or summary says); None before,
@@ -446,6 +448,7 @@ class EstimateSteps:
                 start = time.perf_counter()
                 restarted = restarts is not None and frame.odometry_restarts != restarts
                 restarts = frame.odometry_restarts
+                counts.odometry_restarts += restarted
                 step = estimator.add_keyframe(
                     frame.stamp_ns, action, frame.view, frame.still_ns, frame.features, restarted
                 )

@@ -81,10 +81,12 @@ def estimate(**options: Any) -> None:
             on_progress=on_progress,
             on_warning=terminal.warning,
         )
+    restarts = summary.odometry_restarts
+    restarted = f"; odometry restarted on its origin {restarts}×, each an odometry jump" if restarts else ""
     terminal.wrote(
         f"wrote {fixed['output']} ({summary.keyframes} keyframes from {summary.samples} images, "
         f"{summary.states} states, {summary.links} links, {summary.hypotheses} hypotheses; "
-        f"{summary.keyframes_per_second:.1f} keyframes/s)"
+        f"{summary.keyframes_per_second:.1f} keyframes/s{restarted})"
     )
     terminal.detail(
         f"SLAM step {summary.slam_s:.3f} s, metric view (GTSAM + Foxglove scene) {summary.embed_s:.3f} s, "

@@ -157,10 +157,23 @@ def test_odometry_restarted_from_its_origin_is_no_motion_however_short_it_reads(
     for name, extra, loose in (("restarted", ["--odometry-reset-at", "3"], [(2, 3)]), ("plain", [], [])):
         recording = record(tmp_path, name, "--seed", "4", "--laps", "1", *extra)
         out = tmp_path / f"{name}-estimate.mcap"
-        run_estimate(recording, out, EstimatorConfig(), timing=False, reader_process=False)
+        summary = run_estimate(recording, out, EstimatorConfig(), timing=False, reader_process=False)
+        assert summary.odometry_restarts == len(loose)
         links = read_estimate(out).graph.links
         assert len(links) == LAP
         unconstrained = [
             (link.from_state, link.to_state) for link in links if link.covariance[0][0] >= JUMP_VARIANCE
         ]
         assert unconstrained == loose
+
+
+def test_estimate_says_when_odometry_restarted(tmp_path, capsys):
+    """The command's last line says the odometry restarted, and how often: a user of a bag learns
+    why a link is missing from the map. Without a restart it says nothing of the kind."""
+    for name, extra in (("restarted", ["--odometry-reset-at", "40"]), ("plain", [])):
+        recording = record(tmp_path, name, "--seed", "4", *extra)
+        capsys.readouterr()
+        assert main(["estimate", str(recording), "-o", str(tmp_path / f"{name}.est.mcap")]) == 0
+        said = capsys.readouterr()
+        line = said.err + said.out
+        assert ("odometry restarted on its origin 1×, each an odometry jump" in line) == (name == "restarted")
