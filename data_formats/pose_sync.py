@@ -120,24 +120,25 @@ class PoseTrack:
     def lookup(self, stamp_ns: int, max_gap_ns: int | None = None) -> np.ndarray | str:
         """The pose at ``stamp_ns``, or why not: _WAIT (no pose after it yet), _BEFORE, _LATE, or
         _GAP (between two poses more than ``max_gap_ns`` apart)."""
+        return self.lookup_counted(stamp_ns, max_gap_ns)[0]
+
+    def lookup_counted(self, stamp_ns: int, max_gap_ns: int | None = None) -> tuple[np.ndarray | str, int]:
+        """``lookup``'s answer, and the restarts up to ``stamp_ns`` (0 where no pose is found)."""
         if self.last_ns is None or stamp_ns > self.last_ns:
-            return _WAIT
+            return _WAIT, 0
         stamps = self._stamps
         if stamp_ns < stamps[0]:
-            return _BEFORE if stamps[0] == self.first_ns else _LATE
+            return (_BEFORE if stamps[0] == self.first_ns else _LATE), 0
         j = bisect_right(stamps, stamp_ns) - 1  # the last pose at or before stamp_ns
+        restarts = self._restarts[j]
         if stamps[j] == stamp_ns:
-            return self._poses[j].copy()
+            return self._poses[j].copy(), restarts
         t0, t1 = stamps[j], stamps[j + 1]
         if max_gap_ns is not None and t1 - t0 > max_gap_ns:
-            return _GAP
-        if self._restarts[j] != self._restarts[j + 1]:  # two frames: the pose before holds
-            return self._poses[j].copy()
-        return se2.interpolate(self._poses[j], self._poses[j + 1], (stamp_ns - t0) / (t1 - t0))
-
-    def restarts_at(self, stamp_ns: int) -> int:
-        """The restarts up to ``stamp_ns``, a stamp ``lookup`` found a pose at."""
-        return self._restarts[bisect_right(self._stamps, stamp_ns) - 1]
+            return _GAP, 0
+        if restarts != self._restarts[j + 1]:  # two frames: the pose before holds
+            return self._poses[j].copy(), restarts
+        return se2.interpolate(self._poses[j], self._poses[j + 1], (stamp_ns - t0) / (t1 - t0)), restarts
 
     def span_around(self, stamp_ns: int) -> tuple[int, int]:
         """The stamps of the two poses a ``lookup`` of ``stamp_ns`` found interpolated between (both
@@ -330,7 +331,7 @@ class SampleAssembler:
 
     def _resolve(self, item: _Pending) -> None:
         if item.odometry is None:
-            found = self.odometry.lookup(item.stamp_ns)
+            found, restarts = self.odometry.lookup_counted(item.stamp_ns)
             if found is _BEFORE or found is _LATE:
                 item.dropped = True
                 if found is _BEFORE:
@@ -340,7 +341,7 @@ class SampleAssembler:
                 return
             if not isinstance(found, str):
                 item.odometry = found
-                item.odometry_restarts = self.odometry.restarts_at(item.stamp_ns)
+                item.odometry_restarts = restarts
                 self._count_gap(item.stamp_ns)
         if self.expect_ground_truth and not item.ground_truth_done:
             found = self.ground_truth.lookup(item.stamp_ns, TRUTH_MAX_GAP_NS)
