@@ -3,19 +3,25 @@ overlaps the reading; the same steps as reading in-process; stopped by ``close()
 
 from __future__ import annotations
 
+import array
+import fcntl
 import multiprocessing
+import termios
 import threading
+import time
 from pathlib import Path
 
 import pytest
 from conftest import long_recording, write_square_recording, write_with_corrupt_image
 
-from aslam.app.pipeline import can_fork, run_estimate
+from aslam.app.pipeline import PIPE_BYTES, can_fork, run_estimate
 from aslam.core.config import EstimatorConfig
 from aslam.core.estimator import Estimator
 from aslam.data_formats.errors import RecordingError
 from aslam.data_formats.images import ImageFormat
 from aslam.data_formats.recording import Recording
+
+DEFAULT_PIPE_BYTES = 64 * 1024  # Linux's
 
 
 def readers() -> list[str]:
@@ -70,6 +76,24 @@ def test_the_reader_starts_at_once_and_close_stops_it_unread(long):
     steps = run_estimate(Recording(long).samples(), Estimator(EstimatorConfig()))
     assert readers() == ["aslam-reader"]
     closed_unfinished(steps)
+
+
+@pytest.mark.skipif(not hasattr(fcntl, "F_SETPIPE_SZ"), reason="pipe sizes are Linux's")
+def test_the_reader_runs_ahead_of_a_parent_busy_elsewhere(long):
+    """The parent imports GTSAM while the reader starts: the reader must not stop at the 64 KiB of a
+    default pipe (some 20 frames) and wait for it. Unread, it fills PIPE_BYTES."""
+    steps = run_estimate(Recording(long).samples(), Estimator(EstimatorConfig()))
+    receiver = steps._reader._receiver  # type: ignore[union-attr]
+    waiting = array.array("i", [0])
+    deadline = time.monotonic() + 60
+    while waiting[0] <= 4 * DEFAULT_PIPE_BYTES and time.monotonic() < deadline:
+        fcntl.ioctl(receiver.fileno(), termios.FIONREAD, waiting)
+        time.sleep(0.05)
+    try:
+        assert waiting[0] > 4 * DEFAULT_PIPE_BYTES
+        assert waiting[0] <= PIPE_BYTES
+    finally:
+        closed_unfinished(steps)
 
 
 def test_close_after_some_steps_stops_the_reader(long):
