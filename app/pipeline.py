@@ -320,7 +320,7 @@ SEND_BATCH = 4
 #: What the pipe from the reader holds. The parent imports GTSAM and Foxglove's schemas while the
 #: reader starts (90 ms); Linux's default pipe, 64 KiB, holds some 20 frames (3.2 KiB each at the
 #: defaults), so the reader stopped, the pipe full, and waited for the parent (estimate of the paper
-#: route 1.24 → 1.17× the floor). 1 MiB, some 300 frames, is Linux's limit for an unprivileged
+#: route 1.24 → 1.19× the floor). 1 MiB, some 300 frames, is Linux's limit for an unprivileged
 #: process (``/proc/sys/fs/pipe-max-size``); where it cannot be set, the default.
 PIPE_BYTES = 1 << 20
 
