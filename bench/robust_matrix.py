@@ -19,6 +19,8 @@ scored through the application layer (``aslam.app``), not the CLI.
     python bench/robust_matrix.py --families mix-fps5-lighting50 mix-fps10-noise5 … --seeds 6 7 8 \
         --markdown bench/results/robust_matrix_mixes.md     # knobs mixed (MIXES), held out
     python bench/robust_matrix.py --families kidnap@lighting50 reset@fps5 …   # events on other renders
+    python bench/robust_matrix.py --families knobs:fps=3,lighting_change=0.25 …  # any knobs, any values
+    python bench/robust_matrix.py --random-mixes 12 --mix-seed 1 --routes …   # knobs drawn at random
     python bench/robust_matrix.py --table-from bench/results/robust_matrix.json --markdown M.md
 
 Prints one row per (family, route, seed, estimator), then per-family means and worst cases; with
@@ -32,6 +34,7 @@ import argparse
 import json
 import math
 import os
+import random
 import re
 import sys
 import tempfile
@@ -98,6 +101,68 @@ MIXES: dict[str, dict[str, Any]] = {
     "camera06": {"camera_height_m": 0.6},
     "mix-jpeg70-fps5-lighting50": {"jpeg_quality": 70, "fps": 5.0, "lighting_change": 0.5},
 }
+
+
+KNOBS = "knobs:"
+"""A family of any recorder settings at any values, named by them: ``knobs:fps=3,aliasing=0.4``
+(RecordConfig fields, and NoiseParams' ``noise``, ``jitter_m``, ``jitter_deg``, ``wander_m``,
+``wander_deg``, ``model``; ``size``, ``fov_deg``, ``camera_height_m`` for the camera)."""
+_KNOB_TYPES: dict[str, type] = {
+    **{name: float for name in ("fps", "lighting_change", "aliasing", "noise", "jitter_m", "jitter_deg")},
+    **{name: float for name in ("wander_m", "wander_deg", "fov_deg", "camera_height_m")},
+    **{name: int for name in ("laps", "jpeg_quality")},
+    **{name: str for name in ("model", "size")},
+}
+
+RANDOM_FPS = (1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 10.0)
+"""``--random-mixes``' frame rates: one image a step to ten, between the matrix's too."""
+
+
+def knob_settings(family: str) -> dict[str, Any] | None:
+    """The settings a ``knobs:`` family names (ValueError for an unknown knob or a bad value); None
+    for any other family."""
+    if not family.startswith(KNOBS):
+        return None
+    settings: dict[str, Any] = {}
+    for item in family[len(KNOBS) :].split(","):
+        name, _, value = item.partition("=")
+        if name not in _KNOB_TYPES:
+            raise ValueError(f"{family}: no knob {name!r} (knobs: {', '.join(_KNOB_TYPES)})")
+        settings[name] = _KNOB_TYPES[name](value)
+    return settings
+
+
+def random_mixes(count: int, seed: int) -> list[str]:
+    """``count`` knob families drawn within issue 9's targets, alternately where it asks precision
+    ≥ 0.99 (aliasing ≤ 0.5, odometry noise ≤ 5 %) and ≥ 0.98 (aliasing 0.5–1.0, noise 5–10 %); each
+    with a frame rate from ``RANDOM_FPS`` and a new light on the second lap up to 0.5."""
+    rng = random.Random(seed)
+    families = []
+    for i in range(count):
+        high = i % 2 == 1
+        knobs = {
+            "fps": rng.choice(RANDOM_FPS),
+            "lighting_change": round(rng.uniform(0.0, 0.5), 2),
+            "aliasing": round(rng.uniform(0.5, 1.0) if high else rng.uniform(0.0, 0.5), 2),
+            "noise": round(rng.uniform(0.05, 0.1) if high else rng.uniform(0.0, 0.05), 3),
+        }
+        families.append(KNOBS + ",".join(f"{name}={value:g}" for name, value in knobs.items()))
+    return families
+
+
+def family_name(text: str) -> str:
+    """``--families``' check: a named family, or a ``knobs:`` family (a kidnap, reset or stop on one too)."""
+    if text in FAMILIES or text in MIXES or text in EVENT_MIXES:
+        return text
+    event, at, base = text.partition("@")
+    knobs = base if at and event in ("kidnap", "reset", "stop") else text
+    try:
+        if knob_settings(knobs) is not None:
+            return text
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+    named = ", ".join([*FAMILIES, *MIXES, *EVENT_MIXES])
+    raise argparse.ArgumentTypeError(f"{text!r}: not one of {named}, nor {KNOBS}NAME=VALUE,…")
 
 
 #: A kidnap or a reset made from another family's renders (``EVENT@FAMILY``): the events where the
@@ -221,6 +286,9 @@ class Scenario:
         """The recorder settings of the render (a derived family's: its base's)."""
         if is_derived(self.family):
             return self.base.settings
+        knobs = knob_settings(self.family)
+        if knobs is not None:
+            return knobs
         return MIXES[self.family] if self.family in MIXES else FAMILIES[self.family]
 
     def record_config(self):  # -> RecordConfig
@@ -682,8 +750,20 @@ def main(argv: list[str] | None = None) -> int:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument(
-        "--families", nargs="+", default=list(FAMILIES), choices=[*FAMILIES, *MIXES, *EVENT_MIXES]
+        "--families",
+        nargs="+",
+        type=family_name,
+        help=f"default: {' '.join(FAMILIES)}; also {' '.join([*MIXES, *EVENT_MIXES])};"
+        f" or {KNOBS}NAME=VALUE,… (any recorder settings)",
     )
+    parser.add_argument(
+        "--random-mixes",
+        type=int,
+        default=0,
+        metavar="N",
+        help="also N knob families drawn at random within issue 9's targets (random_mixes)",
+    )
+    parser.add_argument("--mix-seed", type=int, default=0, help="the draw of --random-mixes")
     parser.add_argument(
         "--routes",
         nargs="+",
@@ -727,6 +807,9 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--routes: {route!r} is neither a preset ({', '.join(ROUTES)}) nor a route file")
     # absolute, so that the Dask workers find them whatever their directory
     args.routes = [route if route in ROUTES else str(Path(route).resolve()) for route in args.routes]
+    if args.families is None:  # the matrix's families, unless only random mixes were asked for
+        args.families = [] if args.random_mixes else list(FAMILIES)
+    args.families.extend(random_mixes(args.random_mixes, args.mix_seed))
     for window in args.kidnap_windows:
         start, _, stop = window.partition(":")
         args.families.append(f"kidnap{round(float(start) * 100)}-{round(float(stop) * 100)}")

@@ -21,7 +21,9 @@ from robust_matrix import (  # noqa: E402
     event_keyframe,
     family_table,
     is_event,
+    knob_settings,
     main,
+    random_mixes,
     reset_share,
     run_one,
 )
@@ -72,6 +74,31 @@ def test_mixes_and_events_on_other_renders_are_scenarios():
     assert kidnap.command().endswith("derive kidnap@noise5")
     assert Scenario("reset@fps5", "paper", 6).base.name == "fps5-paper-seed6"
     assert Scenario("kidnap", "paper", 6).base.name == "default-paper-seed6"
+
+
+def test_knob_families_record_with_the_values_they_name_and_random_mixes_stay_in_the_targets():
+    """Any knobs at any values (``knobs:``), as a held-out check of knob mixes the named families
+    never made; ``--random-mixes`` draws them within issue 9's targets, the same for one seed."""
+    mix = Scenario("knobs:fps=3,lighting_change=0.25,aliasing=0.49,noise=0.039,size=160x120", "paper", 318)
+    config = mix.record_config()
+    assert (config.fps, config.lighting_change, config.aliasing) == (3.0, 0.25, 0.49)
+    assert config.noise.noise == 0.039 and config.camera.width_px == 160
+    assert mix.command() == (
+        "aslam record --route paper --seed 318 --fps 3 --lighting-change 0.25 --aliasing 0.49 --noise 0.039"
+        " --size 160x120"
+    )
+    assert Scenario("kidnap@knobs:fps=3", "grid", 7).base.name == "knobs:fps=3-grid-seed7"
+    with pytest.raises(ValueError, match="no knob 'speed'"):
+        knob_settings("knobs:speed=3")
+    with pytest.raises(SystemExit):
+        main(["--families", "knobs:fps=fast"])
+    drawn = random_mixes(20, seed=1)
+    assert drawn == random_mixes(20, seed=1) and drawn != random_mixes(20, seed=2)
+    for i, family in enumerate(drawn):
+        knobs = knob_settings(family)
+        assert knobs is not None and 1.0 <= knobs["fps"] <= 10.0 and 0 <= knobs["lighting_change"] <= 0.5
+        low = i % 2 == 0  # where precision ≥ 0.99 is asked, then where ≥ 0.98 is
+        assert (knobs["aliasing"] <= 0.5 and knobs["noise"] <= 0.05) if low else knobs["aliasing"] >= 0.5
 
 
 def test_resets_at_other_shares_are_events_made_from_the_default_render():
