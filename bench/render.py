@@ -85,6 +85,7 @@ ROBUST_TABLES = {
     "robust_seeds_108_109": "robust_matrix_seeds_108_109.md",
     "robust_random_mixes_500": "robust_matrix_random_mixes_500.md",
     "robust_random_mixes_500_events": "robust_matrix_random_mixes_500_events.md",
+    "robust_random_mixes_501": "robust_matrix_random_mixes_501.md",
     "robust_reset_shares": "robust_matrix_reset_shares.md",
     "robust_resets_102_103": "robust_matrix_resets_102_103.md",
     "robust_kidnap_windows_96_99": "robust_matrix_kidnap_windows_96_99.md",
