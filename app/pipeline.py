@@ -13,7 +13,7 @@ them (the observation model's ``describe``). The pipeline keeps the SLAM step of
 * where the platform can fork, the producer runs in a child process and sends the keyframes or
   frames (stamp, pose or action, view: 3.2 KiB each at the defaults, the view's 768 numbers) through
   a pipe of 1 MiB where Linux allows it, so the SLAM step, which holds the GIL, runs on the other
-  core instead of stalling the decoders, and the reader never waits on the parent's own start-up.
+  core instead of stalling the decoders, and the reader does not wait on the parent's own start-up.
 """
 
 from __future__ import annotations

@@ -108,10 +108,20 @@ KNOBS = "knobs:"
 (RecordConfig fields, and NoiseParams' ``noise``, ``jitter_m``, ``jitter_deg``, ``wander_m``,
 ``wander_deg``, ``model``; ``size``, ``fov_deg``, ``camera_height_m`` for the camera)."""
 _KNOB_TYPES: dict[str, type] = {
-    **{name: float for name in ("fps", "lighting_change", "aliasing", "noise", "jitter_m", "jitter_deg")},
-    **{name: float for name in ("wander_m", "wander_deg", "fov_deg", "camera_height_m")},
-    **{name: int for name in ("laps", "jpeg_quality")},
-    **{name: str for name in ("model", "size")},
+    "fps": float,
+    "lighting_change": float,
+    "aliasing": float,
+    "noise": float,
+    "jitter_m": float,
+    "jitter_deg": float,
+    "wander_m": float,
+    "wander_deg": float,
+    "fov_deg": float,
+    "camera_height_m": float,
+    "laps": int,
+    "jpeg_quality": int,
+    "model": str,
+    "size": str,
 }
 
 RANDOM_FPS = (1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 10.0)
