@@ -84,6 +84,7 @@ ROBUST_TABLES = {
     "recorder_events_104_105_fps5": "recorder_events_seeds_104_105_fps5.md",
     "robust_seeds_108_109": "robust_matrix_seeds_108_109.md",
     "robust_seeds_110_111": "robust_matrix_seeds_110_111.md",
+    "robust_seeds_114_115": "robust_matrix_seeds_114_115.md",
     "robust_random_mixes_500": "robust_matrix_random_mixes_500.md",
     "robust_random_mixes_500_events": "robust_matrix_random_mixes_500_events.md",
     "robust_random_mixes_501": "robust_matrix_random_mixes_501.md",
