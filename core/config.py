@@ -218,7 +218,7 @@ class EstimatorConfig:
         "A place is no revisit when two-view geometry puts the view farther than this from it (ORB"
         " features of the place and a linked neighbour triangulated along their link, the view's pose"
         " by PnP; needs the camera's intrinsics). At 0.45 the matrix's off-pose families (jitter, wander,"
-        " the paper's noise model) made 46 % fewer wrong claims and 3 % fewer right ones, and an"
+        " the paper's noise model) made 45 % fewer wrong claims and 3 % fewer right ones, and an"
         " estimate took 2–2.4 times as long; 0 (default): no check.",
     )
     revisit_prior: float = _param(
