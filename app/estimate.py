@@ -18,7 +18,7 @@ import numpy as np
 from aslam.app.pipeline import DEFAULT_WORKERS, EstimateSteps, PipelineCounts, run_estimate
 from aslam.core.config import EstimatorConfig
 from aslam.core.errors import InputError
-from aslam.core.estimator import Estimator
+from aslam.core.estimator import EstimateResult, Estimator
 from aslam.core.mapgraph import GrowableArray
 from aslam.data_formats.errors import EstimateError
 from aslam.data_formats.files import check_output_path, full_path, source_files
@@ -199,7 +199,8 @@ def estimate(
                 now = time.perf_counter()
                 if now - last_update > PROGRESS_INTERVAL_S:
                     last_update = now
-                    progress(step.keyframe + 1, len(step.hypotheses))
+                    # This run's keyframes (with --map, ``step.keyframe`` counts on from the map's).
+                    progress(len(actions), len(step.hypotheses))
             result = estimator.result()
             wall_s = time.perf_counter() - start
             keyframes = len(result.keyframe_stamps_ns)
@@ -237,6 +238,11 @@ def estimate(
             hasher.cancel()
     if not result.keyframe_stamps_ns:
         warn(f"{recording}: no keyframes (no images with odometry)")
+    elif prior is not None and not _entered_the_map(result):
+        # The quiet outcome of a map of another season or light without --map-reference-scale.
+        across = "; a map made in another season or light needs --map-reference-scale (e.g. 0.95)"
+        across = across if config.map_reference_scale == 0 else ""
+        warn(f"{recording}: no keyframe was placed in the map of {prior}: all new ground{across}")
     return EstimateSummary(
         output=output,
         samples=counts.samples,
@@ -250,6 +256,12 @@ def estimate(
         recording_sha256=metadata.recording.sha256,
         odometry_restarts=counts.odometry_restarts,
     )
+
+
+def _entered_the_map(result: EstimateResult) -> bool:
+    """Whether the final map puts any keyframe of this run in a place of the prior map."""
+    first = result.first_keyframe
+    return any(state.id < first and any(k >= first for k in state.keyframes) for state in result.states)
 
 
 def geometry_camera(source: Input, recording: Path) -> PinholeCamera:

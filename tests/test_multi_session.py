@@ -79,6 +79,60 @@ def test_the_second_session_relocalises_in_the_first_map_and_extends_it(sessions
     assert views.states.tolist() == sorted(places)
 
 
+def test_progress_counts_this_runs_keyframes_not_the_maps(sessions, tmp_path, monkeypatch):
+    """With ``--map`` the keyframes are numbered on from the map's; the progress bar showed that
+    number (the map's keyframes plus this run's, and keyframes per second to match)."""
+    import aslam.app.estimate as app_estimate
+
+    monkeypatch.setattr(app_estimate, "PROGRESS_INTERVAL_S", -1.0)  # every keyframe
+    progress: list[int] = []
+    summary = app_estimate.estimate(
+        sessions["second"],
+        tmp_path / "second.est.mcap",
+        EstimatorConfig(),
+        timing=False,
+        prior=sessions["first.est"],
+        on_progress=lambda p: progress.append(p.keyframes),
+    )
+    run = len(second_session_route(5))
+    assert summary.keyframes == run
+    assert progress[:-1] == list(range(1, run + 1)) and progress[-1] == run
+
+
+@pytest.mark.parametrize("scale", [0.0, 0.95])
+def test_a_run_that_never_enters_the_map_says_so(sessions, tmp_path, scale):
+    """Across seasons without --map-reference-scale a --map run finds nothing, quietly: every
+    keyframe a new place. It now says so, with the option to try where it was not given; a run
+    that did enter the map says nothing."""
+    from conftest import random_frames, write_recording
+
+    from aslam.app.estimate import estimate
+
+    elsewhere = write_recording(tmp_path / "elsewhere.mcap", random_frames(6, seed=3))
+    config = EstimatorConfig(map_reference_scale=scale)
+    heard: list[str] = []
+    estimate(
+        elsewhere,
+        tmp_path / "e.mcap",
+        config,
+        timing=False,
+        prior=sessions["first.est"],
+        on_warning=heard.append,
+    )
+    assert len(heard) == 1 and "no keyframe was placed in the map of" in heard[0], heard
+    assert ("--map-reference-scale" in heard[0]) == (scale == 0)
+    heard.clear()
+    estimate(
+        sessions["second"],
+        tmp_path / "s.mcap",
+        config,
+        timing=False,
+        prior=sessions["first.est"],
+        on_warning=heard.append,
+    )
+    assert heard == []
+
+
 def test_report_scores_the_claims_against_the_first_sessions_places(sessions, capsys):
     summary = report_json(sessions["second.est"], capsys=capsys)
     assert summary["ground_truth"] is True
