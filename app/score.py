@@ -183,9 +183,28 @@ def summary_key(name: str, known: set[str]) -> str:
         if len(in_section) == 1:
             matches = in_section
             break
-    if len(matches) != 1:
-        raise ValueError(f"is ambiguous ({', '.join(matches)})" if matches else "is not a summary key")
+    if len(matches) > 1:
+        raise ValueError(f"is ambiguous ({', '.join(matches)})")
+    if not matches:
+        raise ValueError(f"is not a summary key ({_keys_like(name, known)})")
     return matches[0]
+
+
+def _keys_like(name: str, known: set[str]) -> str:
+    """The keys a mistyped ``name`` may have meant (by the whole key or its last part), or, where
+    none is close, every key: the one-line error says what to type either way."""
+    import difflib
+
+    tails: dict[str, list[str]] = {}
+    for key in sorted(known):
+        tails.setdefault(key.rsplit(".", 1)[-1], []).append(key)
+    close = [key for key in sorted(known) if key.startswith(name) or ("." + name) in key]  # cut short
+    close += difflib.get_close_matches(name, sorted(known), n=3, cutoff=0.75)
+    close += [key for tail in difflib.get_close_matches(name, tails, n=3, cutoff=0.75) for key in tails[tail]]
+    close = list(dict.fromkeys(close))[:6]
+    if close:
+        return f"did you mean {' or '.join(close)}?"
+    return f"known: {', '.join(sorted(known))}"
 
 
 #: The summary's whole-number figures (and its one boolean): their type whether measured or null,

@@ -1396,7 +1396,7 @@ def resolve_objectives(text: str) -> list[Objective]:
             continue
         objectives.append(Objective(key, maximise))
     if problems:
-        raise InputError("; ".join(problems) + f" (keys: {', '.join(sorted(known))})")
+        raise InputError("; ".join(problems))
     if not objectives:
         raise InputError("--pareto needs at least one figure name")
     return objectives

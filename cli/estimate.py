@@ -29,6 +29,7 @@ from aslam.cli.output import (
     QuietOption,
     Terminal,
     VerboseOption,
+    counted,
     decimal_number,
     input_file,
     output_file,
@@ -90,8 +91,9 @@ def estimate(**options: Any) -> None:
     restarts = summary.odometry_restarts
     restarted = f"; odometry restarted on its origin {restarts}×, each an odometry jump" if restarts else ""
     terminal.wrote(
-        f"wrote {fixed['output']} ({summary.keyframes} keyframes from {summary.samples} images, "
-        f"{summary.states} states, {summary.links} links, {summary.hypotheses} hypotheses; "
+        f"wrote {fixed['output']} ({counted(summary.keyframes, 'keyframe')} from "
+        f"{counted(summary.samples, 'image')}, {counted(summary.states, 'state')}, "
+        f"{counted(summary.links, 'link')}, {counted(summary.hypotheses, 'hypothesis', 'hypotheses')}; "
         f"{summary.keyframes_per_second:.1f} keyframes/s{restarted})"
     )
     terminal.detail(

@@ -16,6 +16,7 @@ from aslam.cli.output import (
     QuietOption,
     Terminal,
     VerboseAcceptedOption,
+    counted,
     counted_progress,
     decimal_number,
     output_file,
@@ -94,7 +95,7 @@ def import_folder(
         )
     odometry_note = "odometry" if result.odometry_known else "no odometry (equal steps assumed)"
     terminal.wrote(
-        f"wrote {result.output} ({result.frames} of {result.images} images, "
+        f"wrote {result.output} ({result.frames} of {counted(result.images, 'image')}, "
         f"{result.width_px}x{result.height_px}, {odometry_note}"
         f"{', ground truth' if result.ground_truth else ''}; stamps {result.stamps}; {result.seconds:.1f} s)"
     )

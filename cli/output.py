@@ -60,6 +60,11 @@ VerboseAcceptedOption = Annotated[
 """``-v`` of a command with no details to add (``info``, ``import``, ``report``, ``record``)."""
 
 
+def counted(count: int, noun: str, plural: str | None = None) -> str:
+    """``count`` and ``noun``, plural unless one: "1 keyframe", "2 keyframes", "1 hypothesis"."""
+    return f"{count} {noun if count == 1 else plural or noun + 's'}"
+
+
 def output_name(text: str) -> str:
     """An output's name as typed, refused when it names a folder: ``-o out/`` wrote a file named
     ``out`` (``Path`` drops the slash), and ``-o e.mcap/ --force`` replaced ``e.mcap``."""

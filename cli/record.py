@@ -18,6 +18,7 @@ from aslam.cli.output import (
     QuietOption,
     Terminal,
     VerboseAcceptedOption,
+    counted,
     counted_progress,
     decimal_number,
     output_file,
@@ -218,7 +219,7 @@ def record(
         result = run_record(config, output, force=force, progress=on_progress)
     rate = result.frames / result.seconds if result.seconds > 0 else float("inf")
     terminal.wrote(
-        f"wrote {result.output} ({result.frames} frames, {result.keyframes} keyframes, "
+        f"wrote {result.output} ({counted(result.frames, 'frame')}, {counted(result.keyframes, 'keyframe')}, "
         f"{result.seconds:.1f} s, {rate:.0f} frames/s)"
         + (f"; contact sheet {result.contact_sheet}" if result.contact_sheet else "")
     )

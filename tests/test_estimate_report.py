@@ -401,6 +401,12 @@ def test_fail_on_takes_the_short_names_of_sweep_pareto(estimate_file: Path, caps
         ("loop_closure.precision<<0.9", "malformed"),
         ("loop_closure.prec<0.9", "'loop_closure.prec' is not a summary key"),
         ("max<1", "'max' is ambiguous"),
+        (
+            "precison<0.9",
+            "'precison' is not a summary key (did you mean committed.precision or loop_closure.precision?)",
+        ),
+        ("first_delay<2", "(did you mean relocalisation.first_delay_keyframes?)"),
+        ("zzz<2", "'zzz' is not a summary key (known: committed.claims, committed.correct,"),
         ("keyframes>abc", "not a number"),
         ("keyframes<null", "null"),
     ],
@@ -411,6 +417,8 @@ def test_bad_fail_on_is_exit_2_before_any_work(tmp_path: Path, capsys, condition
     err = capsys.readouterr().err
     one_error_line(err)
     assert needle in err and str(missing) not in err
+    # Every key only where nothing is close: the ambiguous and the mistyped name their candidates.
+    assert ("known:" in err) == condition.startswith("zzz")
 
 
 def test_report_without_the_recording_warns_and_continues(recording: Path, tmp_path: Path, capsys):
@@ -514,6 +522,16 @@ def test_estimate_names_its_output_as_given(recording: Path, tmp_path: Path, cap
     monkeypatch.chdir(tmp_path)
     assert main(["estimate", str(recording), "-o", "rel.mcap", "--no-timing"]) == 0
     assert capsys.readouterr().err.startswith("wrote rel.mcap (")
+
+
+def test_the_summary_line_counts_in_the_singular_where_one(tmp_path: Path, capsys):
+    """It said "1 keyframes from 1 images, … 1 hypotheses"."""
+    from conftest import random_frames, write_recording
+
+    recording = write_recording(tmp_path / "one.mcap", random_frames(1))
+    assert main(["estimate", str(recording), "-o", str(tmp_path / "e.mcap"), "--no-timing"]) == 0
+    line = capsys.readouterr().err
+    assert "(1 keyframe from 1 image, 1 state, 0 links, 1 hypothesis;" in line, line
 
 
 def test_report_names_the_files_it_wrote_and_obeys_force(estimate_file: Path, tmp_path: Path, capsys):
