@@ -77,7 +77,10 @@ def test_the_python_examples_run_as_written(tmp_path, monkeypatch, capsys):
         "EstimateError run.mcap not an aslam estimate file"
         " (no 'aslam.estimate' metadata; is it a recording?) 2"
     )
-    assert main(["estimate", "run.mcap", "-o", "cli.est.mcap", "--beta", "3", "--no-timing", "-q"]) == 0
+    assert (
+        main(["estimate", "run.mcap", "-o", "cli.est.mcap", "--thumbnail-beta", "6", "--no-timing", "-q"])
+        == 0
+    )
     assert Path("cli.est.mcap").read_bytes() == Path("run.est.mcap").read_bytes()
 
 
