@@ -11,7 +11,9 @@ An intact file (trailing magic, a footer, a summary with chunk indexes) is read 
 chunks that overlap in time. Anything else (no summary, a file cut short, a file still being
 written) is read front to back with ``mcap.stream_reader.StreamReader`` through a wrapper that
 refuses to read past the end of the file, so the read stops cleanly at the first damaged record and
-everything intact before it is kept. Every exception from the mcap libraries becomes the caller's
+everything intact before it is kept. Either way each chunk's CRC is checked: a flipped bit in a
+chunk that still decompresses (or is not compressed: a raw image, a map's place views) is an error,
+never a wrong value read on. Every exception from the mcap libraries becomes the caller's
 error type (``RecordingError``, ``EstimateError``) naming the file; nothing else escapes.
 """
 
@@ -30,7 +32,7 @@ from typing import IO, Any
 from mcap.exceptions import EndOfFile, RecordLengthLimitExceeded
 from mcap.reader import SeekingReader
 from mcap.records import Channel, Chunk, Footer, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 from mcap.summary import Summary
 
 from aslam.core.errors import InputError
@@ -169,6 +171,8 @@ class McapFile:
                 self.message_counts = counts
 
     def _error(self, problem: str, err: BaseException | None = None) -> InputError:
+        if isinstance(err, CRCValidationError):  # the library's own words name no place in the file
+            return self._error_type(f"{problem}: a chunk fails its CRC check (damaged bytes)", path=self.path)
         detail = f": {type(err).__name__}: {err}" if err is not None else ""
         return self._error_type(f"{problem}{detail}", path=self.path)
 
@@ -265,7 +269,7 @@ class McapFile:
 
     def _indexed_messages(self, wanted: set[str] | None) -> Iterator[tuple[Schema | None, Channel, Message]]:
         with self._open() as f:
-            reader = SeekingReader(f, record_size_limit=self.size)
+            reader = SeekingReader(f, record_size_limit=self.size, validate_crcs=True)
             topics = None if wanted is None else sorted(wanted)
             iterator = reader.iter_messages(topics=topics, log_time_order=True)
             while True:
@@ -336,7 +340,7 @@ class McapFile:
                         yield item
                 elif isinstance(record, Chunk):
                     try:
-                        inner = breakup_chunk(record)
+                        inner = breakup_chunk(record, validate_crc=True)
                     except Exception as err:
                         raise self._error("corrupt MCAP chunk", err) from err
                     messages = []

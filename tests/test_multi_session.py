@@ -133,6 +133,40 @@ def test_a_run_that_never_enters_the_map_says_so(sessions, tmp_path, scale):
     assert heard == []
 
 
+@settings(max_examples=40, deadline=None)
+@given(data=st.data())
+def test_a_map_with_a_changed_byte_reads_as_written_or_not_at_all(sessions, tmp_path_factory, data):
+    """Every byte of every chunk, changed: the map (its graph and place views) reads exactly as
+    written or is an EstimateError, never other values (zstd decompressed a damaged chunk to other
+    bytes, and ``--map`` ran on them: other claims, exit 0)."""
+    from mcap.reader import SeekingReader
+
+    from aslam.data_formats.errors import EstimateError
+
+    path = sessions["first.est"]
+    original = path.read_bytes()
+    with path.open("rb") as f:
+        chunks = SeekingReader(f).get_summary().chunk_indexes  # type: ignore[union-attr]
+    chunk = data.draw(st.sampled_from(chunks))
+    end = chunk.chunk_start_offset + chunk.chunk_length  # the chunk's (compressed) records close it
+    at = data.draw(st.integers(end - chunk.compressed_size, end - 1))
+    damaged = bytearray(original)
+    damaged[at] ^= data.draw(st.integers(1, 255))
+    copy = tmp_path_factory.mktemp("flip") / "map.est.mcap"
+    copy.write_bytes(damaged)
+
+    def read(map_file: Path) -> tuple[object, bytes, bytes]:
+        views = read_place_views(map_file)
+        return read_estimate(map_file).graph, views.states.tobytes(), views.views.tobytes()
+
+    try:
+        got = read(copy)
+    except EstimateError as err:
+        assert str(copy) in str(err)
+    else:
+        assert got == read(path)
+
+
 def test_report_scores_the_claims_against_the_first_sessions_places(sessions, capsys):
     summary = report_json(sessions["second.est"], capsys=capsys)
     assert summary["ground_truth"] is True

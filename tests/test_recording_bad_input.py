@@ -307,3 +307,30 @@ def test_an_image_stamped_before_the_one_logged_before_it_is_dropped_and_said(tm
     samples = list(Recording(path, on_warning=warnings.append).samples())
     assert [s.stamp_ns for s in samples] == [T0_NS + k * FRAME_NS for k in (0, 1, 2, 3)]
     assert warnings == [f"{path}: dropped 1 image(s) stamped before an image logged earlier (out of order)"]
+
+
+@pytest.mark.parametrize("indexed", [True, False], ids=["indexed", "read-linearly"])
+def test_a_changed_byte_in_a_chunk_is_caught_by_its_crc(tmp_path: Path, indexed: bool):
+    """A chunk whose bytes changed but that still decompresses, or is stored uncompressed (a bag's
+    raw images, an estimate's place views), was read on: wrong values, exit 0 (a map read by
+    ``--map`` changed the run's claims). Each chunk's CRC is now checked, whichever way it is read."""
+    from mcap.writer import CompressionType
+
+    from aslam.data_formats.mcap_file import McapFile
+
+    path = tmp_path / "raw.mcap"
+    payload = bytes(range(256)) * 4
+    with path.open("wb") as f:
+        writer = McapWriter(f, compression=CompressionType.NONE)
+        writer.start()
+        channel = writer.register_channel("/raw", "raw", writer.register_schema("raw", "raw", b""))
+        writer.add_message(channel, log_time=1, data=payload, publish_time=1)
+        writer.finish()
+    data = bytearray(path.read_bytes())
+    start = data.find(payload)
+    assert next(iter(McapFile(path).messages(None)))[2].data == payload  # intact: read as written
+    data[start + 100] ^= 0x01
+    # Read linearly: cut after the chunk (its message is its last record), so no summary is left.
+    path.write_bytes(data if indexed else data[: start + len(payload)])
+    with pytest.raises(RecordingError, match=r"a chunk fails its CRC check \(damaged bytes\)"):
+        list(McapFile(path).messages(None))
