@@ -488,8 +488,8 @@ class HypothesisTree:
                 # A mapped place where the robot is predicted to stand makes "a new place" unlikely.
                 # After a pause the robot may have been carried, and the prediction proves nothing:
                 # then only as far as the place also looks like a revisit (held out: carried into a
-                # lollipop's parallel corridor, facing back, the track claimed two places 4–5 m off
-                # whose views measured 1.0–1.1 × the reference, kept by this coverage).
+                # lollipop's parallel corridor, facing back, tracks claimed places 4–6 m off whose
+                # views measured 1.0–1.2 × the reference, kept by this coverage).
                 covered = float(log_transition.max())
                 if carried:
                     covered = max(
