@@ -32,7 +32,7 @@ from aslam.core.errors import InputError
 from aslam.data_formats import ros_msgs
 from aslam.data_formats.files import check_input_file
 from aslam.data_formats.format_names import PoseFormat, StampUnit
-from aslam.data_formats.pose_limits import implausible
+from aslam.data_formats.pose_limits import MAX_YAW_RAD, implausible
 
 
 class PoseFileError(InputError):
@@ -193,6 +193,8 @@ def _stamp_ns(text: str, path: Path, number: int, unit: StampUnit | None) -> int
 
 def _csv_pose(values: list[float]) -> np.ndarray:
     _t, x, y, yaw = values
+    if not abs(yaw) <= MAX_YAW_RAD:
+        raise ValueError(f"yaw {yaw:g} rad is beyond the ±{MAX_YAW_RAD:g} rad that names a heading")
     return np.array([x, y, math.remainder(yaw, 2 * math.pi)])
 
 

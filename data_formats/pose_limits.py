@@ -16,6 +16,9 @@ MAX_POSITION_M = 1e7
 """|x| and |y| of any pose (10,000 km)."""
 MAX_STEP_M = 1e4
 """Distance between two consecutive poses of one topic (10 km)."""
+MAX_YAW_RAD = 1e9
+"""|yaw| of a heading written as an angle (a CSV pose file's yaw, perhaps unwrapped): float64 still
+resolves it to 1e-6 rad; a yaw of 1e308 rad names no heading at all (its wrap is rounding noise)."""
 
 
 def implausible(pose: np.ndarray, previous: np.ndarray | None) -> str | None:

@@ -116,3 +116,21 @@ def test_a_prior_map_with_two_places_of_one_id_is_refused():
     views = np.zeros((2, 16), np.float32)
     with pytest.raises(ValueError, match="do not match"):
         prior_map(2, (MapState(0, (0,)), MapState(0, (1,))), (), views)
+
+
+@pytest.mark.parametrize(
+    ("yaw", "accepted"), [(1e9, True), (-1e9, True), (1.0000001e9, False), (1e308, False)]
+)
+def test_a_csv_yaw_beyond_what_float64_resolves_is_refused(tmp_path, yaw, accepted):
+    """A CSV pose file's yaw is wrapped to (−π, π]; one of 1e308 rad wrapped to rounding noise and was
+    imported as a heading. Up to ±1e9 rad (unwrapped, float64 resolves 1e-6 rad) it is an angle."""
+    from aslam.data_formats.pose_files import PoseFileError, iter_poses
+
+    path = tmp_path / "poses.csv"
+    path.write_text(f"t,x,y,yaw\n0.0,1.0,2.0,{yaw!r}\n")
+    if accepted:
+        (row,) = iter_poses(path, "csv")
+        assert row.pose[2] == pytest.approx(np.remainder(yaw + np.pi, 2 * np.pi) - np.pi, abs=1e-6)
+    else:
+        with pytest.raises(PoseFileError, match=r"line 2: yaw .* rad is beyond the ±1e\+09 rad"):
+            list(iter_poses(path, "csv"))
