@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections import deque
 from typing import TYPE_CHECKING, Any
 
-from aslam.cli.output import Terminal
+from aslam.cli.output import Terminal, counted
 
 if TYPE_CHECKING:
     from aslam.app.sweep import SweepPlan, Task, TaskResult
@@ -56,7 +56,7 @@ def plan_text(plan: SweepPlan) -> str:
     1 recording)``: the tasks computed before, to compute now, and rows sharing another's result."""
     shared = f", {plan.shared} shared with an identical recording" if plan.shared else ""
     renders = plan.renders_due
-    rendering = f" (first rendering {renders} recording{'s' if renders != 1 else ''})" if renders else ""
+    rendering = f" (first rendering {counted(renders, 'recording')})" if renders else ""
     counts = f"{len(plan.tasks)} tasks, {plan.reused} already done, {len(plan.to_run)} to run"
     return counts + shared + rendering
 
@@ -163,7 +163,7 @@ class LiveDisplay:
         self.progress.update(self.bar, total=len(plan.tasks))
         renders = plan.renders_due
         if renders:
-            self.terminal.console.print(f"rendering {renders} recording{'s' if renders != 1 else ''} first")
+            self.terminal.console.print(f"rendering {counted(renders, 'recording')} first")
 
     def result(self, task: Task, result: TaskResult, reused: bool) -> None:
         from rich.text import Text
