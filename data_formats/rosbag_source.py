@@ -252,6 +252,23 @@ def _rosbags_errors(path: Path, doing: str) -> Iterator[None]:
         raise BagError(f"{doing}: {type(err).__name__}: {err}", path=path) from err
 
 
+@contextmanager
+def _metadata_errors(path: Path, doing: str) -> Iterator[None]:
+    """:func:`_rosbags_errors`; in a rosbag2 folder, whose index is its metadata.yaml as written
+    (rosbags checks the fields' names, not their types), a value of the wrong type there is named
+    as that file's fault rather than as a TypeError of rosbags' own arithmetic."""
+    try:
+        with _rosbags_errors(path, doing):
+            yield
+    except BagError as err:
+        cause = err.__cause__
+        if not path.is_dir() or not isinstance(cause, (TypeError, ValueError, AttributeError, KeyError)):
+            raise
+        raise BagError(
+            f"its metadata.yaml has a field of the wrong type ({type(cause).__name__}: {cause})", path=path
+        ) from cause
+
+
 #: What rosbags says of a bag whose recorder stopped before writing its index (killed, power lost).
 _NO_INDEX_SIGNS = ("File end magic is invalid", "index looks damaged", "Header could not be read")
 _REINDEX_HINT = (
@@ -266,9 +283,14 @@ def _open_reader(path: Path) -> Iterator[Any]:
     from rosbags.typesys import Stores, get_typestore
 
     try:
-        with _rosbags_errors(path, "cannot open the bag"):
+        with _metadata_errors(path, "cannot open the bag"):
             reader = AnyReader([path], default_typestore=get_typestore(Stores.LATEST))
             reader.open()
+        with _metadata_errors(path, "cannot read the bag's index"):
+            # rosbags derives these from a rosbag2 folder's metadata.yaml only when first asked: a
+            # field of the wrong type (a count that is a word) surfaced as a bare TypeError in the
+            # middle of a run. Asked here, it is one line at the open, naming the file.
+            _ = (reader.topics, reader.message_count, reader.start_time, reader.end_time)
     except BagError as err:
         if not any(sign in str(err) for sign in _NO_INDEX_SIGNS):
             raise

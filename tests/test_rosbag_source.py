@@ -18,6 +18,7 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
+from conftest import one_error_line
 
 from aslam.core.errors import InputError
 from aslam.data_formats.errors import RecordingError
@@ -488,6 +489,38 @@ def test_describe_bag_counts_the_topics_it_reads_rather_than_a_stale_index(bags,
     assert warnings == [f"{bag}: {said}"]
     fresh = {t.topic: t.messages for t in describe_bag(bags["rosbag2-mcap"], WITH_TRUTH).topics}
     assert fresh == counts
+
+
+@pytest.mark.parametrize(
+    "edit",
+    [
+        lambda info: info["duration"].update(nanoseconds="abc"),
+        lambda info: info.update(message_count=[1]),
+        lambda info: info["topics_with_message_count"][0].update(message_count="x"),
+        lambda info: info["topics_with_message_count"][0]["topic_metadata"].update(name=[1, 2]),
+    ],
+    ids=["duration", "message-count", "topic-count", "topic-name"],
+)
+def test_a_metadata_field_of_the_wrong_type_is_one_line_naming_the_file(bags, tmp_path, capsys, edit):
+    """rosbags reads a rosbag2 folder's metadata.yaml as written and derives counts from it when
+    first asked: a topic's count that was a word ended ``aslam estimate`` with exit 70, "internal
+    error: TypeError", from the reader process; ``info`` said "TypeError: unsupported operand"."""
+    from ruamel.yaml import YAML
+
+    from aslam.cli.app import main
+
+    bag = tmp_path / "bag"
+    shutil.copytree(bags["rosbag2-mcap"], bag)
+    yaml = YAML(typ="safe")
+    meta = yaml.load((bag / "metadata.yaml").read_text())
+    edit(meta["rosbag2_bagfile_information"])
+    with (bag / "metadata.yaml").open("w") as f:
+        yaml.dump(meta, f)
+    for args in (["info", str(bag)], ["estimate", str(bag), "-o", str(tmp_path / "e.mcap")]):
+        assert main(args) == 2
+        line = one_error_line(capsys.readouterr().err)
+        assert f"{bag}: its metadata.yaml has a field of the wrong type" in line
+    assert not (tmp_path / "e.mcap").exists()
 
 
 def test_info_opens_a_bag_once(bags, monkeypatch):
