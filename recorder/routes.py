@@ -312,7 +312,7 @@ def resolve_route(spec: str) -> Route:
     """A preset name, or a path to a JSON route file (anything ending in .json or that exists)."""
     if spec in PRESETS:
         return preset(spec)
-    candidate = Path(spec)
-    if candidate.suffix.lower() == ".json" or candidate.exists():
+    candidate = Path(spec)  # (Path("") is the current folder: an empty --route names no file)
+    if spec and (candidate.suffix.lower() == ".json" or candidate.exists()):
         return load_route_file(candidate)
     return preset(spec)  # raises with the list of presets

@@ -427,6 +427,8 @@ def load_scene_world(path: Path) -> SceneWorld:
     from aslam.recorder.scene_files import CompanionResolver
 
     path = Path(path)
+    if path.is_dir():  # (an empty --world names the current folder)
+        raise WorldError(f"is a directory, not a scene file ({', '.join(SCENE_SUFFIXES)})", path=path)
     if path.suffix.lower() not in SCENE_SUFFIXES:
         raise WorldError(
             f"unsupported scene type '{path.suffix}' (use {', '.join(SCENE_SUFFIXES)})", path=path

@@ -475,6 +475,9 @@ def test_bad_scene_file_is_one_line(tmp_path, capsys):
         (["--jpeg-quality", "0"], "--jpeg-quality"),
         (["--route", "nowhere"], "unknown route preset"),
         (["--route", "missing.json"], "missing.json"),
+        (["--route", ""], "unknown route preset ''"),  # not "the current folder is a directory"
+        (["--world", ""], "is a directory, not a scene file (.glb, .gltf, .obj)"),
+        (["--world", "/"], "/: is a directory, not a scene file"),
         (["--camera-height-m", "3"], "--camera-height-m"),
         (["--laps", "0"], "--laps"),
         (["--jitter-m", "1e300"], "--jitter-m must be at most 10 m"),
