@@ -286,11 +286,6 @@ def _open_reader(path: Path) -> Iterator[Any]:
         with _metadata_errors(path, "cannot open the bag"):
             reader = AnyReader([path], default_typestore=get_typestore(Stores.LATEST))
             reader.open()
-        with _metadata_errors(path, "cannot read the bag's index"):
-            # rosbags derives these from a rosbag2 folder's metadata.yaml only when first asked: a
-            # field of the wrong type (a count that is a word) surfaced as a bare TypeError in the
-            # middle of a run. Asked here, it is one line at the open, naming the file.
-            _ = (reader.topics, reader.message_count, reader.start_time, reader.end_time)
     except BagError as err:
         if not any(sign in str(err) for sign in _NO_INDEX_SIGNS):
             raise
@@ -299,10 +294,29 @@ def _open_reader(path: Path) -> Iterator[Any]:
             hint += "; an aslam recording cut short that early holds nothing to read: record it again"
         raise BagError(f"{err.problem}; {hint}", path=path) from err
     try:
+        with _metadata_errors(path, "cannot read the bag's index"):
+            # rosbags derives these from a rosbag2 folder's metadata.yaml only when first asked, and
+            # keeps its names as written: a field of the wrong type (a count that is a word, a type
+            # that is a number) surfaced as a bare TypeError in the middle of a run. Asked here, it
+            # is one line at the open, naming the file.
+            _ = (reader.topics, reader.message_count, reader.start_time, reader.end_time)
+            _check_names(reader, path)
         yield reader
     finally:
         with _rosbags_errors(path, "cannot close the bag"):
             reader.close()
+
+
+def _check_names(reader: Any, path: Path) -> None:
+    """TypeError where a topic's name or type, or a rosbag2 folder's ROS distribution, is no text."""
+    for connection in reader.connections:
+        for what, value in (("name", connection.topic), ("type", connection.msgtype)):
+            if not isinstance(value, str):
+                raise TypeError(f"a topic's {what} is {value!r}, not text")
+    if path.is_dir():
+        distro = reader.readers[0].storage.metadata.ros_distro  # as _storage reads it
+        if distro is not None and not isinstance(distro, str):
+            raise TypeError(f"ros_distro is {distro!r}, not text")
 
 
 def _topic_types(reader: Any) -> dict[str, str]:

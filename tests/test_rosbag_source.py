@@ -498,13 +498,18 @@ def test_describe_bag_counts_the_topics_it_reads_rather_than_a_stale_index(bags,
         lambda info: info.update(message_count=[1]),
         lambda info: info["topics_with_message_count"][0].update(message_count="x"),
         lambda info: info["topics_with_message_count"][0]["topic_metadata"].update(name=[1, 2]),
+        lambda info: info["topics_with_message_count"][1]["topic_metadata"].update(type=-5),
+        lambda info: info["topics_with_message_count"][0]["topic_metadata"].update(type=None),
+        lambda info: info.update(ros_distro=[1]),
     ],
-    ids=["duration", "message-count", "topic-count", "topic-name"],
+    ids=["duration", "message-count", "topic-count", "topic-name", "topic-type", "no-type", "distro"],
 )
 def test_a_metadata_field_of_the_wrong_type_is_one_line_naming_the_file(bags, tmp_path, capsys, edit):
     """rosbags reads a rosbag2 folder's metadata.yaml as written and derives counts from it when
-    first asked: a topic's count that was a word ended ``aslam estimate`` with exit 70, "internal
-    error: TypeError", from the reader process; ``info`` said "TypeError: unsupported operand"."""
+    first asked, and passes its names on as written: a topic's count that was a word ended ``aslam
+    estimate`` with exit 70, "internal error: TypeError", from the reader process (``info`` said
+    "TypeError: unsupported operand"); a type that was a number, or a ros_distro that was a list,
+    ended ``info`` with exit 70 where it printed them."""
     from ruamel.yaml import YAML
 
     from aslam.cli.app import main
