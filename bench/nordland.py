@@ -34,6 +34,8 @@ from aslam.core.observation import HistogramModel, ObservationModel, ThumbnailMo
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "nordland-64x32"
 TOLERANCE = 1
+LONGEST_SEQUENCE = 20
+"""SeqSLAM's longer sequence length here; a part of fewer files has no line that fits in it."""
 MAP_REFERENCE_SCALE = 0.95
 """``--map-reference-scale`` of the winter run: summer → winter is a change of season (docs/real-data.md)."""
 
@@ -176,16 +178,23 @@ def main() -> None:
     parser.add_argument("--first", type=int, default=10)
     parser.add_argument("--last", type=int, default=17880)
     args = parser.parse_args()
+    if not all((args.data / season).is_dir() for season in ("summer", "winter")):
+        parser.error(f"{args.data}: no summer/ and winter/ folders of Nordland frames here; give --data DIR")
     summer_numbers, summer = frames(args.data / "summer", args.first, args.last)
     winter_numbers, winter = frames(args.data / "winter", args.first, args.last)
     if summer_numbers != winter_numbers:
         raise SystemExit("summer and winter frame numbers differ")
+    if len(summer_numbers) < LONGEST_SEQUENCE:  # every SeqSLAM line would leave the part: no score
+        parser.error(
+            f"frames {args.first}-{args.last} hold {len(summer_numbers)} files; SeqSLAM needs at least"
+            f" {LONGEST_SEQUENCE} (its sequence length)"
+        )
     result = {
         "frames": len(summer_numbers),
         "range": [summer_numbers[0], summer_numbers[-1]],
         "tolerance_files": TOLERANCE,
         "seqslam_length_10": seqslam(summer, winter, 10),
-        "seqslam_length_20": seqslam(summer, winter, 20),
+        "seqslam_length_20": seqslam(summer, winter, LONGEST_SEQUENCE),
         "aslam_histogram_paper": single_image(summer, winter, HistogramModel(HistogramConfig(16, 1, 1))),
         "aslam_histogram_cells": single_image(summer, winter, HistogramModel(HistogramConfig(16, 2, 1))),
         "aslam_thumbnail": single_image(summer, winter, ThumbnailModel()),
