@@ -22,10 +22,12 @@ import typer
 from aslam.app.config_file import option_name
 from aslam.cli.app import app
 from aslam.cli.output import (
+    BaseFrameOption,
     ForceOption,
     GroundTruthTopicOption,
     ImageTopicOption,
     OdometryTopicOption,
+    OdomFrameOption,
     QuietOption,
     Terminal,
     VerboseOption,
@@ -65,7 +67,11 @@ def estimate(**options: Any) -> None:
         "--config", fixed["config"], "one configuration file is read; put the parameters in one"
     )
     topics = TopicChoice(
-        image=fixed["image_topic"], odometry=fixed["odometry_topic"], ground_truth=fixed["ground_truth_topic"]
+        image=fixed["image_topic"],
+        odometry=fixed["odometry_topic"],
+        ground_truth=fixed["ground_truth_topic"],
+        odom_frame=fixed["odom_frame"],
+        base_frame=fixed["base_frame"],
     )
     config = build_config(paper_faithful=fixed["paper_faithful"], config_file=config_file, options=options)
     terminal.detail(f"configuration: {json.dumps(asdict(config))}")  # the values the estimate file holds
@@ -219,6 +225,8 @@ _FIXED: dict[str, tuple[Any, Any]] = {
     "image_topic": (ImageTopicOption, None),
     "odometry_topic": (OdometryTopicOption, None),
     "ground_truth_topic": (GroundTruthTopicOption, None),
+    "odom_frame": (OdomFrameOption, None),
+    "base_frame": (BaseFrameOption, None),
     "force": (ForceOption, False),
     "no_timing": (
         Annotated[

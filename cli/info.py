@@ -35,6 +35,8 @@ def info(
     image_topic: output.ImageTopicOption = None,
     odometry_topic: output.OdometryTopicOption = None,
     ground_truth_topic: output.GroundTruthTopicOption = None,
+    odom_frame: output.OdomFrameOption = None,
+    base_frame: output.BaseFrameOption = None,
     force: output.ForceOption = False,
     quiet: output.QuietOption = False,
     verbose: output.VerboseAcceptedOption = False,
@@ -51,7 +53,13 @@ def info(
     terminal = output.Terminal(quiet=quiet, verbose=verbose)
     if json_out is not None and json_out != "-":  # before reading the whole recording
         check_output_path(Path(json_out), force=force, inputs=[recording])
-    topics = TopicChoice(image=image_topic, odometry=odometry_topic, ground_truth=ground_truth_topic)
+    topics = TopicChoice(
+        image=image_topic,
+        odometry=odometry_topic,
+        ground_truth=ground_truth_topic,
+        odom_frame=odom_frame,
+        base_frame=base_frame,
+    )
     with output.counted_progress(terminal, "info", unit="images") as on_progress:  # every image is decoded
         result = describe(recording, topics, on_progress=on_progress, on_warning=terminal.warning)
     if json_out is not None:

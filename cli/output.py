@@ -121,6 +121,17 @@ OdometryTopicOption = Annotated[str | None, typer.Option(help="Odometry topic. \
 GroundTruthTopicOption = Annotated[
     str | None, typer.Option(help="Ground-truth pose topic. \\[default: /ground_truth/pose]")
 ]
+OdomFrameOption = Annotated[
+    str | None,
+    typer.Option(help="A bag's odometry from /tf: the odometry frame. \\[default: odom]"),
+]
+BaseFrameOption = Annotated[
+    str | None,
+    typer.Option(
+        help="A bag's odometry from /tf: the robot's frame. \\[default: base_footprint or base_link if"
+        " published, else the first child of the odometry frame]"
+    ),
+]
 
 
 def _live_display_wanted() -> bool:

@@ -144,7 +144,7 @@ class BagTopics:
     ground_truth: str | None = None  # read only when named
     tf: str = "/tf"
     odom_frame: str = "odom"
-    base_frame: str | None = None  # None: the first child frame of odom_frame met on /tf
+    base_frame: str | None = None  # None: found among odom_frame's children on /tf (_TfOdometry)
 
 
 @dataclass(frozen=True)
@@ -350,8 +350,15 @@ def _frame(name: str) -> str:
     return str(name).lstrip("/")  # ROS 1 frames may carry a leading slash
 
 
+#: The body frames REP 105 names, preferred among ``odom``'s children on /tf when none is named.
+BASE_FRAMES = ("base_footprint", "base_link")
+
+
 class _TfOdometry:
-    """Planar poses of ``base`` in ``odom`` from TFMessages; locks onto the first child of ``odom``."""
+    """Planar poses of ``base`` in ``odom`` from TFMessages. Unnamed, ``base`` is the first message's
+    child of ``odom`` that REP 105 names a body frame, else its first child: a marker or sensor frame
+    published beside ``base_link`` in one message was taken for the robot (a constant pose: one
+    keyframe from a whole drive)."""
 
     def __init__(self, odom_frame: str, base_frame: str | None, warn: Callable[[str], None], path: Path):
         self.odom_frame = _frame(odom_frame)
@@ -360,16 +367,27 @@ class _TfOdometry:
         self._path = path
         self.pairs_seen: set[tuple[str, str]] = set()
 
+    def _choose_base(self, msg: Any) -> None:
+        children = [
+            _frame(t.child_frame_id) for t in msg.transforms if _frame(t.header.frame_id) == self.odom_frame
+        ]
+        if not children:
+            return
+        named = [child for child in BASE_FRAMES if child in children]
+        self.base_frame = named[0] if named else children[0]
+        others = sorted(set(children) - {self.base_frame})
+        also = f" (its other children: {', '.join(others)}; --base-frame chooses)" if others else ""
+        self._warn(f"{self._path}: odometry from /tf: {self.odom_frame} → {self.base_frame}{also}")
+
     def poses(self, msg: Any, log_time: int) -> Iterator[tuple[int, np.ndarray]]:
+        if self.base_frame is None:
+            self._choose_base(msg)
         for transform in msg.transforms:
             parent, child = _frame(transform.header.frame_id), _frame(transform.child_frame_id)
             if len(self.pairs_seen) < 64:
                 self.pairs_seen.add((parent, child))
             if parent != self.odom_frame:
                 continue
-            if self.base_frame is None:
-                self.base_frame = child
-                self._warn(f"{self._path}: odometry from /tf: {parent} → {child}")
             if child != self.base_frame:
                 continue
             try:
@@ -493,7 +511,8 @@ def _bag_samples(
         raise BagError(
             f"no transform from frame '{tf.odom_frame}'"
             + (f" to '{tf.base_frame}'" if tf.base_frame else "")
-            + f" on '{resolved.tf}' (transforms seen: {pairs}); name the frames or an odometry topic",
+            + f" on '{resolved.tf}' (transforms seen: {pairs}); name the frames (--odom-frame,"
+            " --base-frame) or an odometry topic (--odometry-topic)",
             path=path,
         )
     yield from assembler.finish()

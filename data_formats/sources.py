@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from aslam.data_formats.camera import CameraIntrinsics
+from aslam.data_formats.errors import RecordingError
 from aslam.data_formats.files import source_sha256, source_size_bytes
 from aslam.data_formats.pose_sync import Sample
 from aslam.data_formats.recording import Recording, RecordingTopics
@@ -40,11 +41,14 @@ from aslam.data_formats.rosbag_source import (
 
 @dataclass(frozen=True)
 class TopicChoice:
-    """The ``--image-topic``/``--odometry-topic``/``--ground-truth-topic`` options; None: default/found."""
+    """The ``--image-topic``/``--odometry-topic``/``--ground-truth-topic`` options, and for a bag's
+    odometry from /tf ``--odom-frame``/``--base-frame``; None: default/found."""
 
     image: str | None = None
     odometry: str | None = None
     ground_truth: str | None = None
+    odom_frame: str | None = None
+    base_frame: str | None = None
 
     @classmethod
     def from_record(cls, topics: dict[str, str | None]) -> TopicChoice:
@@ -60,7 +64,13 @@ class TopicChoice:
         )
 
     def bag_topics(self) -> BagTopics:
-        return BagTopics(image=self.image, odometry=self.odometry, ground_truth=self.ground_truth)
+        return BagTopics(
+            image=self.image,
+            odometry=self.odometry,
+            ground_truth=self.ground_truth,
+            odom_frame=self.odom_frame or BagTopics.odom_frame,
+            base_frame=self.base_frame,
+        )
 
 
 class _Warnings:
@@ -148,7 +158,9 @@ class BagInput:
         self._warnings = warnings
 
     def stored_topics(self) -> dict[str, str | None]:
-        return asdict(self.choice)
+        """The topics (the /tf frames are no topic: the file's format keeps its topic names only)."""
+        choice = self.choice
+        return {"image": choice.image, "odometry": choice.odometry, "ground_truth": choice.ground_truth}
 
     def samples(self, on_image_count: Callable[[int | None], None] | None = None) -> Iterator[Sample]:
         """The samples, without ground truth (as a recording's); ``on_image_count(n)`` once the
@@ -216,6 +228,12 @@ def open_input(
     warnings = _Warnings(on_warning)
     kind, mcap = classify(path, on_warning=warnings)
     if kind is SourceKind.RECORDING:
+        if topics.odom_frame is not None or topics.base_frame is not None:
+            option = "--odom-frame" if topics.odom_frame is not None else "--base-frame"
+            raise RecordingError(
+                f"{option} chooses a bag's odometry on /tf; this recording's odometry is its own topic",
+                path=path,
+            )
         recording = Recording(path, on_warning=warnings, file=mcap)
         return RecordingInput(recording, topics.recording_topics(), warnings)
     if kind in BAG_KINDS:

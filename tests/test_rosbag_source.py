@@ -614,6 +614,67 @@ def test_tf_without_the_odom_frame_names_the_frames_seen(tmp_path):
         list(iter_bag_samples(path, BagTopics(odom_frame="odom", base_frame="base_link")))
 
 
+def _tf_rows(edit: Callable[[Any, list[tuple[str, str, np.ndarray]]], list[tuple[str, str, np.ndarray]]]):
+    """The test bag's rows with odometry on /tf, each TFMessage's (parent, child, pose) list edited."""
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    rows = bag_messages(ts, Options(odometry="tf"))
+    out = []
+    for log, topic, datatype, msg in rows:
+        if topic == "/tf":
+            stamp = msg.transforms[0].header.stamp
+            stamp_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+            transforms = []
+            for t in msg.transforms:
+                move, turn = t.transform.translation, t.transform.rotation
+                pose = np.array([move.x, move.y, 2 * math.atan2(turn.z, turn.w)])
+                transforms.append((t.header.frame_id, t.child_frame_id, pose))
+            msg = tf_msg(ts, stamp_ns, edit(ts, transforms))
+        out.append((log, topic, datatype, msg))
+    return out
+
+
+def test_a_marker_published_beside_the_robot_on_tf_is_not_taken_for_it(tmp_path):
+    """REP 105's body frame is preferred among odom's children: a constant marker frame listed first
+    in each TFMessage was taken for the robot (one keyframe from a whole drive)."""
+
+    def marker_first(_ts, transforms):
+        return [("odom", "odom_marker", np.zeros(3)), *transforms]
+
+    path = write_rosbag2(tmp_path / "bag", messages=_tf_rows(marker_first))
+    warnings: list[str] = []
+    assert_driver_samples(list(iter_bag_samples(path, WITH_TRUTH, on_warning=warnings.append)))
+    said = f"{path}: odometry from /tf: odom → base_footprint (its other children: odom_marker;"
+    assert said in warnings[0]
+    named = BagTopics(ground_truth="/ground_truth", base_frame="odom_marker")  # still the user's to choose
+    assert all(not s.odometry_pose.any() for s in iter_bag_samples(path, named))
+
+
+def test_namespaced_tf_frames_are_named_from_the_command_line(tmp_path, capsys, recording):
+    """The error told the user to name the frames, which only Python's BagTopics could:
+    ``--odom-frame`` and ``--base-frame`` do it for ``estimate`` and ``info``; a recording refuses them."""
+    from aslam.cli.app import main
+    from aslam.data_formats.estimate import read_estimate
+
+    def namespaced(_ts, transforms):
+        return [(f"robot1/{parent}", f"robot1/{child}", pose) for parent, child, pose in transforms]
+
+    path = write_rosbag2(tmp_path / "bag", messages=_tf_rows(namespaced))
+    out = tmp_path / "e.mcap"
+    assert main(["estimate", str(path), "-o", str(out)]) == 2
+    line = one_error_line(capsys.readouterr().err)
+    assert "(transforms seen: robot1/map → robot1/odom, robot1/odom → robot1/base_footprint)" in line
+    assert "--odom-frame, --base-frame" in line
+    frames = ["--odom-frame", "robot1/odom", "--base-frame", "robot1/base_footprint"]
+    assert main(["estimate", str(path), "-o", str(out), *frames, "--no-timing"]) == 0
+    assert main(["info", str(path), *frames, "--json", str(tmp_path / "i.json")]) == 0
+    assert read_estimate(out).metadata.topics == {"image": None, "odometry": None, "ground_truth": None}
+    capsys.readouterr()
+    assert main(["estimate", str(recording), "-o", str(tmp_path / "f.mcap"), *frames[2:]]) == 2
+    assert "--base-frame chooses a bag's odometry on /tf" in one_error_line(capsys.readouterr().err)
+
+
 def test_two_image_topics_is_one_error_listing_them(tmp_path):
     path = write_rosbag2(tmp_path / "two", Options(extra_image_topic=True), storage="sqlite3")
     with pytest.raises(BagError) as caught:
