@@ -297,13 +297,17 @@ class ErrorStats:
 class TrajectoryScores:
     """evo's APE (translation, after SE(3) Umeyama alignment) and RPE (per keyframe step)."""
 
-    ape_m: ErrorStats
+    ape_m: ErrorStats | None
+    """None where no alignment exists (``unaligned`` says why): RPE needs none."""
     rpe_m: ErrorStats
     """Translation error of each keyframe-to-keyframe motion."""
     rpe_deg: ErrorStats
     """Rotation error of each keyframe-to-keyframe motion."""
     keyframes: int
     """Keyframes scored (those with ground truth)."""
+    unaligned: str | None = None
+    """Why the trajectory could not be aligned to the truth (every true position on one line: a
+    train, a corridor, a turn in place), or None."""
 
 
 @dataclass(frozen=True)
@@ -329,8 +333,10 @@ def score_trajectory(
     """Score ``poses`` (n, 3) against ``truth`` (n, 3; NaN rows = unknown) at the same stamps.
 
     Keyframes without truth are dropped. APE aligns the estimate to the truth with evo's Umeyama
-    SE(3) alignment (no scale), as ``evo_ape -a``; RPE compares consecutive scored keyframes.
-    ValueError when fewer than two keyframes have truth.
+    SE(3) alignment (no scale), as ``evo_ape -a``; RPE compares consecutive scored keyframes, which
+    no rigid alignment changes: where none exists (every true position on one line leaves the
+    rotation about it free) APE is None and RPE is still scored. ValueError when fewer than two
+    keyframes have truth.
     """
     import copy
 
@@ -350,17 +356,20 @@ def score_trajectory(
     estimate = copy.deepcopy(evo_trajectory(poses[known], stamps[known]))
     from evo.core.geometry import GeometryException
 
+    ape_stats, unaligned = None, None
     try:
         estimate.align(reference, correct_scale=False)
     except GeometryException as err:  # e.g. every position on one line: no unique rotation
-        raise ValueError(f"the trajectory cannot be aligned to the ground truth ({err})") from err
-    ape = metrics.APE(metrics.PoseRelation.translation_part)
-    ape.process_data((reference, estimate))
+        unaligned = str(err)
+    else:
+        ape = metrics.APE(metrics.PoseRelation.translation_part)
+        ape.process_data((reference, estimate))
+        ape_stats = _stats(ape)
     rpe_m = metrics.RPE(metrics.PoseRelation.translation_part, delta=1, delta_unit=metrics.Unit.frames)
     rpe_m.process_data((reference, estimate))
     rpe_deg = metrics.RPE(metrics.PoseRelation.rotation_angle_deg, delta=1, delta_unit=metrics.Unit.frames)
     rpe_deg.process_data((reference, estimate))
-    return TrajectoryScores(_stats(ape), _stats(rpe_m), _stats(rpe_deg), int(known.sum()))
+    return TrajectoryScores(ape_stats, _stats(rpe_m), _stats(rpe_deg), int(known.sum()), unaligned)
 
 
 def score(embedding: Embedding, truth: np.ndarray, stamps_ns: Sequence[int] | np.ndarray) -> MetricScores:

@@ -148,7 +148,8 @@ def _trajectory_summary(embedding: Embedding | None, metric: MetricScores | None
     """evo's APE/RPE of the embedded (optimised) and the odometry-only trajectory; null without truth."""
 
     def stats(scores: TrajectoryScores | None, name: str) -> dict[str, float | None]:
-        values = None if scores is None else asdict(getattr(scores, name))
+        part = None if scores is None else getattr(scores, name)
+        values = None if part is None else asdict(part)
         return {stat: None if values is None else values[stat] for stat in ("rmse", "mean", "median", "max")}
 
     optimised = None if metric is None else metric.optimised
@@ -400,6 +401,12 @@ def score(
             metric = score_trajectories(embedding, run_truth, stamps)
         except ValueError as err:
             warn(f"{estimate}: no trajectory scores: {err}")
+        else:
+            if metric.optimised.unaligned is not None:
+                warn(
+                    f"{estimate}: no APE: the trajectory cannot be aligned to the ground truth"
+                    f" ({metric.optimised.unaligned}); RPE, which needs no alignment, is scored"
+                )
     # The map's claims need no truth: without it none is judged (its correct, precision, recall null).
     assignment = map_assignment(info.graph.states, first + len(stamps))
     committed = score_assignment(

@@ -185,6 +185,21 @@ def test_rpe_measures_each_step():
     assert scores.rpe_m.median == pytest.approx(0.0, abs=1e-9)
 
 
+def test_a_straight_run_has_rpe_without_an_alignment():
+    """Every true position on one line (a train, a corridor) leaves the rotation about that line
+    free, and evo refuses the alignment: APE is None, saying why, while RPE, which no rigid motion
+    changes, is scored. Before, every trajectory score of such a run was null."""
+    truth = np.column_stack([np.arange(10.0), np.zeros(10), np.zeros(10)])
+    stamps = np.arange(10) * 1_000_000_000
+    drifted = se2.dead_reckoning(np.tile([1.05, 0.0, 0.01], (10, 1)))
+    scores = score_trajectory(drifted, truth, stamps)
+    assert scores.ape_m is None and "Umeyama" in (scores.unaligned or "")
+    assert scores.rpe_m.max > 0.04 and scores.rpe_deg.max == pytest.approx(0.573, abs=0.01)
+    loop_truth, _, _, loop_stamps = loop(1, seed=7)
+    looped = score_trajectory(loop_truth, loop_truth, loop_stamps)
+    assert looped.ape_m is not None and looped.unaligned is None
+
+
 def test_keyframes_without_truth_are_not_scored():
     truth, actions, assignment, stamps = loop(2, seed=8)
     truth[[3, 4, 30]] = np.nan
