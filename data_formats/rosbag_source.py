@@ -708,7 +708,7 @@ def describe_bag(
             stats.add(sample)
             if on_sample is not None:
                 on_sample(stats.samples)
-        camera = _camera_intrinsics(path, reader)
+        camera = _camera_intrinsics(path, reader, warn)
     if (line := stats.jpeg_damage.warning(path, stats.samples)) is not None:
         warn(line)
     resolved = summary.resolved
@@ -742,22 +742,44 @@ def describe_bag(
     )
 
 
-def bag_camera(path: Path) -> CameraIntrinsics | None:
+def bag_camera(path: Path, *, on_warning: Callable[[str], None] | None = None) -> CameraIntrinsics | None:
     """The intrinsics of the bag's only CameraInfo topic, or None."""
     with _open_reader(Path(path)) as reader:
-        return _camera_intrinsics(Path(path), reader)
+        return _camera_intrinsics(Path(path), reader, on_warning or (lambda _line: None))
 
 
-def _camera_intrinsics(path: Path, reader: Any) -> CameraIntrinsics | None:
-    """The intrinsics of the first message of the bag's only CameraInfo topic, or None."""
+def _camera_intrinsics(path: Path, reader: Any, warn: Callable[[str], None]) -> CameraIntrinsics | None:
+    """The intrinsics of the first message of the bag's only CameraInfo topic, or None; what of its
+    K and distortion that model leaves out is said in a warning."""
     infos = [t for t, datatype in _topic_types(reader).items() if datatype == ros_msgs.CAMERA_INFO]
     if len(infos) != 1:
         return None
-    for _topic, _datatype, _log_time, msg in _messages(path, reader, {infos[0]}):
+    for topic, _datatype, _log_time, msg in _messages(path, reader, {infos[0]}):
         k = msg.k if hasattr(msg, "k") else msg.K  # ROS 1 spells it K
         fx = float(k[0])
         if msg.width > 0 and msg.height > 0 and math.isfinite(fx) and fx > 0:
             with suppress(ValueError):  # a field of view that rounds to 180°: none
-                return CameraIntrinsics.from_camera_info(int(msg.width), int(msg.height), fx)
+                camera = CameraIntrinsics.from_camera_info(int(msg.width), int(msg.height), fx)
+                left_out = _left_out(camera, [float(v) for v in k], msg.d if hasattr(msg, "d") else msg.D)
+                if left_out:
+                    warn(
+                        f"{path}: camera info on '{topic}': aslam's camera is a centred pinhole with square"
+                        f" pixels and no distortion, from fx alone; {'; '.join(left_out)}: not used"
+                    )
+                return camera
         return None
     return None
+
+
+def _left_out(camera: CameraIntrinsics, k: list[float], distortion: Any) -> list[str]:
+    """What of a CameraInfo's K (row-major 3 × 3) and distortion ``camera`` does not model."""
+    fx, cx, fy, cy = k[0], k[2], k[4], k[5]
+    left_out = []
+    if not abs(fy - fx) <= 0.01 * fx:
+        left_out.append(f"fy {fy:g} (fx {fx:g})")
+    if not (abs(cx - camera.cx) <= 0.02 * camera.width_px and abs(cy - camera.cy) <= 0.02 * camera.height_px):
+        left_out.append(f"principal point ({cx:g}, {cy:g}), the centre being ({camera.cx:g}, {camera.cy:g})")
+    coefficients = [float(v) for v in distortion]
+    if any(not abs(v) <= 1e-9 for v in coefficients):
+        left_out.append(f"distortion ({', '.join(f'{v:g}' for v in coefficients)})")
+    return left_out

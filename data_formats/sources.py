@@ -184,7 +184,7 @@ class BagInput:
 
     def camera(self) -> CameraIntrinsics | None:
         """The intrinsics of the bag's only CameraInfo topic, or None (the bag opened to read them)."""
-        return bag_camera(self.path)
+        return bag_camera(self.path, on_warning=self._warnings)
 
     def has_topic(self, topic: str) -> bool:
         """Whether the bag has ``topic`` (its index says; no message read)."""

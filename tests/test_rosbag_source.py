@@ -1114,6 +1114,31 @@ def test_a_focal_length_too_short_for_a_field_of_view_is_no_camera(tmp_path):
     assert describe_bag(_damaged(tmp_path, "/camera/color/camera_info", tiny)).camera is None
 
 
+def test_what_the_camera_model_leaves_out_of_a_camera_info_is_said(tmp_path):
+    """aslam's camera is a centred pinhole with square pixels and no distortion, from fx alone:
+    ``info`` showed a bag's fy 110, principal point (70, 66) and distortion as fy 120 and the
+    centre, in silence. A centred, undistorted K (the other tests' bags) says nothing."""
+
+    def real_lens(msgs):
+        for msg in msgs:
+            msg.k = np.array([20.0, 0, 9.0, 0, 18.0, 7.5, 0, 0, 1])
+            msg.d = np.array([-0.3, 0.1, 0.0, 0.0, 0.0])
+
+    warnings: list[str] = []
+    path = _damaged(tmp_path, "/camera/color/camera_info", real_lens)
+    info = describe_bag(path, WITH_TRUTH, on_warning=warnings.append)
+    assert info.camera is not None and info.camera.fx == pytest.approx(20.0)
+    said = [w for w in warnings if "camera info" in w]
+    assert said == [
+        f"{path}: camera info on '/camera/color/camera_info': aslam's camera is a centred pinhole with"
+        " square pixels and no distortion, from fx alone; fy 18 (fx 20); principal point (9, 7.5), the"
+        " centre being (11.5, 7.5); distortion (-0.3, 0.1, 0, 0, 0): not used"
+    ]
+    warnings.clear()
+    describe_bag(write_rosbag2(tmp_path / "plain"), WITH_TRUTH, on_warning=warnings.append)
+    assert not [w for w in warnings if "camera info" in w]
+
+
 def _camera_bag(
     tmp_path: Path, seconds: float, camera_hz: int, odometry_at: Callable[[int], bool], odometry_hz: int = 50
 ) -> Path:
