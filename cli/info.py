@@ -101,7 +101,9 @@ def _print_tables(result: RecordingInfo) -> None:
             f"{c.width_px}x{c.height_px}, horizontal FOV {c.fov_deg:.2f}°, "
             f"fx={c.fx:.2f} cx={c.cx:.1f} cy={c.cy:.1f}",
         )
-    summary.add_row("odometry path", f"{result.odometry_distance_m:.2f} m")
+    assumed = result.metadata.get("odometry_known") == "false"  # an import without odometry
+    path_note = " (assumed: equal steps, no odometry imported)" if assumed else ""
+    summary.add_row("odometry path", f"{result.odometry_distance_m:.2f} m{path_note}")
     summary.add_row("truncated", "yes" if result.truncated else "no")
     output.print_table(console, summary)
 

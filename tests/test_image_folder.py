@@ -727,7 +727,7 @@ def test_import_option_values_out_of_range_are_bad_input(tmp_path, capsys, optio
 # --- import -------------------------------------------------------------------------------------
 
 
-def test_import_writes_a_recording_read_back_unchanged(tmp_path):
+def test_import_writes_a_recording_read_back_unchanged(tmp_path, capsys):
     paths = write_images(tmp_path / "imgs", 7)
     truth = tmp_path / "truth.txt"
     truth.write_text("\n".join(kitti_line(route(i)) for i in range(7)) + "\n")
@@ -753,6 +753,12 @@ def test_import_writes_a_recording_read_back_unchanged(tmp_path):
     metadata = Recording(out).metadata()
     assert metadata["odometry_known"] == "false" and metadata["odometry_step_m"] == "1"
     assert metadata["source"] == "image-folder" and metadata["stamps"] == "rate 5 Hz"
+    # ``info`` says the path is assumed, not measured: the camera of an import without odometry
+    # may never have moved.
+    from aslam.cli.app import main
+
+    assert main(["info", str(out)]) == 0
+    assert "odometry path  6.00 m (assumed: equal steps, no odometry imported)" in capsys.readouterr().out
     # Same arguments, same bytes.
     again = tmp_path / "again.mcap"
     import_image_folder(tmp_path / "imgs", again, ground_truth=truth, rate_hz=5.0)
