@@ -61,6 +61,13 @@ class Sample(NamedTuple):
 _WAIT, _BEFORE, _LATE, _GAP = "wait", "before", "late", "gap"
 
 
+CONTINUED_STEP = 0.1
+"""A step onto the origin within this share of the step before it (in length and direction) continues
+that motion (:meth:`PoseTrack._drove_to_origin`)."""
+CONTINUED_TURN_RAD = 0.1
+"""… and turns within this of the turn before it."""
+
+
 class PoseTrack:
     """Recent poses of one topic, for interpolation to image stamps.
 
@@ -69,7 +76,9 @@ class PoseTrack:
     --odometry-reset-at``, reports the robot at its origin, so the difference to the pose before
     measures no motion: it reads as a step to wherever the origin lies, in any direction, and one
     short enough passes the estimator's jump test for a motion. Exact, because nothing else lands on
-    the origin to the last bit: a robot driving past it misses by some fraction of a millimetre.
+    the origin to the last bit: a robot driving past it misses by some fraction of a millimetre;
+    noise-free poses (a simulator's, a pose file of a perfect loop) that land on it by the motion
+    they were making, a turn in place there or a step like the one before, are no restart.
     Counted on the messages, before any interpolation, and never interpolated across: an image
     stamped between the last pose before a restart and the restart takes the pose before (the old
     frame's), the next one the new frame's, and each sample says how many restarts came before it
@@ -101,7 +110,7 @@ class PoseTrack:
     def add(self, stamp_ns: int, pose: np.ndarray) -> None:
         if self._counts_restarts:
             at_origin = all(float(v) == 0.0 for v in pose)
-            if at_origin and not self._at_origin:
+            if at_origin and not self._at_origin and not self._drove_to_origin():
                 self.restarts += 1
             self._at_origin = at_origin
         stamps = self._stamps
@@ -116,6 +125,26 @@ class PoseTrack:
             self.first_ns = stamp_ns
         self.last_ns = stamp_ns
         self.count += 1
+
+    def _drove_to_origin(self) -> bool:
+        """Whether the robot reached the origin by the motion it was making, not by a restart: a
+        turn in place on it (the pose before was there already: a restart would have to find the
+        robot on its origin to the last bit), or a step like the one before it (a noise-free pose
+        file driven through its origin, or round a loop closed exactly there). Without both, a
+        pose file of a perfect loop read as a restart at each return, and its estimate relocalised."""
+        if not self._poses:
+            return False
+        last = self._poses[-1]
+        if float(last[0]) == 0.0 and float(last[1]) == 0.0:
+            return True
+        if len(self._poses) < 2:
+            return False
+        before = se2.between(self._poses[-2], last)
+        now = se2.between(last, np.zeros(3))
+        length = float(np.hypot(before[0], before[1]))
+        change = float(np.hypot(now[0] - before[0], now[1] - before[1]))
+        turn = abs(float(se2.wrap_angle(float(now[2] - before[2]))))
+        return change <= CONTINUED_STEP * length and turn <= CONTINUED_TURN_RAD
 
     def lookup(self, stamp_ns: int, max_gap_ns: int | None = None) -> np.ndarray | str:
         """The pose at ``stamp_ns``, or why not: _WAIT (no pose after it yet), _BEFORE, _LATE, or

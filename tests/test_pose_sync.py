@@ -10,12 +10,13 @@ from bisect import bisect_left
 from pathlib import Path
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from aslam.core import se2
 from aslam.data_formats.images import LazyImage
-from aslam.data_formats.pose_sync import TRUTH_MAX_GAP_NS, SampleAssembler
+from aslam.data_formats.pose_sync import TRUTH_MAX_GAP_NS, PoseTrack, SampleAssembler
 
 PATH = Path("test.mcap")
 GAP = TRUTH_MAX_GAP_NS
@@ -44,8 +45,19 @@ truth_gaps = st.one_of(st.sampled_from([GAP - 1, GAP, GAP + 1]), st.integers(1, 
 
 
 def restarted(rows: list[tuple[int, np.ndarray]], j: int) -> bool:
-    """Whether odometry message ``j`` restarts odometry: exactly the origin after one that was not."""
-    return j > 0 and not rows[j][1].any() and bool(rows[j - 1][1].any())
+    """Whether odometry message ``j`` restarts odometry: exactly the origin after one that was not,
+    unless the robot turned in place there (the pose before on the origin's position) or came by a
+    step within 10 % and 0.1 rad of the step before it."""
+    if j == 0 or rows[j][1].any() or not rows[j - 1][1].any():
+        return False
+    last = rows[j - 1][1]
+    if last[0] == 0 and last[1] == 0:
+        return False
+    if j < 2:
+        return True
+    before, now = se2.between(rows[j - 2][1], last), se2.between(last, np.zeros(3))
+    turn = abs(math.remainder(float(now[2] - before[2]), math.tau))
+    return not (math.dist(now[:2], before[:2]) <= 0.1 * math.hypot(*before[:2]) and turn <= 0.1)
 
 
 def expected_pose(
@@ -154,3 +166,23 @@ def test_odometry_all_between_two_images_is_refused_for_what_the_stamps_show():
         "11000000000 ns, the odometry from 4000000000 to 6000000000 ns, all of it between two images "
         "(2 image(s) before it, 2 after)"
     )
+
+
+@pytest.mark.parametrize(
+    ("poses", "restarts"),
+    [
+        # a perfect loop's pose file: back on the origin's position, then a turn in place onto it
+        ([(0, 0, 0), (1, 0, 0), (1, 1, math.pi / 2), (0, 1, math.pi), (0, 0, -math.pi / 2), (0, 0, 0)], 0),
+        ([(-2, 0, 0), (-1, 0, 0), (0, 0, 0), (1, 0, 0)], 0),  # driven straight through the origin
+        ([(0, 0, 0), (1, 0, 0), (2, 0, 0), (0, 0, 0)], 1),  # a restart: 2 m back in one step
+        ([(0, 0, 0), (1, 0, 0), (1.5, 0.5, 0.7), (0, 0, 0)], 1),
+        ([(3, 1, 0.5), (0, 0, 0)], 1),  # the first step: nothing to continue
+    ],
+)
+def test_a_pose_that_reaches_the_origin_by_its_motion_is_no_restart(poses, restarts):
+    """A noise-free pose file (a simulator's, a perfect loop) lands on the origin exactly by the
+    motion it was making: it was read as a restart at each return, and its estimate relocalised."""
+    track = PoseTrack(restarts=True)
+    for i, pose in enumerate(poses):
+        track.add(i * 1_000_000_000, np.array(pose, dtype=float))
+    assert track.restarts == restarts
