@@ -43,6 +43,8 @@ class PoseRow(NamedTuple):
     line: int  # 1-based line number in the file
     stamp_ns: int | None  # None for KITTI (one row per image, no stamps)
     pose: np.ndarray  # (x_m, y_m, yaw_rad)
+    off_plane_m: float = 0.0
+    """The coordinate the planar pose leaves out: TUM's z, KITTI's t_y (the camera's down axis); 0 for CSV."""
 
 
 MAX_LINE_CHARS = 65_536
@@ -226,12 +228,20 @@ class PoseLayout:
     """The line's numbers → ``(x_m, y_m, yaw_rad)``; ValueError says why a line holds no pose."""
     shape: str
     """The line as the error of a file whose format cannot be told names it."""
+    off_plane: Callable[[list[float]], float]
+    """The line's numbers → the coordinate ``planar`` leaves out (``PoseRow.off_plane_m``)."""
 
 
 LAYOUTS: dict[PoseFormat, PoseLayout] = {
-    PoseFormat.TUM: PoseLayout(8, False, True, _tum_pose, "8 numbers (TUM 't x y z qx qy qz qw')"),
-    PoseFormat.KITTI: PoseLayout(12, False, False, _kitti_pose, "12 (KITTI 3×4 rows)"),
-    PoseFormat.CSV: PoseLayout(4, True, True, _csv_pose, "4 comma-separated (CSV 't,x,y,yaw')"),
+    PoseFormat.TUM: PoseLayout(
+        8, False, True, _tum_pose, "8 numbers (TUM 't x y z qx qy qz qw')", lambda values: values[3]
+    ),
+    PoseFormat.KITTI: PoseLayout(
+        12, False, False, _kitti_pose, "12 (KITTI 3×4 rows)", lambda values: values[7]
+    ),
+    PoseFormat.CSV: PoseLayout(
+        4, True, True, _csv_pose, "4 comma-separated (CSV 't,x,y,yaw')", lambda _values: 0.0
+    ),
 }
 """Every pose-file format, the one place it is described (detection, splitting, stamps, the pose);
 its name is a ``PoseFormat`` (``aslam import --format``)."""
@@ -290,4 +300,4 @@ def _iter_poses(path: Path, fmt: PoseFormat, unit: StampUnit | None) -> Iterator
         if problem is not None:
             raise PoseFileError(f"line {number}: the pose {problem}", path=path)
         previous_pose = pose
-        yield PoseRow(number, stamp, pose)
+        yield PoseRow(number, stamp, pose, layout.off_plane(values))

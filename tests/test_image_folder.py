@@ -727,6 +727,32 @@ def test_import_option_values_out_of_range_are_bad_input(tmp_path, capsys, optio
 # --- import -------------------------------------------------------------------------------------
 
 
+@pytest.mark.parametrize("pitch_deg", [0.0, 30.0])
+def test_a_kitti_path_out_of_its_plane_is_said(tmp_path, pitch_deg):
+    """KITTI's poses are in the first camera's axes; a camera pitched down on a level car puts the
+    path out of that plane, and read as planar it was shortened, its turns bent, in silence."""
+    pitch = math.radians(pitch_deg)
+    c, s = math.cos(pitch), math.sin(pitch)
+    tilt = np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+    lines = []
+    for i in range(8):  # a level 2 × 2 m square, seen from the pitched camera's first axes
+        level = np.array([float(v) for v in kitti_line(SQUARE[i % 4]).split()]).reshape(3, 4)
+        lines.append(" ".join(repr(float(v)) for v in (tilt.T @ level).reshape(-1)))
+    poses = tmp_path / "poses.txt"
+    poses.write_text("\n".join(lines) + "\n")
+    write_images(tmp_path / "imgs", 8)
+    folder = open_image_folder(tmp_path / "imgs", odometry=poses)
+    said = [w for w in folder.warnings if "read in the plane of the file's own axes" in w]
+    if pitch_deg == 0:
+        assert said == []
+    else:
+        assert len(said) == 1
+        assert said[0].startswith(f"{poses}: its t_y (the camera's down axis) spans 1.00 m")
+
+
+SQUARE = [(0.0, 0.0, 0.0), (2.0, 0.0, math.pi / 2), (2.0, 2.0, math.pi), (0.0, 2.0, -math.pi / 2)]
+
+
 def test_import_writes_a_recording_read_back_unchanged(tmp_path, capsys):
     paths = write_images(tmp_path / "imgs", 7)
     truth = tmp_path / "truth.txt"
