@@ -47,6 +47,7 @@ from aslam.data_formats.files import (
     folder_lock,
     full_path,
     remove_stale_partials,
+    source_files,
     source_sha256,
     utf8_text,
     write_problem,
@@ -223,10 +224,18 @@ class HashCache:
 
     def sha256(self, recording: Path) -> str:
         try:
-            stat = recording.stat()  # a bag folder's mtime changes when its files are replaced
+            # Each file's: a bag folder's own size and mtime stay when a file in it is rewritten in
+            # place, and a re-run kept the old bag's results (then failed each new task as "not the
+            # bytes planned", for good).
+            stamp = {
+                "files": [
+                    [file.name, status.st_size, status.st_mtime_ns]
+                    for file in source_files(recording)
+                    for status in (file.stat(),)
+                ]
+            }
         except OSError as err:
             raise InputError(f"cannot read: {err.strerror or err}", path=recording) from err
-        stamp = {"size": stat.st_size, "mtime_ns": stat.st_mtime_ns}
         entry = self.entries.get(str(recording))
         if isinstance(entry, dict) and all(entry.get(k) == v for k, v in stamp.items()):
             digest = entry.get("sha256")

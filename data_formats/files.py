@@ -909,11 +909,41 @@ def open_mcap_input(path: Path, *, error: type[InputError], what: str) -> tuple[
 
 
 def source_files(path: Path) -> list[Path]:
-    """The files that hold a source, in a stable order: the file itself, or a bag folder's files."""
+    """The files that hold a source, in a stable order: the file itself, or a bag folder's files.
+
+    A rosbag2 folder's are its metadata.yaml and the storage files it lists (what rosbags reads),
+    where it lists them: any other file beside them (a README, a sweep's results written into the
+    folder) is no part of the bag, and counted as one it changed the bag's identity, so a sweep's
+    own writing there failed each of its tasks as "not the bytes planned". Else every file in it.
+    """
     path = Path(path)
-    if path.is_dir():
-        return sorted(p for p in path.iterdir() if p.is_file())
-    return [path]
+    if not path.is_dir():
+        return [path]
+    listed = _rosbag2_files(path)
+    if listed is not None:
+        return listed
+    return sorted(p for p in path.iterdir() if p.is_file())
+
+
+def _rosbag2_files(folder: Path) -> list[Path] | None:
+    """metadata.yaml and the files its ``relative_file_paths`` lists, by name; None where the folder
+    has no metadata.yaml, or one that lists no file by a plain name in the folder."""
+    metadata = folder / "metadata.yaml"
+    if not metadata.is_file():
+        return None
+    import ruamel.yaml
+
+    try:
+        info = ruamel.yaml.YAML(typ="safe").load(metadata.read_text())["rosbag2_bagfile_information"]
+        names = info["relative_file_paths"]
+    except Exception:  # a metadata.yaml rosbags will refuse: its reader names the problem
+        return None
+    if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
+        return None
+    files = [folder / name for name in names]
+    if any(file.parent != folder or file.name in ("", ".", "..") for file in files):
+        return None
+    return sorted({metadata, *files})
 
 
 def source_size_bytes(path: Path) -> int:

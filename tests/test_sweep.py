@@ -1113,6 +1113,50 @@ def test_recording_hashes_are_kept_while_path_size_and_mtime_hold(recordings, tm
     assert HashCache(tmp_path / "hashes.json").sha256(recording) == real  # touched: read again
 
 
+def _bag_folder(folder: Path) -> Path:
+    """A rosbag2-shaped folder: metadata.yaml listing one storage file (hashing reads bytes only)."""
+    folder.mkdir(parents=True)
+    (folder / "metadata.yaml").write_text(
+        "rosbag2_bagfile_information:\n  version: 9\n  relative_file_paths:\n  - bag_0.mcap\n"
+    )
+    (folder / "bag_0.mcap").write_bytes(b"first bag's bytes")
+    return folder
+
+
+def test_a_bag_file_rewritten_in_place_is_hashed_again(tmp_path):
+    """A bag folder's own size and mtime stay when a file in it is rewritten in place: the cache
+    kept the old bag's hash, a re-run its results, and each new task failed for good."""
+    from aslam.app.sweep import HashCache
+    from aslam.data_formats.files import source_sha256
+
+    bag = _bag_folder(tmp_path / "bag")
+    cache = HashCache(tmp_path / "hashes.json")
+    first = cache.sha256(bag)
+    cache.save()
+    folder_times = os.stat(bag).st_atime_ns, os.stat(bag).st_mtime_ns
+    (bag / "bag_0.mcap").write_bytes(b"other bag's bytes")  # same size, the folder untouched
+    os.utime(bag, ns=folder_times)
+    again = HashCache(tmp_path / "hashes.json").sha256(bag)
+    assert again == source_sha256(bag) != first
+
+
+def test_files_beside_a_bag_in_its_folder_are_no_part_of_it(tmp_path):
+    """A rosbag2 folder is its metadata.yaml and the files it lists: a README, or a sweep's own
+    results written into the folder (``-o .``), changed the bag's identity, and every task failed
+    as "not the bytes the sweep planned"."""
+    from aslam.data_formats.files import source_files, source_sha256
+
+    bag = _bag_folder(tmp_path / "bag")
+    before = source_sha256(bag)
+    (bag / "README.md").write_text("notes")
+    (bag / "results.parquet").write_bytes(b"PAR1")
+    assert [p.name for p in source_files(bag)] == ["bag_0.mcap", "metadata.yaml"]
+    assert source_sha256(bag) == before
+    (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: {relative_file_paths: [../x]}\n")
+    everything = ["README.md", "bag_0.mcap", "metadata.yaml", "results.parquet"]
+    assert [p.name for p in source_files(bag)] == everything  # a listing outside the folder: all of it
+
+
 def test_pareto_prints_the_undominated_tasks_on_stdout(local_run, recordings, capsys):
     _code, results = local_run
     sweep = _write_sweep(recordings)
