@@ -139,7 +139,7 @@ class Source:
     def label(self) -> str:
         if self.render is None:
             return self.name
-        return f"render {Path(self.render.route).stem} seed {self.render.seed} ({self.name})"
+        return f"render {render_text(self.render)} ({self.name})"  # every setting not the default
 
 
 def distinct_names(paths: Iterable[Path]) -> dict[Path, str]:

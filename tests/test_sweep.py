@@ -1885,3 +1885,17 @@ def test_a_run_removes_what_a_killed_worker_was_writing(tmp_path, monkeypatch):
     run = run_sweep(read_sweep_file(sweep_file), results, workers=1)
     run.check()
     assert not left.exists()
+
+
+def test_renders_that_differ_in_a_knob_read_apart():
+    """The plan, the live lines and the Pareto table named renders by route and seed alone: the
+    example file's aliasing 0.5 and 1.0 renders of seed 1 read alike."""
+    from aslam.app.sweep import Source
+
+    labels = {
+        Source(Path(f"r{a}.mcap"), "id", "r.mcap", RecordConfig(seed=1, aliasing=a)).label for a in (0.5, 1.0)
+    }
+    assert labels == {
+        "render route=paper seed=1 aliasing=0.5 (r.mcap)",
+        "render route=paper seed=1 aliasing=1 (r.mcap)",
+    }
