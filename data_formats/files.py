@@ -925,9 +925,9 @@ def source_files(path: Path) -> list[Path]:
     return sorted(p for p in path.iterdir() if p.is_file())
 
 
-def _rosbag2_files(folder: Path) -> list[Path] | None:
-    """metadata.yaml and the files its ``relative_file_paths`` lists, by name; None where the folder
-    has no metadata.yaml, or one that lists no file by a plain name in the folder."""
+def rosbag2_information(folder: Path) -> dict | None:
+    """A rosbag2 folder's metadata.yaml, its ``rosbag2_bagfile_information`` mapping; None where the
+    folder has none or rosbags would refuse it (its reader then names the problem)."""
     metadata = folder / "metadata.yaml"
     if not metadata.is_file():
         return None
@@ -935,15 +935,21 @@ def _rosbag2_files(folder: Path) -> list[Path] | None:
 
     try:
         info = ruamel.yaml.YAML(typ="safe").load(metadata.read_text())["rosbag2_bagfile_information"]
-        names = info["relative_file_paths"]
-    except Exception:  # a metadata.yaml rosbags will refuse: its reader names the problem
+    except Exception:
         return None
+    return info if isinstance(info, dict) else None
+
+
+def _rosbag2_files(folder: Path) -> list[Path] | None:
+    """metadata.yaml and the files its ``relative_file_paths`` lists, by name; None where the folder
+    has no readable metadata.yaml, or one that lists no file by a plain name in the folder."""
+    names = (rosbag2_information(folder) or {}).get("relative_file_paths")
     if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
         return None
     files = [folder / name for name in names]
     if any(file.parent != folder or file.name in ("", ".", "..") for file in files):
         return None
-    return sorted({metadata, *files})
+    return sorted({folder / "metadata.yaml", *files})
 
 
 def source_size_bytes(path: Path) -> int:

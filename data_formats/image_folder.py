@@ -29,6 +29,7 @@ assumption, and the estimator should use its motion prior for that case rather t
 from __future__ import annotations
 
 import heapq
+import math
 import re
 from array import array
 from collections.abc import Callable, Iterator
@@ -257,17 +258,17 @@ class OffPlane:
     """Off-plane extent over this share of the planar extent gets a warning."""
 
     def __init__(self) -> None:
-        self._low = np.full(3, np.inf)  # x, y, off-plane
-        self._high = np.full(3, -np.inf)
+        self._low = [math.inf] * 3  # x, y, off-plane
+        self._high = [-math.inf] * 3
 
     def add(self, row: PoseRow) -> None:
-        point = np.array([row.pose[0], row.pose[1], row.off_plane_m])
-        self._low = np.minimum(self._low, point)
-        self._high = np.maximum(self._high, point)
+        for i, value in enumerate((float(row.pose[0]), float(row.pose[1]), row.off_plane_m)):
+            self._low[i] = min(self._low[i], value)
+            self._high[i] = max(self._high[i], value)
 
     def warning(self, path: Path, fmt: PoseFormat) -> str | None:
-        extent = self._high - self._low
-        planar, off = float(max(extent[0], extent[1])), float(extent[2])
+        extent = [high - low for low, high in zip(self._low, self._high, strict=True)]
+        planar, off = max(extent[0], extent[1]), extent[2]
         if not (off > self.SHARE * planar and off > 0.1):
             return None
         axis = "t_y (the camera's down axis)" if fmt is PoseFormat.KITTI else "z"

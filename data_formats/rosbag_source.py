@@ -28,7 +28,7 @@ from aslam.core.errors import InputError
 from aslam.data_formats import ros_msgs
 from aslam.data_formats.camera import CameraIntrinsics
 from aslam.data_formats.errors import BagError
-from aslam.data_formats.files import check_input_file, source_size_bytes
+from aslam.data_formats.files import check_input_file, rosbag2_information, source_size_bytes
 from aslam.data_formats.mcap_file import McapFile
 from aslam.data_formats.pose_limits import implausible
 from aslam.data_formats.pose_sync import Sample, SampleAssembler, StampOrder
@@ -656,11 +656,7 @@ def _storage(
         return ("mcap" if path.suffix.lower() == ".mcap" else "sqlite3"), (path.name,), None, None
     directory = inner.storage  # rosbags' DirectoryReader
     metadata = directory.metadata
-    import ruamel.yaml
-
-    info = ruamel.yaml.YAML(typ="safe").load((path / "metadata.yaml").read_text())[
-        "rosbag2_bagfile_information"
-    ]
+    info = rosbag2_information(path) or {}  # read by rosbags at the open: it is there
     files = tuple(Path(p).name for p in info.get("relative_file_paths", []))
     compression = None
     if metadata.compression_mode:
