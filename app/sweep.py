@@ -33,7 +33,7 @@ import socket
 import time
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -54,7 +54,7 @@ from aslam.data_formats.files import (
 )
 from aslam.data_formats.provenance import code_version, library_versions
 from aslam.data_formats.rosbag_source import SourceKind, open_source
-from aslam.data_formats.sources import not_an_input
+from aslam.data_formats.sources import TopicChoice, not_an_input
 from aslam.data_formats.sweep_files import (
     HASHES_FILE,
     RESULTS_CSV,
@@ -134,6 +134,8 @@ class Source:
     """What the terminal's tables call the file: its name, or where another recording of the sweep
     has that name, the shortest tail of its path no other has (``a/run.mcap``, ``b/run.mcap``)."""
     render: RecordConfig | None = None
+    topics: TopicChoice = field(default_factory=TopicChoice)
+    """The sweep file's ``[recordings]`` topic keys (a render's topics are the standard ones)."""
 
     @property
     def label(self) -> str:
@@ -291,7 +293,7 @@ def plan_tasks(sweep: Sweep, results_dir: Path, *, hashes: HashCache | None = No
     ]
     _check_inputs(sweep.path, recordings)
     names = distinct_names(recordings)
-    sources = [Source(path, hashes.sha256(path), names[path]) for path in recordings]
+    sources = [Source(path, hashes.sha256(path), names[path], topics=sweep.topics) for path in recordings]
     for render in sweep.renders:
         path, identity = render_path(results_dir, render)
         sources.append(Source(path, identity, path.name, render))
@@ -304,6 +306,7 @@ def plan_tasks(sweep: Sweep, results_dir: Path, *, hashes: HashCache | None = No
             key = _digest(
                 {
                     "recording": source.identity,
+                    "topics": asdict(source.topics),
                     "config": asdict(config),
                     "score": asdict(sweep.score),
                     "version": code_version(),
@@ -428,6 +431,7 @@ def run_task(task: Task, rendered: Rendered | None = None) -> TaskResult:
             task.estimate_path,
             task.config,
             force=True,
+            topics=task.source.topics,
             workers=0,
             reader_process=False,
             on_warning=warnings.append,
@@ -439,6 +443,7 @@ def run_task(task: Task, rendered: Rendered | None = None) -> TaskResult:
             recording=task.source.path,
             radius_m=task.score.radius_m,
             heading_deg=task.score.heading_deg,
+            ground_truth_topic=task.source.topics.ground_truth,
             on_warning=warnings.append,
         )
         # Replaced after the estimate read it, the truth was read from the new file (or, of another

@@ -23,6 +23,7 @@ from aslam.app.config_file import type_problem
 from aslam.core.config import REPORT_RANGES, REVISIT_HEADING_DEG, REVISIT_RADIUS_M, EstimatorConfig
 from aslam.core.errors import AslamError, ConfigError
 from aslam.data_formats.files import file_name_from_utf8, full_path
+from aslam.data_formats.sources import TopicChoice
 from aslam.data_formats.toml_files import read_toml
 from aslam.recorder.config import CameraSpec, NoiseModel, NoiseParams, RecordConfig, parse_size
 from aslam.recorder.routes import default_laps
@@ -42,7 +43,15 @@ TOP_LEVEL_KEYS = ("figures", "recordings", "render", "grid", "score")
 #: The most parameter sets one grid (or recordings one [[render]] table) may make: each is checked
 #: by building it, and a 1,000 × 1,000 grid took minutes and gigabytes before saying anything.
 MAX_COMBINATIONS = 10_000
-RECORDINGS_KEYS = ("paths",)
+#: ``[recordings]``'s topic keys (``aslam estimate``'s options, with underscores) → TopicChoice fields.
+TOPIC_KEYS = {
+    "image_topic": "image",
+    "odometry_topic": "odometry",
+    "ground_truth_topic": "ground_truth",
+    "odom_frame": "odom_frame",
+    "base_frame": "base_frame",
+}
+RECORDINGS_KEYS = ("paths", *TOPIC_KEYS)
 SCORE_KEYS = {"radius_m": float, "heading_deg": float}
 #: Keys of a ``[[render]]`` table and their types; each may also be a list of such values.
 RENDER_KEYS: dict[str, type] = {
@@ -94,6 +103,8 @@ class Sweep:
     """The ``[grid]`` table, or the ``[[grid]]`` tables in file order (none: the defaults)."""
     figures: tuple[str, ...] = DEFAULT_FIGURES
     score: ScoreOptions = field(default_factory=ScoreOptions)
+    topics: TopicChoice = field(default_factory=TopicChoice)
+    """``[recordings]``'s topic keys, for every recording it lists (renders have the standard topics)."""
 
     def parameter_sets(self) -> Iterator[tuple[tuple[str, Any], ...]]:
         """Every grid's combinations in turn, the last key varying fastest (one empty set for no grid)."""
@@ -128,6 +139,7 @@ def read_sweep_file(path: Path) -> Sweep:
         if key not in TOP_LEVEL_KEYS
     ]
     recordings = _recordings(document.get("recordings", {}), base, problems)
+    topics = _topics(document.get("recordings", {}), problems)
     renders = _renders(document.get("render", []), base, problems)
     if not recordings and not renders and not any("recordings" in p or "render" in p for p in problems):
         problems.append("no recordings: give [recordings] paths and/or [[render]] tables")
@@ -136,7 +148,7 @@ def read_sweep_file(path: Path) -> Sweep:
     score = _score(document.get("score", {}), problems)
     if problems:
         raise ConfigError("; ".join(dict.fromkeys(problems)), path=path)
-    return Sweep(full_path(path), recordings, renders, grids, figures, score)
+    return Sweep(full_path(path), recordings, renders, grids, figures, score, topics)
 
 
 def _table(value: Any, name: str, known: Any, problems: list[str]) -> dict[str, Any]:
@@ -175,6 +187,22 @@ def _recordings(value: Any, base: Path, problems: list[str]) -> tuple[Path, ...]
         else:
             problems.append(f"recordings.paths: '{pattern}' does not exist (a recording or a bag)")
     return tuple(found)
+
+
+def _topics(value: Any, problems: list[str]) -> TopicChoice:
+    """The topics and frames ``[recordings]`` names, as ``aslam estimate``'s options would: a bag's
+    ground truth is read (and its rows scored) only from a named topic."""
+    if not isinstance(value, dict):
+        return TopicChoice()  # (told by _recordings)
+    chosen: dict[str, str] = {}
+    for key, field_name in TOPIC_KEYS.items():
+        if key not in value:
+            continue
+        if not isinstance(value[key], str) or not value[key].strip():
+            problems.append(f"recordings.{key} must be a topic or frame name (a string), got {value[key]!r}")
+            continue
+        chosen[field_name] = value[key]
+    return TopicChoice(**chosen)
 
 
 def _renders(value: Any, base: Path, problems: list[str]) -> tuple[RecordConfig, ...]:

@@ -26,7 +26,7 @@ import psutil
 import pyarrow.csv
 import pyarrow.parquet
 import pytest
-from conftest import random_frames, write_recording
+from conftest import one_error_line, random_frames, write_recording
 from distributed import Client
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -45,6 +45,7 @@ from aslam.app.sweep import (
     resolve_objectives,
     rows,
     run_sweep,
+    run_task,
     table_bytes,
 )
 from aslam.app.sweep_file import RENDER_KEYS, read_sweep_file
@@ -1899,3 +1900,40 @@ def test_renders_that_differ_in_a_knob_read_apart():
         "render route=paper seed=1 aliasing=0.5 (r.mcap)",
         "render route=paper seed=1 aliasing=1 (r.mcap)",
     }
+
+
+def test_a_bag_swept_with_its_topics_named_is_scored(tmp_path, capsys):
+    """``[recordings]`` takes ``aslam estimate``'s topic options (with underscores) for the bags it
+    lists: a bag's ground truth is read only from a named topic, so a sweep over real bags could not
+    score a row (and a bag that needs ``--image-topic`` failed every one). A bad value is told with
+    the file's other problems."""
+    from conftest import square_route, write_square_bag
+
+    write_square_bag(tmp_path / "bag.mcap", square_route(), seed=1, ground_truth_topic="/truth")
+    sweep = tmp_path / "s.toml"
+    figures = 'figures = ["loop_closure.precision", "loop_closure.recall"]\n'
+    sweep.write_text(figures + '[recordings]\npaths = ["bag.mcap"]\nground_truth_topic = "/truth"\n')
+    assert read_sweep_file(sweep).topics.ground_truth == "/truth"
+    assert main(["sweep", str(sweep), "-o", str(tmp_path / "scored"), "--workers", "1", "-q"]) == 0
+    scored = _rows(tmp_path / "scored")
+    assert [r["status"] for r in scored] == ["ok"]
+    assert scored[0]["loop_closure.precision"] is not None and scored[0]["loop_closure.recall"] > 0
+    unnamed = tmp_path / "unnamed.toml"  # the same task without the key, run here (no cluster)
+    unnamed.write_text(figures + '[recordings]\npaths = ["bag.mcap"]\n')
+    (task,) = plan_tasks(read_sweep_file(unnamed), tmp_path / "unscored")
+    unscored = run_task(task)
+    assert unscored.ok and unscored.summary is not None
+    assert unscored.summary["loop_closure.precision"] is None
+    wrong = tmp_path / "wrong.toml"
+    wrong.write_text(figures + '[recordings]\npaths = ["bag.mcap"]\nimage_topic = "/no_camera"\n')
+    (task,) = plan_tasks(read_sweep_file(wrong), tmp_path / "failed")
+    failed = run_task(task)
+    assert failed.error is not None and "/no_camera" in failed.error
+    capsys.readouterr()
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[recordings]\npaths = ["bag.mcap"]\nimage_topic = 5\nodometry_topic = ""\n')
+    assert main(["sweep", str(bad), "-o", str(tmp_path / "none"), "--dry-run"]) == 2
+    assert one_error_line(capsys.readouterr().err) == (
+        f"aslam: error: {bad}: recordings.image_topic must be a topic or frame name (a string), got 5;"
+        " recordings.odometry_topic must be a topic or frame name (a string), got ''"
+    )
