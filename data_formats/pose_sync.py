@@ -19,9 +19,13 @@ from aslam.core import se2
 from aslam.data_formats.errors import RecordingError
 from aslam.data_formats.images import LazyImage
 
-# Images held while waiting for the odometry message after them. Past this the oldest is dropped
-# (counted and reported): memory stays bounded even when odometry stops mid-recording.
+# Images held while waiting for the odometry message after them: at most this many, and at most
+# MAX_PENDING_BYTES of them as stored. Past either the oldest is dropped (counted and reported):
+# memory stays bounded even when odometry stops mid-recording. The bytes bound counts for raw
+# cameras: 512 frames of 640 × 480 rgb8 held 450 MiB, of the largest admitted images 12 GiB; it
+# still holds 40 raw 1080p frames, over a second of a 30 Hz camera.
 MAX_PENDING_IMAGES = 512
+MAX_PENDING_BYTES = 256 * 2**20
 # Odometry (and ground-truth) poses kept to interpolate images that arrive late, i.e. whose stamp
 # is older than the newest pose already read (sensor latency differs between topics): the last
 # POSE_HISTORY messages and every one of the last POSE_HISTORY_NS, so neither a slow topic nor a
@@ -285,6 +289,7 @@ class SampleAssembler:
     odometry_topic: str | None = None
     ground_truth_topic: str | None = None
     max_pending: int = MAX_PENDING_IMAGES
+    max_pending_bytes: int = MAX_PENDING_BYTES
     # Whether images wait for a ground-truth pose; set once the ground-truth channel is known
     # (on a linear read it may be met after the first images).
     expect_ground_truth: bool = False
@@ -302,6 +307,7 @@ class SampleAssembler:
     yielded: int = 0
     first_image_ns: int | None = None
     _pending: deque[_Pending] = field(default_factory=deque)
+    _pending_bytes: int = 0  # the stored bytes of the images in _pending
     # Images let go past max_pending while odometry had stopped: in a gap if odometry comes back past
     # the last of them, else after the last odometry message (known only then, or at the end).
     _let_go_waiting: int = 0
@@ -336,6 +342,7 @@ class SampleAssembler:
         self._resolve(item)
         if not item.dropped:
             self._pending.append(item)
+            self._pending_bytes += len(image.data)
         yield from self._drain()
 
     def add_odometry(self, stamp_ns: int, pose: np.ndarray) -> Iterator[Sample]:
@@ -393,24 +400,28 @@ class SampleAssembler:
         while pending:
             head = pending[0]
             if head.dropped:
-                pending.popleft()
+                self._pop()
                 continue
             ready = head.odometry is not None and (head.ground_truth_done or not self.expect_ground_truth)
-            if not ready and len(pending) > self.max_pending:
+            full = len(pending) > self.max_pending or self._pending_bytes > self.max_pending_bytes
+            if not ready and full:
                 if head.odometry is None:  # odometry stopped or far too slow: let the oldest go
                     if self.odometry.last_ns is None:
                         self.counts.before_first += 1
                     else:
                         self._let_go_waiting += 1
                         self._let_go_last_ns = head.stamp_ns
-                    pending.popleft()
+                    self._pop()
                     continue
                 head.ground_truth_done = True
                 ready = True
             if not ready:
                 return
-            pending.popleft()
+            self._pop()
             yield self._sample(head)
+
+    def _pop(self) -> None:
+        self._pending_bytes -= len(self._pending.popleft().image.data)
 
     def _sample(self, item: _Pending) -> Sample:
         self.yielded += 1
@@ -425,7 +436,8 @@ class SampleAssembler:
         self.counts.after_last += self._let_go_waiting
         self._let_go_waiting = 0
         while self._pending:
-            item = self._pending.popleft()
+            item = self._pending[0]
+            self._pop()
             if item.dropped:
                 continue
             if item.odometry is None:
@@ -491,7 +503,11 @@ class SampleAssembler:
                 f"{POSE_HISTORY_NS / 1e9:g} s are kept, at least {POSE_HISTORY} and at most "
                 f"{POSE_HISTORY_MAX:,} messages)",
             ),
-            (c.gap, f"image(s) in odometry gaps longer than {self.max_pending} images"),
+            (
+                c.gap,
+                f"image(s) in odometry gaps longer than {self.max_pending} images"
+                f" or {self.max_pending_bytes / 2**20:g} MiB of them",
+            ),
             (
                 c.after_last,
                 "image(s) stamped after the last odometry message"

@@ -186,3 +186,22 @@ def test_a_pose_that_reaches_the_origin_by_its_motion_is_no_restart(poses, resta
     for i, pose in enumerate(poses):
         track.add(i * 1_000_000_000, np.array(pose, dtype=float))
     assert track.restarts == restarts
+
+
+def test_images_waiting_for_odometry_are_bounded_by_their_bytes_too():
+    """Odometry stops; a raw camera goes on. 512 waiting frames of 640 × 480 rgb8 held 450 MiB (of
+    the largest admitted images 12 GiB): the oldest are let go once the waiting images hold
+    ``max_pending_bytes``, and counted in the gap when odometry comes back past them."""
+    s = 1_000_000_000
+    frame = bytes(1000)
+    assembler = SampleAssembler(PATH, max_pending_bytes=10_000)
+    assert not list(assembler.add_odometry(0, np.zeros(3)))
+    held = []
+    for i in range(1, 31):
+        assert not list(assembler.add_image(i * s, LazyImage(frame, "rgb8", path=PATH)))
+        held.append(assembler._pending_bytes)
+    assert max(held) == 10_000  # ten frames, never an eleventh
+    samples = list(assembler.add_odometry(40 * s, np.array([40.0, 0.0, 0.0])))
+    assert [sample.stamp_ns for sample in samples] == [i * s for i in range(21, 31)]
+    assert assembler.counts.gap == 20 and assembler._pending_bytes == 0
+    assert not list(assembler.finish())
