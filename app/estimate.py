@@ -43,6 +43,9 @@ class EstimateProgress:
     keyframes: int
     hypotheses: int
     elapsed_s: float
+    finishing: bool = False
+    """Every image is read; the map's pose graph and the file are being written (seconds at
+    10,000 keyframes, in which a bar at its end would look stalled)."""
 
 
 @dataclass(frozen=True)
@@ -153,10 +156,12 @@ def estimate(
     counts = PipelineCounts()
     start = time.perf_counter()
 
-    def progress(keyframes: int, hypotheses: int) -> None:
+    def progress(keyframes: int, hypotheses: int, *, finishing: bool = False) -> None:
         if on_progress is not None:
             elapsed = time.perf_counter() - start
-            on_progress(EstimateProgress(counts.samples, counts.images, keyframes, hypotheses, elapsed))
+            on_progress(
+                EstimateProgress(counts.samples, counts.images, keyframes, hypotheses, elapsed, finishing)
+            )
 
     def images_counted(images: int | None) -> None:
         counts.images = images
@@ -204,7 +209,7 @@ def estimate(
             result = estimator.result()
             wall_s = time.perf_counter() - start
             keyframes = len(result.keyframe_stamps_ns)
-            progress(keyframes, len(result.hypotheses))
+            progress(keyframes, len(result.hypotheses), finishing=True)
             metadata = EstimateMetadata(
                 tool_version=tool_version(),
                 config=asdict(config),

@@ -130,7 +130,7 @@ def progress_columns() -> tuple[Any, ...]:
     from rich.table import Column
 
     return (
-        TextColumn("estimate"),
+        TextColumn("{task.description}"),  # "estimate"; "writing" once every image is read
         BarColumn(bar_width=8),
         MofNCompleteColumn(table_column=Column(no_wrap=True)),
         TextColumn("images · {task.fields[keyframes]} kf · {task.fields[hypotheses]} hyp"),
@@ -154,6 +154,7 @@ def _progress_bar(terminal: Terminal) -> tuple[AbstractContextManager[Any], Call
     def on_progress(p: EstimateProgress) -> None:
         progress.update(
             task,
+            description="writing" if p.finishing else "estimate",
             completed=p.samples,
             total=p.samples_total,
             keyframes=p.keyframes,

@@ -175,18 +175,23 @@ def report(
     if not quiet or not stdout_taken:
         _print_tables(table_console(stderr=stdout_taken), result)
     written: list[Path] = []
-    if graph is not None:
-        written += _write_json(graph, result.graph_json(), indent=1)
-    if trajectory is not None:
-        written += _write_trajectories(
-            result, trajectory, trajectory_format, force=force, warn=terminal.warning
-        )
-    if plots is not None:
-        from aslam.app.plots import write_plots
+    with _status(terminal) as on_stage:  # the plots of a long run take seconds
+        stage = on_stage or (lambda _text: None)
+        if graph is not None:
+            stage("writing the map graph")
+            written += _write_json(graph, result.graph_json(), indent=1)
+        if trajectory is not None:
+            stage("writing the trajectories")
+            written += _write_trajectories(
+                result, trajectory, trajectory_format, force=force, warn=terminal.warning
+            )
+        if plots is not None:
+            from aslam.app.plots import write_plots
 
-        written += write_plots(plots, result, force=force, on_warning=terminal.warning)
-    if json_out is not None:
-        written += _write_json(json_out, result.summary, indent=2)
+            stage("drawing the plots")
+            written += write_plots(plots, result, force=force, on_warning=terminal.warning)
+        if json_out is not None:
+            written += _write_json(json_out, result.summary, indent=2)
     for path in written:
         terminal.wrote(f"wrote {path}")
 

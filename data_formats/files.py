@@ -215,10 +215,12 @@ class CommandFiles:
     the end of the command removes."""
     folders: list[Path] = field(default_factory=list)
     """Folders the command created for its outputs, deepest first: a failed command removes them."""
-    results: list[Callable[[], None]] = field(default_factory=list)
-    """Result documents for stdout or another stream (``report --json -``), written in order once
-    every output is in place: a command whose outputs fail prints none (a pipeline would read a
-    complete-looking result of a failed command); one that cannot be written takes them back."""
+    results: list[tuple[bool, Callable[[], None]]] = field(default_factory=list)
+    """Result documents for stdout or another stream (``report --json -``), each with whether it
+    goes to stdout or stderr, written once every output is in place: a command whose outputs fail
+    prints none (a pipeline would read a complete-looking result of a failed command); one that
+    cannot be written takes them back. Those for other streams (``--json /dev/full``, a FIFO) go
+    first, so that one failing leaves stdout empty too (the tables had been printed, then the error)."""
     after_commit: list[Callable[[], None]] = field(default_factory=list)
     """Run once the outputs are in place (the command's "wrote …" lines); dropped on a rollback."""
     owner_pid: int = field(default_factory=os.getpid)
@@ -260,7 +262,7 @@ class CommandFiles:
                 raise item.error(problem, path=item.shown) from err
         results, self.results = self.results, []
         try:
-            for write in results:
+            for _, write in sorted(results, key=lambda result: result[0]):  # stable: in order within each
                 write()
         except BaseException:
             for target in created:
@@ -849,7 +851,7 @@ def write_text_output(
         )
     files = current()
     if files is not None and (path is None or is_stream_output(path)):
-        files.results.append(write)
+        files.results.append((path is None or is_stdout(path) or is_stderr(path), write))
     else:
         write()
     return path

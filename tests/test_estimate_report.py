@@ -499,6 +499,9 @@ def test_app_layer_gives_what_the_cli_prints(recording: Path, tmp_path: Path, ca
     )
     assert summary.output == (tmp_path / "api.mcap").absolute() and summary.keyframes > 0
     assert progress[-1].keyframes == summary.keyframes and warnings == []
+    # The last update says the images are all read and the map is being written (the bar sat at
+    # its end for seconds while the pose graph and the file were).
+    assert [p.finishing for p in progress] == [False] * (len(progress) - 1) + [True]
     assert main(["estimate", str(recording), "-o", str(tmp_path / "cli.mcap"), "--no-timing", "-q"]) == 0
     assert (tmp_path / "api.mcap").read_bytes() == (tmp_path / "cli.mcap").read_bytes()
     report = score(tmp_path / "api.mcap")

@@ -1502,6 +1502,17 @@ def test_a_full_stdout_is_one_line_naming_it(recording: Path):
     assert done.stderr == "aslam: error: stdout: No space left on device\n"
 
 
+def test_a_report_whose_json_stream_is_full_prints_no_tables(estimate_file: Path, capsys):
+    """``report E --json /dev/full``: the tables (the result on stdout) were printed, then the
+    error; a command whose outputs fail prints none, so a stream output is written before stdout."""
+    if not os.path.exists("/dev/full"):
+        pytest.skip("no /dev/full here")
+    assert main(["report", str(estimate_file), "--json", "/dev/full"]) == 2
+    out, err = capsys.readouterr()
+    assert out == ""
+    assert err.splitlines()[-1] == "aslam: error: /dev/full: cannot write: No space left on device"
+
+
 def test_stdout_on_a_full_disk_is_never_cut_in_silence(estimate_file: Path, full_disk: Path, capsys):
     """With ``PYTHONUNBUFFERED=1`` (CI images) Python's text layer dropped what a short write did
     not take: the graph JSON cut at the 8 KiB left on the disk, exit 0."""
