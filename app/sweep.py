@@ -37,7 +37,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from aslam.app.sweep_file import ScoreOptions, Sweep, estimator_config
+from aslam.app.sweep_file import TOPIC_KEYS, ScoreOptions, Sweep, estimator_config
 from aslam.core.config import EstimatorConfig
 from aslam.core.errors import AslamError, ConfigError, InputError, one_line
 from aslam.data_formats.files import (
@@ -135,13 +135,21 @@ class Source:
     has that name, the shortest tail of its path no other has (``a/run.mcap``, ``b/run.mcap``)."""
     render: RecordConfig | None = None
     topics: TopicChoice = field(default_factory=TopicChoice)
-    """The sweep file's ``[recordings]`` topic keys (a render's topics are the standard ones)."""
+    """Its ``[recordings]`` table's topic keys (a render's topics are the standard ones)."""
 
     @property
     def label(self) -> str:
         if self.render is None:
-            return self.name
+            named = topics_text(self.topics)
+            return f"{self.name} ({named})" if named else self.name
         return f"render {render_text(self.render)} ({self.name})"  # every setting not the default
+
+
+def topics_text(topics: TopicChoice) -> str:
+    """The topic keys a recording was given, as the sweep file names them (``image_topic=/cam``);
+    empty for none."""
+    given = ((key, getattr(topics, name)) for key, name in TOPIC_KEYS.items())
+    return " ".join(f"{key}={value}" for key, value in given if value)
 
 
 def distinct_names(paths: Iterable[Path]) -> dict[Path, str]:
@@ -288,12 +296,15 @@ def plan_tasks(sweep: Sweep, results_dir: Path, *, hashes: HashCache | None = No
     results_dir = full_path(results_dir)
     hashes = hashes if hashes is not None else HashCache(None)
     own = [results_dir / name for name in (RENDERS_FOLDER, ESTIMATES_FOLDER, TASKS_FOLDER)]
-    recordings = [
-        path for path in sweep.recordings if not any(full_path(path).is_relative_to(folder) for folder in own)
+    listed = [
+        recording
+        for recording in sweep.recordings
+        if not any(full_path(recording.path).is_relative_to(folder) for folder in own)
     ]
-    _check_inputs(sweep.path, recordings)
-    names = distinct_names(recordings)
-    sources = [Source(path, hashes.sha256(path), names[path], topics=sweep.topics) for path in recordings]
+    paths = list(dict.fromkeys(recording.path for recording in listed))
+    _check_inputs(sweep.path, paths)
+    names = distinct_names(paths)
+    sources = [Source(path, hashes.sha256(path), names[path], topics=topics) for path, topics in listed]
     for render in sweep.renders:
         path, identity = render_path(results_dir, render)
         sources.append(Source(path, identity, path.name, render))
@@ -549,6 +560,7 @@ class SweepPlan:
                     "same_as": task.same_as,
                     "recording": str(task.source.path),
                     "render": "" if task.source.render is None else render_text(task.source.render),
+                    "topics": topics_text(task.source.topics),
                     "parameters": dict(task.parameters),
                 }
                 for task in self.tasks
@@ -1195,6 +1207,7 @@ def columns(sweep: Sweep, extra_figures: Iterable[str] = ()) -> list[str]:
         "status",
         "recording",
         "render",
+        "topics",
         "same_as",
         *params,
         *figures,
@@ -1220,6 +1233,7 @@ def rows(
             "status": "ok" if result.ok else "error",
             "recording": str(task.source.path),
             "render": "" if task.source.render is None else render_text(task.source.render),
+            "topics": topics_text(task.source.topics),
             "same_as": task.same_as,
         }
         given = dict(task.parameters)

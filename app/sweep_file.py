@@ -17,7 +17,7 @@ import re
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from aslam.app.config_file import type_problem
 from aslam.core.config import REPORT_RANGES, REVISIT_HEADING_DEG, REVISIT_RADIUS_M, EstimatorConfig
@@ -90,21 +90,27 @@ Grid = tuple[tuple[str, tuple[Any, ...]], ...]
 """Estimator parameters and their values, in file order; its parameter sets are their product."""
 
 
+class ListedRecording(NamedTuple):
+    """A recording or bag a ``[recordings]`` table lists, with that table's topic keys."""
+
+    path: Path
+    topics: TopicChoice
+
+
 @dataclass(frozen=True)
 class Sweep:
     """A checked sweep file: every recording and parameter set it names, in a stable order."""
 
     path: Path
-    recordings: tuple[Path, ...]
-    """Recording files (absolute), in the order given; each glob's matches sorted by name."""
+    recordings: tuple[ListedRecording, ...]
+    """Recording files (absolute) with their tables' topics, in the order given, each glob's
+    matches sorted by name; one file under two sets of topics is listed twice (two recordings)."""
     renders: tuple[RecordConfig, ...]
     """Recordings to render first, in the order of the ``[[render]]`` tables and their value lists."""
     grids: tuple[Grid, ...]
     """The ``[grid]`` table, or the ``[[grid]]`` tables in file order (none: the defaults)."""
     figures: tuple[str, ...] = DEFAULT_FIGURES
     score: ScoreOptions = field(default_factory=ScoreOptions)
-    topics: TopicChoice = field(default_factory=TopicChoice)
-    """``[recordings]``'s topic keys, for every recording it lists (renders have the standard topics)."""
 
     def parameter_sets(self) -> Iterator[tuple[tuple[str, Any], ...]]:
         """Every grid's combinations in turn, the last key varying fastest (one empty set for no grid)."""
@@ -139,7 +145,6 @@ def read_sweep_file(path: Path) -> Sweep:
         if key not in TOP_LEVEL_KEYS
     ]
     recordings = _recordings(document.get("recordings", {}), base, problems)
-    topics = _topics(document.get("recordings", {}), problems)
     renders = _renders(document.get("render", []), base, problems)
     if not recordings and not renders and not any("recordings" in p or "render" in p for p in problems):
         problems.append("no recordings: give [recordings] paths and/or [[render]] tables")
@@ -148,7 +153,7 @@ def read_sweep_file(path: Path) -> Sweep:
     score = _score(document.get("score", {}), problems)
     if problems:
         raise ConfigError("; ".join(dict.fromkeys(problems)), path=path)
-    return Sweep(full_path(path), recordings, renders, grids, figures, score, topics)
+    return Sweep(full_path(path), recordings, renders, grids, figures, score)
 
 
 def _table(value: Any, name: str, known: Any, problems: list[str]) -> dict[str, Any]:
@@ -161,8 +166,19 @@ def _table(value: Any, name: str, known: Any, problems: list[str]) -> dict[str, 
     return {key: item for key, item in value.items() if key in known}
 
 
-def _recordings(value: Any, base: Path, problems: list[str]) -> tuple[Path, ...]:
-    table = _table(value, "recordings", RECORDINGS_KEYS, problems)
+def _recordings(value: Any, base: Path, problems: list[str]) -> tuple[ListedRecording, ...]:
+    """The ``[recordings]`` table, or each ``[[recordings]]`` table in turn (bags of two robots, each
+    with its own topics); a file listed twice under the same topics once."""
+    found: dict[ListedRecording, None] = {}
+    for value_table in value if isinstance(value, list) else [value]:
+        table = _table(value_table, "recordings", RECORDINGS_KEYS, problems)
+        topics = _topics(table, problems)
+        found.update(dict.fromkeys(ListedRecording(path, topics) for path in _paths(table, base, problems)))
+    return tuple(found)
+
+
+def _paths(table: dict[str, Any], base: Path, problems: list[str]) -> tuple[Path, ...]:
+    """The files a ``[recordings]`` table's ``paths`` name, in the order given."""
     patterns = table.get("paths", [])
     if not isinstance(patterns, list) or not all(isinstance(p, str) for p in patterns):
         problems.append(f"recordings.paths must be a list of strings (paths or globs), got {patterns!r}")
@@ -189,11 +205,9 @@ def _recordings(value: Any, base: Path, problems: list[str]) -> tuple[Path, ...]
     return tuple(found)
 
 
-def _topics(value: Any, problems: list[str]) -> TopicChoice:
-    """The topics and frames ``[recordings]`` names, as ``aslam estimate``'s options would: a bag's
-    ground truth is read (and its rows scored) only from a named topic."""
-    if not isinstance(value, dict):
-        return TopicChoice()  # (told by _recordings)
+def _topics(value: dict[str, Any], problems: list[str]) -> TopicChoice:
+    """The topics and frames a ``[recordings]`` table names, as ``aslam estimate``'s options would:
+    a bag's ground truth is read (and its rows scored) only from a named topic."""
     chosen: dict[str, str] = {}
     for key, field_name in TOPIC_KEYS.items():
         if key not in value:

@@ -141,7 +141,8 @@ def sweep(
     objectives = resolve_objectives(pareto) if pareto is not None else []
     spec = read_sweep_file(sweep_file)
     if json_out is not None and json_out != "-":  # before the recordings are hashed
-        _check_plan_output(Path(json_out), sweep_file, spec.recordings, output, force=force)
+        recordings = list(dict.fromkeys(recording.path for recording in spec.recordings))
+        _check_plan_output(Path(json_out), sweep_file, recordings, output, force=force)
     if scheduler_file is not None:
         # A dry run contacts no scheduler, so it waits for no scheduler file either (it waited 30 s
         # for one not yet written, then exit 2); its options are checked as the run's would be.

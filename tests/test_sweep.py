@@ -932,7 +932,7 @@ def test_recording_paths_with_brackets_are_names_and_globs_only_in_the_pattern(t
         ('["*.mcap"]', ["odd[bold].mcap", "rec.mcap"]),
     ):
         sweep_file.write_text(f"[recordings]\npaths = {paths}\n")
-        found = read_sweep_file(sweep_file).recordings
+        found = [recording.path for recording in read_sweep_file(sweep_file).recordings]
         assert [p.name for p in found] == expected
         assert all(p.parent == tmp_path / "dir[1]" for p in found)
 
@@ -1913,11 +1913,24 @@ def test_a_bag_swept_with_its_topics_named_is_scored(tmp_path, capsys):
     sweep = tmp_path / "s.toml"
     figures = 'figures = ["loop_closure.precision", "loop_closure.recall"]\n'
     sweep.write_text(figures + '[recordings]\npaths = ["bag.mcap"]\nground_truth_topic = "/truth"\n')
-    assert read_sweep_file(sweep).topics.ground_truth == "/truth"
+    assert [r.topics.ground_truth for r in read_sweep_file(sweep).recordings] == ["/truth"]
     assert main(["sweep", str(sweep), "-o", str(tmp_path / "scored"), "--workers", "1", "-q"]) == 0
     scored = _rows(tmp_path / "scored")
     assert [r["status"] for r in scored] == ["ok"]
     assert scored[0]["loop_closure.precision"] is not None and scored[0]["loop_closure.recall"] > 0
+    assert scored[0]["topics"] == "ground_truth_topic=/truth"
+    # Bags of two robots, each table with its own topics: one file under two sets is two recordings.
+    both = tmp_path / "both.toml"
+    both.write_text(
+        '[[recordings]]\npaths = ["bag.mcap"]\n'
+        '[[recordings]]\npaths = ["bag.mcap", "bag.mcap"]\nground_truth_topic = "/truth"\n'
+    )
+    tasks = plan_tasks(read_sweep_file(both), tmp_path / "both")
+    assert [(t.source.label, t.source.topics.ground_truth) for t in tasks] == [
+        ("bag.mcap", None),
+        ("bag.mcap (ground_truth_topic=/truth)", "/truth"),
+    ]
+    assert tasks[0].key != tasks[1].key
     unnamed = tmp_path / "unnamed.toml"  # the same task without the key, run here (no cluster)
     unnamed.write_text(figures + '[recordings]\npaths = ["bag.mcap"]\n')
     (task,) = plan_tasks(read_sweep_file(unnamed), tmp_path / "unscored")
