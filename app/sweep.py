@@ -145,11 +145,15 @@ class Source:
         return f"render {render_text(self.render)} ({self.name})"  # every setting not the default
 
 
-def topics_text(topics: TopicChoice) -> str:
-    """The topic keys a recording was given, as the sweep file names them (``image_topic=/cam``);
-    empty for none."""
+def topic_keys(topics: TopicChoice) -> dict[str, str]:
+    """The topic keys a recording was given, as the sweep file names them (``image_topic``: ``/cam``)."""
     given = ((key, getattr(topics, name)) for key, name in TOPIC_KEYS.items())
-    return " ".join(f"{key}={value}" for key, value in given if value)
+    return {key: value for key, value in given if value}
+
+
+def topics_text(topics: TopicChoice) -> str:
+    """Those keys as the tables show them (``image_topic=/cam``); empty for none."""
+    return " ".join(f"{key}={value}" for key, value in topic_keys(topics).items())
 
 
 def distinct_names(paths: Iterable[Path]) -> dict[Path, str]:
@@ -560,7 +564,7 @@ class SweepPlan:
                     "same_as": task.same_as,
                     "recording": str(task.source.path),
                     "render": "" if task.source.render is None else render_text(task.source.render),
-                    "topics": topics_text(task.source.topics),
+                    "topics": topic_keys(task.source.topics),
                     "parameters": dict(task.parameters),
                 }
                 for task in self.tasks

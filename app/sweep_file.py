@@ -168,20 +168,33 @@ def _table(value: Any, name: str, known: Any, problems: list[str]) -> dict[str, 
 
 def _recordings(value: Any, base: Path, problems: list[str]) -> tuple[ListedRecording, ...]:
     """The ``[recordings]`` table, or each ``[[recordings]]`` table in turn (bags of two robots, each
-    with its own topics); a file listed twice under the same topics once."""
+    with its own topics); a file listed twice under the same topics once. A problem in one of
+    several tables names it by number, as ``render #2`` does."""
     found: dict[ListedRecording, None] = {}
-    for value_table in value if isinstance(value, list) else [value]:
-        table = _table(value_table, "recordings", RECORDINGS_KEYS, problems)
-        topics = _topics(table, problems)
-        found.update(dict.fromkeys(ListedRecording(path, topics) for path in _paths(table, base, problems)))
+    several = isinstance(value, list)
+    for number, raw in enumerate(value if several else [value], start=1):
+        shape: list[str] = []  # the table's own problems (not a table, unknown keys), told as they are
+        table = _table(raw, "recordings", RECORDINGS_KEYS, shape)
+        told: list[str] = []  # its keys' problems, told as the key they are about
+        topics = _topics(table, told)
+        paths = _paths(table, base, told)
+        if isinstance(raw, dict) and not table.get("paths") and (several or topics != TopicChoice()):
+            # A table whose paths were forgot: its robot's bags would be left out in silence.
+            told.append("paths: none (a table's topic keys apply to the files its paths name)")
+        if several:
+            problems += [f"recordings #{number}: {line}" for line in (*shape, *told)]
+        else:
+            problems += [*shape, *(f"recordings.{line}" for line in told)]
+        found.update(dict.fromkeys(ListedRecording(path, topics) for path in paths))
     return tuple(found)
 
 
 def _paths(table: dict[str, Any], base: Path, problems: list[str]) -> tuple[Path, ...]:
-    """The files a ``[recordings]`` table's ``paths`` name, in the order given."""
+    """The files a ``[recordings]`` table's ``paths`` name, in the order given (each problem told
+    as the key it is about: ``paths: …``)."""
     patterns = table.get("paths", [])
     if not isinstance(patterns, list) or not all(isinstance(p, str) for p in patterns):
-        problems.append(f"recordings.paths must be a list of strings (paths or globs), got {patterns!r}")
+        problems.append(f"paths must be a list of strings (paths or globs), got {patterns!r}")
         return ()
     found: dict[Path, None] = {}
     for pattern in patterns:
@@ -198,24 +211,26 @@ def _paths(table: dict[str, Any], base: Path, problems: list[str]) -> tuple[Path
                 if Path(p).is_file() or (Path(p) / "metadata.yaml").is_file()
             )
             if not matches:
-                problems.append(f"recordings.paths: '{pattern}' matches nothing")
+                problems.append(f"paths: '{pattern}' matches nothing")
             found.update(dict.fromkeys(full_path(m) for m in matches))
         else:
-            problems.append(f"recordings.paths: '{pattern}' does not exist (a recording or a bag)")
+            problems.append(f"paths: '{pattern}' does not exist (a recording or a bag)")
     return tuple(found)
 
 
 def _topics(value: dict[str, Any], problems: list[str]) -> TopicChoice:
     """The topics and frames a ``[recordings]`` table names, as ``aslam estimate``'s options would:
-    a bag's ground truth is read (and its rows scored) only from a named topic."""
+    a bag's ground truth is read (and its rows scored) only from a named topic. ROS names hold no
+    spaces: a padded name passed here and failed every row it ran."""
     chosen: dict[str, str] = {}
     for key, field_name in TOPIC_KEYS.items():
         if key not in value:
             continue
-        if not isinstance(value[key], str) or not value[key].strip():
-            problems.append(f"recordings.{key} must be a topic or frame name (a string), got {value[key]!r}")
+        name = value[key]
+        if not isinstance(name, str) or not name or any(c.isspace() for c in name):
+            problems.append(f"{key} must be a topic or frame name (a string without spaces), got {name!r}")
             continue
-        chosen[field_name] = value[key]
+        chosen[field_name] = name
     return TopicChoice(**chosen)
 
 

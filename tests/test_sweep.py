@@ -1944,9 +1944,17 @@ def test_a_bag_swept_with_its_topics_named_is_scored(tmp_path, capsys):
     assert failed.error is not None and "/no_camera" in failed.error
     capsys.readouterr()
     bad = tmp_path / "bad.toml"
-    bad.write_text('[recordings]\npaths = ["bag.mcap"]\nimage_topic = 5\nodometry_topic = ""\n')
+    bad.write_text('[recordings]\npaths = ["bag.mcap"]\nimage_topic = 5\nodometry_topic = " /odom"\n')
     assert main(["sweep", str(bad), "-o", str(tmp_path / "none"), "--dry-run"]) == 2
+    name = "must be a topic or frame name (a string without spaces), got"
     assert one_error_line(capsys.readouterr().err) == (
-        f"aslam: error: {bad}: recordings.image_topic must be a topic or frame name (a string), got 5;"
-        " recordings.odometry_topic must be a topic or frame name (a string), got ''"
+        f"aslam: error: {bad}: recordings.image_topic {name} 5; recordings.odometry_topic {name} ' /odom'"
+    )
+    # One table of several forgot its paths: its robot's bags were left out in silence.
+    forgot = tmp_path / "forgot.toml"
+    forgot.write_text('[[recordings]]\npaths = ["bag.mcap"]\n[[recordings]]\nimage_topic = "/cam"\n')
+    assert main(["sweep", str(forgot), "-o", str(tmp_path / "none"), "--dry-run"]) == 2
+    assert one_error_line(capsys.readouterr().err) == (
+        f"aslam: error: {forgot}: recordings #2: paths: none (a table's topic keys apply to the files"
+        " its paths name)"
     )
