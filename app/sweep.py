@@ -37,7 +37,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from aslam.app.sweep_file import TOPIC_KEYS, ScoreOptions, Sweep, estimator_config
+from aslam.app.sweep_file import TOPIC_KEYS, ListedRecording, ScoreOptions, Sweep, estimator_config
 from aslam.core.config import EstimatorConfig
 from aslam.core.errors import AslamError, ConfigError, InputError, one_line
 from aslam.data_formats.files import (
@@ -53,7 +53,7 @@ from aslam.data_formats.files import (
     write_problem,
 )
 from aslam.data_formats.provenance import code_version, library_versions
-from aslam.data_formats.rosbag_source import SourceKind, open_source
+from aslam.data_formats.rosbag_source import BAG_KINDS, SourceKind, open_source, summarize_bag
 from aslam.data_formats.sources import TopicChoice, not_an_input
 from aslam.data_formats.sweep_files import (
     HASHES_FILE,
@@ -265,22 +265,39 @@ class HashCache:
             write_json_document(self.path, self.entries)
 
 
-def _check_inputs(sweep_file: Path, recordings: list[Path]) -> None:
+def _check_inputs(sweep_file: Path, listed: Sequence[ListedRecording]) -> None:
     """ConfigError naming every listed path that is no recording or bag (a README a glob met, an
-    estimate, a folder): told at the dry run, not as a failed task after the others ran."""
-    problems = []
-    for path in recordings:
+    estimate, a folder), or a bag whose topics its index shows cannot be read as its table names
+    them (a topic not in it, two image topics and none named): told at the dry run, not as failed
+    tasks after the others ran (a typo in a topic failed every row of its bags)."""
+    problems: list[str] = []
+    kinds: dict[Path, SourceKind] = {}
+    for path in dict.fromkeys(recording.path for recording in listed):
         try:
-            kind = open_source(path)
+            kinds[path] = open_source(path)
         except InputError as err:
             problems.append(str(err))
             continue
-        if kind is SourceKind.IMAGE_FOLDER:
+        if kinds[path] is SourceKind.IMAGE_FOLDER:
             problems.append(str(not_an_input(path)))
     if problems:
         raise ConfigError(
             "recordings.paths names what a sweep cannot read (a glob such as 'runs/**/*.mcap' names"
             " recordings only): " + "; ".join(problems),
+            path=sweep_file,
+        )
+    for path, topics in listed:
+        if kinds[path] in BAG_KINDS:
+            try:
+                problem = summarize_bag(path, topics.bag_topics()).problem
+            except InputError:  # a damaged bag: its rows say how, as a damaged recording's do
+                continue
+            if problem is not None:
+                problems.append(f"{path}: {problem}")
+    if problems:
+        raise ConfigError(
+            "a bag's topics cannot be read as its recordings table names them (keys image_topic,"
+            " odometry_topic, ground_truth_topic): " + "; ".join(dict.fromkeys(problems)),
             path=sweep_file,
         )
 
@@ -305,9 +322,8 @@ def plan_tasks(sweep: Sweep, results_dir: Path, *, hashes: HashCache | None = No
         for recording in sweep.recordings
         if not any(full_path(recording.path).is_relative_to(folder) for folder in own)
     ]
-    paths = list(dict.fromkeys(recording.path for recording in listed))
-    _check_inputs(sweep.path, paths)
-    names = distinct_names(paths)
+    _check_inputs(sweep.path, listed)
+    names = distinct_names(dict.fromkeys(recording.path for recording in listed))
     sources = [Source(path, hashes.sha256(path), names[path], topics=topics) for path, topics in listed]
     for render in sweep.renders:
         path, identity = render_path(results_dir, render)
