@@ -927,11 +927,18 @@ def source_files(path: Path) -> list[Path]:
     return sorted(p for p in path.iterdir() if p.is_file())
 
 
+ROSBAG2_METADATA_MAX_BYTES = 4 * 2**20
+"""The largest rosbag2 metadata.yaml read. One is a few kilobytes (200 KB for a bag split a thousand
+times); YAML parses at about a megabyte a second, and one with a 50 MB value kept ``info`` 44 s and
+``estimate`` over a minute before they said anything."""
+
+
 def rosbag2_information(folder: Path) -> dict | None:
     """A rosbag2 folder's metadata.yaml, its ``rosbag2_bagfile_information`` mapping; None where the
-    folder has none or rosbags would refuse it (its reader then names the problem)."""
+    folder has none or rosbags would refuse it (its reader then names the problem), or it is larger
+    than ``ROSBAG2_METADATA_MAX_BYTES`` (the bag's open refuses it)."""
     metadata = folder / "metadata.yaml"
-    if not metadata.is_file():
+    if not metadata.is_file() or metadata.stat().st_size > ROSBAG2_METADATA_MAX_BYTES:
         return None
     import ruamel.yaml
 

@@ -28,7 +28,12 @@ from aslam.core.errors import InputError
 from aslam.data_formats import ros_msgs
 from aslam.data_formats.camera import CameraIntrinsics
 from aslam.data_formats.errors import BagError
-from aslam.data_formats.files import check_input_file, rosbag2_information, source_size_bytes
+from aslam.data_formats.files import (
+    ROSBAG2_METADATA_MAX_BYTES,
+    check_input_file,
+    rosbag2_information,
+    source_size_bytes,
+)
 from aslam.data_formats.mcap_file import McapFile
 from aslam.data_formats.pose_limits import implausible
 from aslam.data_formats.pose_sync import Sample, SampleAssembler, StampOrder
@@ -75,7 +80,14 @@ def classify(
     if not path.exists():
         raise BagError("no such file or folder", path=path)
     if path.is_dir():
-        if (path / "metadata.yaml").is_file():
+        metadata = path / "metadata.yaml"
+        if metadata.is_file():
+            if (size := metadata.stat().st_size) > ROSBAG2_METADATA_MAX_BYTES:
+                raise BagError(
+                    f"its metadata.yaml is {size:,} bytes; a rosbag2 index is a few kilobytes (at most"
+                    f" {ROSBAG2_METADATA_MAX_BYTES:,} are read)",
+                    path=path,
+                )
             return SourceKind.ROSBAG2, None
         # Imported here: the image folder's reader (pose files, KITTI stamps, decimal) is no part of
         # an estimate's start-up from a recording (about 5 ms before the reader process starts).

@@ -528,6 +528,26 @@ def test_a_metadata_field_of_the_wrong_type_is_one_line_naming_the_file(bags, tm
     assert not (tmp_path / "e.mcap").exists()
 
 
+def test_a_metadata_yaml_of_megabytes_is_refused_before_it_is_parsed(bags, tmp_path, capsys):
+    """A metadata.yaml holding a 50 MB value kept ``info`` parsing it for 44 s and ``estimate`` for
+    over a minute (YAML parses at about a megabyte a second); an index is a few kilobytes."""
+    from aslam.cli.app import main
+    from aslam.data_formats.files import ROSBAG2_METADATA_MAX_BYTES, source_files
+
+    bag = tmp_path / "bag"
+    shutil.copytree(bags["rosbag2-mcap"], bag)
+    with (bag / "metadata.yaml").open("a") as f:
+        f.write(f"notes: {'x' * ROSBAG2_METADATA_MAX_BYTES}\n")
+    size = (bag / "metadata.yaml").stat().st_size
+    for args in (["info", str(bag)], ["estimate", str(bag), "-o", str(tmp_path / "e.mcap")]):
+        assert main(args) == 2
+        assert one_error_line(capsys.readouterr().err) == (
+            f"aslam: error: {bag}: its metadata.yaml is {size:,} bytes; a rosbag2 index is a few"
+            f" kilobytes (at most {ROSBAG2_METADATA_MAX_BYTES:,} are read)"
+        )
+    assert (bag / "metadata.yaml") in source_files(bag)  # not parsed: every file of the folder
+
+
 def test_info_opens_a_bag_once(bags, monkeypatch):
     """rosbags decompresses a rosbag2 bag compressed by file whole, into a temporary folder, each
     time it is opened (and reads a ROS 1 bag's whole index): ``aslam info`` opened it four times
