@@ -415,7 +415,13 @@ class _TfOdometry:
                     f"odometry transform {parent} → {child} at stamp {stamp_ns} ns is not finite",
                     path=self._path,
                 )
-            yield stamp_ns, np.array([values[0], values[1], ros_msgs.yaw_of_quaternion(*values[2:])])
+            try:
+                yaw = ros_msgs.yaw_of_quaternion(*values[2:])
+            except ValueError as err:  # a zero quaternion: exit 70 from the reader, before
+                raise BagError(
+                    f"odometry transform {parent} → {child} at stamp {stamp_ns} ns: {err}", path=self._path
+                ) from None
+            yield stamp_ns, np.array([values[0], values[1], yaw])
 
 
 def check_bag_path(path: Path) -> SourceKind:

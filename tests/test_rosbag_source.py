@@ -671,6 +671,30 @@ def test_a_marker_published_beside_the_robot_on_tf_is_not_taken_for_it(tmp_path)
     assert all(not s.odometry_pose.any() for s in iter_bag_samples(path, named))
 
 
+def test_a_zero_quaternion_on_tf_is_one_line_naming_the_bag(tmp_path, capsys):
+    """An odom → base_link transform whose rotation is all zeros ended ``info`` and ``estimate`` with
+    exit 70, "internal error: ValueError: the orientation quaternion is zero" (found by a fuzz of
+    damaged bags); a pose topic's was already refused."""
+    import dataclasses
+
+    from aslam.cli.app import main
+
+    rows = _tf_rows(lambda _ts, transforms: transforms)
+    at = [i for i, (_log, topic, _type, _msg) in enumerate(rows) if topic == "/tf"][3]
+    log, topic, datatype, msg = rows[at]
+    first = msg.transforms[0]
+    zero = dataclasses.replace(first.transform.rotation, x=0.0, y=0.0, z=0.0, w=0.0)
+    broken = dataclasses.replace(first, transform=dataclasses.replace(first.transform, rotation=zero))
+    rows[at] = (log, topic, datatype, dataclasses.replace(msg, transforms=[broken, *msg.transforms[1:]]))
+    path = write_rosbag2(tmp_path / "bag", messages=rows)
+    for args in (["info", str(path), "-q"], ["estimate", str(path), "-o", str(tmp_path / "e.mcap"), "-q"]):
+        assert main(args) == 2
+        line = one_error_line(capsys.readouterr().err)
+        assert line.startswith(f"aslam: error: {path}: odometry transform odom → base_footprint at stamp ")
+        assert line.endswith(" ns: the orientation quaternion is zero")
+    assert not (tmp_path / "e.mcap").exists()
+
+
 def test_namespaced_tf_frames_are_named_from_the_command_line(tmp_path, capsys, recording):
     """The error told the user to name the frames, which only Python's BagTopics could:
     ``--odom-frame`` and ``--base-frame`` do it for ``estimate`` and ``info``; a recording refuses them."""
