@@ -365,9 +365,14 @@ class ReaderProcess:
             def counted() -> tuple[int, int | None]:
                 return child_counts.samples, child_counts.images
 
+            def stopped(_signum: int, _frame: Any) -> None:
+                raise SystemExit(143)  # the parent's close(): end the reading, its clean-up run
+
+            signal.signal(signal.SIGTERM, stopped)
+            items = produce(child_counts)
             try:
                 batch: list[Any] = []
-                for item in produce(child_counts):
+                for item in items:
                     batch.append(item)
                     if len(batch) >= SEND_BATCH:
                         sender.send(("items", batch, counted()))
@@ -380,6 +385,10 @@ class ReaderProcess:
                 except Exception:  # the error itself does not pickle: keep its words
                     sender.send(("error", RuntimeError(f"{type(err).__name__}: {err}"), counted()))
             finally:
+                with contextlib.suppress(BaseException):
+                    close = getattr(items, "close", None)
+                    if close is not None:
+                        close()
                 sender.close()
                 os._exit(0)
 
@@ -508,8 +517,9 @@ def run_estimate(
     camera = estimator.camera
 
     def produce(reader_counts: PipelineCounts) -> Iterator[Keyframe] | Iterator[Frame]:
+        views: Iterator[Keyframe] | Iterator[Frame]
         if window_m > 0:
-            return frame_views(
+            views = frame_views(
                 samples,
                 describe,
                 window_m,
@@ -518,15 +528,25 @@ def run_estimate(
                 depth=depth,
                 camera=camera,
             )
-        return keyframe_views(
-            samples,
-            estimator.keyframer,
-            describe,
-            counts=reader_counts,
-            workers=workers,
-            depth=depth,
-            camera=camera,
-        )
+        else:
+            views = keyframe_views(
+                samples,
+                estimator.keyframer,
+                describe,
+                counts=reader_counts,
+                workers=workers,
+                depth=depth,
+                camera=camera,
+            )
+        try:
+            yield from views
+        finally:
+            # However the reading ends (an error, stopped early): the source's own clean-up runs, as
+            # rosbags' removal of the copy it decompressed of a bag compressed by file (left in
+            # TMPDIR by every failed estimate of one).
+            close = getattr(samples, "close", None)
+            if close is not None:
+                close()
 
     if reader_process and can_fork():
         return EstimateSteps(ReaderProcess(produce, counts=counts), estimator, counts)

@@ -695,6 +695,35 @@ def test_a_zero_quaternion_on_tf_is_one_line_naming_the_bag(tmp_path, capsys):
     assert not (tmp_path / "e.mcap").exists()
 
 
+def test_a_failed_estimate_of_a_bag_compressed_by_file_leaves_no_copy_in_tmpdir(
+    tmp_path, capsys, monkeypatch
+):
+    """rosbags reads a rosbag2 bag compressed by file from a decompressed copy in TMPDIR, removed when
+    the bag is closed. The reader process ended with ``os._exit`` and no closing: every estimate
+    that failed (a corrupt image) or was stopped left the whole decompressed bag behind (found by a
+    fuzz of damaged bags)."""
+    import dataclasses
+    import tempfile
+
+    from rosbags.typesys import Stores, get_typestore
+
+    from aslam.cli.app import main
+
+    rows = bag_messages(get_typestore(Stores.ROS2_HUMBLE), Options(compressed=True))
+    at = [i for i, (_log, topic, _type, _msg) in enumerate(rows) if "image" in topic][5]
+    log, topic, datatype, msg = rows[at]
+    garbage = np.frombuffer(b"\x89PNG garbage", np.uint8)
+    rows[at] = (log, topic, datatype, dataclasses.replace(msg, data=garbage))
+    path = write_rosbag2(tmp_path / "bag", messages=rows, compression="file")
+    temporary = tmp_path / "tmp"
+    temporary.mkdir()
+    monkeypatch.setenv("TMPDIR", str(temporary))
+    monkeypatch.setattr(tempfile, "tempdir", None)  # read TMPDIR again, in this process and its fork
+    assert main(["estimate", str(path), "-o", str(tmp_path / "e.mcap"), "-q"]) == 2
+    assert "image on" in one_error_line(capsys.readouterr().err)
+    assert list(temporary.rglob("*")) == []
+
+
 def test_namespaced_tf_frames_are_named_from_the_command_line(tmp_path, capsys, recording):
     """The error told the user to name the frames, which only Python's BagTopics could:
     ``--odom-frame`` and ``--base-frame`` do it for ``estimate`` and ``info``; a recording refuses them."""
