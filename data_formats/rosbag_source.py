@@ -32,6 +32,7 @@ from aslam.data_formats.files import (
     ROSBAG2_METADATA_MAX_BYTES,
     check_input_file,
     rosbag2_information,
+    source_files,
     source_size_bytes,
 )
 from aslam.data_formats.mcap_file import McapFile
@@ -88,6 +89,12 @@ def classify(
                     f" {ROSBAG2_METADATA_MAX_BYTES:,} are read)",
                     path=path,
                 )
+            for file in source_files(path):  # a FIFO among them blocked every command in open()
+                if file.exists() and not file.is_file():
+                    raise BagError(
+                        f"{file.name} in it is not a regular file (a FIFO, socket, device or folder)",
+                        path=path,
+                    )
             return SourceKind.ROSBAG2, None
         # Imported here: the image folder's reader (pose files, KITTI stamps, decimal) is no part of
         # an estimate's start-up from a recording (about 5 ms before the reader process starts).

@@ -9,6 +9,7 @@ Also holds the bag builders other tests import.
 from __future__ import annotations
 
 import math
+import os
 import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -722,6 +723,24 @@ def test_a_failed_estimate_of_a_bag_compressed_by_file_leaves_no_copy_in_tmpdir(
     assert main(["estimate", str(path), "-o", str(tmp_path / "e.mcap"), "-q"]) == 2
     assert "image on" in one_error_line(capsys.readouterr().err)
     assert list(temporary.rglob("*")) == []
+
+
+def test_a_fifo_in_place_of_a_bags_storage_file_is_refused_not_opened(bags, tmp_path, capsys):
+    """A FIFO where a rosbag2 folder's storage file should be blocked every command in open() (with
+    sqlite3 storage, inside sqlite's C code, where only SIGKILL ended it; found by a bag fuzz)."""
+    from aslam.cli.app import main
+
+    bag = tmp_path / "bag"
+    shutil.copytree(bags["rosbag2-mcap"], bag)
+    (storage,) = [f for f in bag.iterdir() if f.name != "metadata.yaml"]
+    storage.unlink()
+    os.mkfifo(storage)
+    for args in (["info", str(bag)], ["estimate", str(bag), "-o", str(tmp_path / "e.mcap")]):
+        assert main(args) == 2
+        assert one_error_line(capsys.readouterr().err) == (
+            f"aslam: error: {bag}: {storage.name} in it is not a regular file"
+            " (a FIFO, socket, device or folder)"
+        )
 
 
 def test_namespaced_tf_frames_are_named_from_the_command_line(tmp_path, capsys, recording):
