@@ -23,6 +23,7 @@ import math
 import multiprocessing
 import os
 import signal
+import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
@@ -316,6 +317,8 @@ def _computed(function: Callable[..., Described], *args: Any) -> Future[Describe
 
 
 SEND_BATCH = 4
+STOP_WAIT_S = 2.0
+"""How long a reader told to stop may take to close its source before it is killed."""
 
 #: What the pipe from the reader holds. The parent imports GTSAM and Foxglove's schemas while the
 #: reader starts (90 ms); Linux's default pipe, 64 KiB, holds some 20 frames (3.2 KiB each at the
@@ -365,14 +368,17 @@ class ReaderProcess:
             def counted() -> tuple[int, int | None]:
                 return child_counts.samples, child_counts.images
 
-            def stopped(_signum: int, _frame: Any) -> None:
-                raise SystemExit(143)  # the parent's close(): end the reading, its clean-up run
-
-            signal.signal(signal.SIGTERM, stopped)
+            # The parent's close(): the reading stops at the next item and its clean-up runs. A flag,
+            # not an exception from the handler: raised inside a weakref callback, Python printed it
+            # as a traceback on stderr and went on (close() kills a child that does not stop).
+            stop = threading.Event()
+            signal.signal(signal.SIGTERM, lambda _signum, _frame: stop.set())
             items = produce(child_counts)
             try:
                 batch: list[Any] = []
                 for item in items:
+                    if stop.is_set():
+                        break
                     batch.append(item)
                     if len(batch) >= SEND_BATCH:
                         sender.send(("items", batch, counted()))
@@ -433,6 +439,9 @@ class ReaderProcess:
         self._receiver.close()
         if self._process.is_alive():
             self._process.terminate()
+            self._process.join(timeout=STOP_WAIT_S)
+            if self._process.is_alive():  # busy in one long call (a bag decompressed at its open)
+                self._process.kill()
         self._process.join()
 
 
