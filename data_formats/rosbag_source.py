@@ -484,7 +484,13 @@ def _bag_samples(
 ) -> Iterator[Sample]:
     """The samples of the bag ``reader`` has open, then the pairing's warnings; ``on_image_count``
     and ``ground_truth`` as :func:`iter_bag_samples`'s. ``read_counts``, if given, gets the messages
-    read per topic."""
+    read per topic.
+
+    A topic read holding fewer (or more) messages than the bag's index says is warned about: rosbags
+    skips an MCAP chunk it cannot read and a sqlite row deleted, with no error, so a damaged bag
+    would otherwise read as a shorter one with no word (and be scored as complete)."""
+    if read_counts is None:
+        read_counts = {}
     types = _topic_types(reader)
     resolved = resolve_topics(path, types, topics)
     if not ground_truth:  # resolved, so a named topic the bag lacks is still an error
@@ -504,8 +510,7 @@ def _bag_samples(
     last_truth: np.ndarray | None = None
     wanted = {t for t in (resolved.image, resolved.odometry, resolved.ground_truth, resolved.tf) if t}
     for topic, datatype, log_time, msg in _messages(path, reader, wanted):
-        if read_counts is not None:
-            read_counts[topic] = read_counts.get(topic, 0) + 1
+        read_counts[topic] = read_counts.get(topic, 0) + 1
         if topic == resolved.image:
             stamp_ns = _stamp(path, "image", topic, msg, log_time)
             assembler.log_time_images += _set_header_stamp_ns(msg) is None
@@ -549,6 +554,9 @@ def _bag_samples(
         raise BagError(problem, path=path)
     for line in assembler.warnings():
         warn(line)
+    for topic in sorted(wanted):
+        if (held := read_counts.get(topic, 0)) != counts[topic]:
+            warn(f"{path}: the bag's index says {counts[topic]} messages on '{topic}'; it holds {held}")
 
 
 def iter_bag_ground_truth(
@@ -736,10 +744,8 @@ def describe_bag(
     assert resolved is not None
     read = {t for t in (resolved.image, resolved.odometry, resolved.ground_truth, resolved.tf) if t}
     topic_infos = []
-    for t in summary.topics:
+    for t in summary.topics:  # (a count the reading found short of the index's was warned about)
         messages = read_counts.get(t.topic, 0) if t.topic in read else t.messages
-        if messages != t.messages:
-            warn(f"{path}: the bag's index says {t.messages} messages on '{t.topic}'; it holds {messages}")
         topic_infos.append(TopicInfo(t.topic, t.datatype, messages))
     metadata = {
         "kind": summary.kind.value,
