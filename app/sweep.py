@@ -35,7 +35,7 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from aslam.app.sweep_file import TOPIC_KEYS, ListedRecording, ScoreOptions, Sweep, estimator_config
 from aslam.core.config import EstimatorConfig
@@ -68,6 +68,9 @@ from aslam.data_formats.sweep_files import (
     write_table_file,
 )
 from aslam.recorder.config import NoiseParams, RecordConfig
+
+if TYPE_CHECKING:
+    from aslam.app.estimate import EstimateProgress
 
 ESTIMATES_FOLDER = "estimates"
 RENDERS_FOLDER = "recordings"
@@ -112,6 +115,10 @@ TIMEOUT_CHECK_S = 1.0
 SCHEDULER_ANSWER_S = 10.0
 #: How long a scheduler file may take to appear: a batch job starts the scheduler and the sweep together.
 SCHEDULER_FILE_WAIT_S = 30.0
+#: The Dask event topic on which an estimate task says how far it is (a share of its images read).
+PROGRESS_TOPIC = "aslam-sweep-progress"
+#: How often at most a task says so: events go through the scheduler to every subscribed client.
+PROGRESS_EVERY_S = 0.5
 
 
 def _digest(value: Any) -> str:
@@ -410,6 +417,30 @@ def worker_name() -> str:
         return f"{socket.gethostname()}:{os.getpid()}"
 
 
+def _progress_publisher(task: Task) -> Callable[[EstimateProgress], None] | None:
+    """On a Dask worker, what tells the sweep's client how far ``task``'s estimate is (a share of its
+    images read, at most every ``PROGRESS_EVERY_S``): a sweep of a few long tasks otherwise showed a
+    bar at 0 for minutes (40 s on one 10,000-frame task). None outside a worker."""
+    try:
+        from distributed import get_worker
+
+        worker = get_worker()
+    except (ImportError, ValueError):
+        return None
+    said_at: float | None = None
+
+    def publish(progress: EstimateProgress) -> None:
+        nonlocal said_at
+        now = time.monotonic()
+        if not progress.samples_total or (said_at is not None and now - said_at < PROGRESS_EVERY_S):
+            return
+        said_at = now
+        done = min(1.0, progress.samples / progress.samples_total)
+        worker.log_event(PROGRESS_TOPIC, {"key": task.key, "done": done})
+
+    return publish
+
+
 def render_task(config: RecordConfig, path: Path, force: bool) -> Rendered:
     """Render ``config`` to ``path`` unless it is already there (renders are atomic and deterministic)."""
     from aslam.recorder.record import record
@@ -466,6 +497,7 @@ def run_task(task: Task, rendered: Rendered | None = None) -> TaskResult:
             workers=0,
             reader_process=False,
             on_warning=warnings.append,
+            on_progress=_progress_publisher(task),
         )
         if task.source.render is None and summary.recording_sha256 != task.source.identity:
             return failed(replaced)
@@ -851,6 +883,7 @@ def run_sweep(
     on_plan: Callable[[SweepPlan], None] | None = None,
     on_result: Callable[[Task, TaskResult, bool], None] | None = None,
     on_warning: Callable[[str], None] | None = None,
+    on_progress: Callable[[Task, float], None] | None = None,
 ) -> SweepRun:
     """Run every task of ``sweep`` not already done in ``results_dir``; write the tables.
 
@@ -859,7 +892,9 @@ def run_sweep(
 
     ``on_plan(plan)`` is called once before work starts (every task, those done, those to run);
     ``on_result(task, result, reused)`` once per task (row) as it finishes (reused ones first);
-    ``on_warning(line)`` for what the user should know (a recording named twice under two names). Results
+    ``on_warning(line)`` for what the user should know (a recording named twice under two names);
+    ``on_progress(task, done)`` now and then while a task estimates, ``done`` the share of its images
+    read (from Dask's event loop thread, and possibly once more after its result). Results
     arrive in completion order; the tables are in task order and hold the sweep's figures and
     ``extra_figures``. A failed task does not stop the others; :meth:`SweepRun.check` says whether
     any failed.
@@ -901,6 +936,7 @@ def run_sweep(
                 on_plan,
                 on_result,
                 on_warning,
+                on_progress,
             )
         except BaseException:
             # A sweep that made its folder and then failed before any work was kept (a scheduler out
@@ -940,6 +976,7 @@ def _run_in(
     on_plan: Callable[[SweepPlan], None] | None,
     on_result: Callable[[Task, TaskResult, bool], None] | None,
     on_warning: Callable[[str], None] | None,
+    on_progress: Callable[[Task, float], None] | None,
 ) -> SweepRun:
     hashes = HashCache(results_dir / HASHES_FILE, use=not force)
     plan = plan_sweep(sweep, results_dir, force=force, hashes=hashes, on_warning=on_warning)
@@ -975,13 +1012,14 @@ def _run_in(
                     done_before=plan.reused,
                     total=plan.reused + len(plan.to_run),
                 )
-                for task, result in computed:
-                    save_result(results_dir, result)
-                    for row in rows_of[task.key]:  # a copy's rows too
-                        shared = result if row is task else replace(result, index=row.index)
-                        results[row.index] = shared
-                        if on_result is not None:
-                            on_result(row, shared, False)
+                with _progress_heard(client, plan.to_run, on_progress):
+                    for task, result in computed:
+                        save_result(results_dir, result)
+                        for row in rows_of[task.key]:  # a copy's rows too
+                            shared = result if row is task else replace(result, index=row.index)
+                            results[row.index] = shared
+                            if on_result is not None:
+                                on_result(row, shared, False)
             finally:
                 if own:
                     _close(client, local=scheduler is None)
@@ -998,6 +1036,32 @@ def _run_in(
         results_dir / RESULTS_CSV,
         written,
     )
+
+
+@contextlib.contextmanager
+def _progress_heard(
+    client: Any, tasks: Sequence[Task], on_progress: Callable[[Task, float], None] | None
+) -> Iterator[None]:
+    """``on_progress`` hears the progress events of ``tasks`` (``PROGRESS_TOPIC``) while this holds;
+    another sweep's on a shared cluster are not theirs."""
+    if on_progress is None:
+        yield
+        return
+    by_key = {task.key: task for task in tasks}
+
+    def heard(event: tuple[float, Any]) -> None:
+        _time, message = event
+        with contextlib.suppress(Exception):  # (in Dask's event loop: nothing may escape)
+            task = by_key.get(message["key"])
+            if task is not None:
+                on_progress(task, float(message["done"]))
+
+    client.subscribe_topic(PROGRESS_TOPIC, heard)
+    try:
+        yield
+    finally:
+        with contextlib.suppress(Exception):  # the scheduler may be gone
+            client.unsubscribe_topic(PROGRESS_TOPIC)
 
 
 def _remove_partials_of_killed_writers(results_dir: Path) -> None:

@@ -19,6 +19,7 @@ from aslam.cli.output import (
     QuietOption,
     Terminal,
     VerboseOption,
+    counted,
     decimal_number,
     output_name,
     print_table,
@@ -171,11 +172,12 @@ def sweep(
             on_plan=display.plan,
             on_result=display.result,
             on_warning=terminal.warning,
+            on_progress=display.task_progress,
         )
     shared = f", {run.shared} shared with an identical recording" if run.shared else ""
     tables = f"{'wrote' if run.tables_written else 'kept'} {run.parquet} and {run.csv.name}"
     terminal.info(
-        f"{tables} ({len(run.tasks)} tasks: {len(run.tasks) - run.failed} ok,"
+        f"{tables} ({counted(len(run.tasks), 'task')}: {len(run.tasks) - run.failed} ok,"
         f" {run.failed} failed; {run.computed} run, {run.reused} already done{shared})"
     )
     if objectives:

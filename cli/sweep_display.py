@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 from collections import deque
 from typing import TYPE_CHECKING, Any
 
@@ -80,6 +81,9 @@ class PlainDisplay:
         self.total = len(plan.tasks)
         self.terminal.info(plan_text(plan))
 
+    def task_progress(self, task: Task, done: float) -> None:
+        """Lines are for finished tasks only."""
+
     def result(self, task: Task, result: TaskResult, reused: bool) -> None:
         self.done += 1
         if reused and not self.terminal.verbose:
@@ -123,6 +127,10 @@ class LiveDisplay:
             console=terminal.console,
         )
         self.bar = self.progress.add_task("sweep", total=None, failed=0)
+        self.finished = 0
+        self.running: dict[str, float] = {}  # a running task's key: the share of its images read
+        self.ended: set[str] = set()  # keys finished (a late progress event is not taken for one)
+        self.lock = threading.Lock()  # progress comes from Dask's event loop thread
         self.rows: deque[tuple[tuple[Any, ...], Any]] = deque(maxlen=LIVE_ROWS)  # (cells, line)
         self.failed = 0
         self.live = Live(self._render(), console=terminal.console, refresh_per_second=4, transient=False)
@@ -184,5 +192,19 @@ class LiveDisplay:
         if not result.ok:
             line.stylize("red")
         self.rows.append(((str(task.index), *(Text(printable(cell)) for cell in cells)), line))
-        self.progress.update(self.bar, advance=1, failed=self.failed)
+        with self.lock:
+            self.finished += 1
+            self.ended.add(task.key)
+            self.running.pop(task.key, None)
+            self.progress.update(self.bar, completed=self._completed(), failed=self.failed)
         self.live.update(self._render())
+
+    def task_progress(self, task: Task, done: float) -> None:
+        """The bar moves within a task (a sweep of a few long tasks sat at 0 for minutes)."""
+        with self.lock:
+            if task.key not in self.ended:
+                self.running[task.key] = done
+                self.progress.update(self.bar, completed=self._completed())
+
+    def _completed(self) -> float:
+        return self.finished + sum(self.running.values())

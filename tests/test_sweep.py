@@ -510,8 +510,18 @@ def test_a_rerun_skips_the_done_tasks_and_force_recomputes(local_run, recordings
     assert os.environ["OMP_NUM_THREADS"] == "3" and "MKL_NUM_THREADS" not in os.environ
     assert {p: p.stat().st_mtime_ns for p in (results / "estimates").glob("*.mcap")} == estimates
     assert _figures(_rows(results)) == _figures(_rows(local_run[1]))
-    forced = run_sweep(sweep, results, workers=1, force=True)
+    heard: dict[int, list[float]] = {}  # a task's progress events, from Dask's event loop thread
+    forced = run_sweep(
+        sweep,
+        results,
+        workers=1,
+        force=True,
+        on_progress=lambda task, done: heard.setdefault(task.index, []).append(done),
+    )
     assert forced.reused == 0
+    # every task that estimated said how far it was, within itself (the bar moves within a task)
+    assert {r.index for r in forced.results if r.ok} == {0, 2} <= set(heard)
+    assert all(0 < done <= 1 and said == sorted(said) for said in heard.values() for done in said)
     assert all(p.stat().st_mtime_ns != mtime for p, mtime in estimates.items())
     assert _same_but_timing(forced.results, run.results)
 
@@ -1603,6 +1613,35 @@ def test_the_live_table_shows_a_name_with_control_characters_escaped(tmp_path, r
     Console(file=screen, width=200, force_terminal=True).print(display._render())
     [row] = [line for line in screen.getvalue().splitlines() if "n\\n" in line]
     assert "n\\n\\x1b[31m.mcap" in row and "bad\\nline" in row
+
+
+def test_the_live_bar_moves_within_a_task_and_a_late_word_of_a_finished_task_is_not_counted(
+    tmp_path, recordings
+):
+    """The bar counted finished tasks only: a sweep of a few long tasks sat at 0 for minutes. A task's
+    progress event can still arrive after its result (Dask's event loop thread)."""
+    from aslam.app.sweep import SweepPlan
+    from aslam.cli.output import Terminal
+    from aslam.cli.sweep_display import LiveDisplay
+
+    shutil.copy(recordings / "good.mcap", tmp_path / "good.mcap")
+    path = tmp_path / "s.toml"
+    path.write_text('[recordings]\npaths = ["*.mcap"]\n[grid]\nbeta = [2.0, 3.0]\n')
+    first, second = plan_tasks(read_sweep_file(path), tmp_path / "out")
+    display = LiveDisplay(Terminal(), ())
+    display.plan(SweepPlan((first, second), {}, (first, second)))
+
+    def completed() -> float:
+        return display.progress.tasks[0].completed
+
+    display.task_progress(first, 0.25)
+    display.task_progress(second, 0.5)
+    assert completed() == 0.75
+    display.result(first, TaskResult(0, first.key, {}, None, (), 1.0, 1.0, "w"), False)
+    display.task_progress(first, 0.9)  # late: the task is done
+    assert completed() == 1.5
+    display.result(second, TaskResult(1, second.key, {}, None, (), 1.0, 1.0, "w"), False)
+    assert completed() == 2 == display.progress.tasks[0].total
 
 
 @pytest.mark.parametrize("width", [80, 120, 250])
