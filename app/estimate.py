@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from aslam.app.pipeline import DEFAULT_WORKERS, EstimateSteps, PipelineCounts, run_estimate
+from aslam.app.pipeline import DEFAULT_WORKERS, EstimateSteps, PipelineCounts, ReaderWarnings, run_estimate
 from aslam.core.config import EstimatorConfig
 from aslam.core.errors import InputError
 from aslam.core.estimator import EstimateResult, Estimator
@@ -150,7 +150,8 @@ def estimate(
             " can place the first keyframe but not follow the map's places after it; give"
             " --candidate-search graph to track the map"
         )
-    source = open_input(recording, topics, on_warning=warn)
+    reading_warnings = ReaderWarnings(warn)  # said here, also by a reader process
+    source = open_input(recording, topics, on_warning=reading_warnings)
     camera = geometry_camera(source, recording) if config.geometric_check_m > 0 else None
     estimator = Estimator(config, start_map, odometry_known=source.odometry_known, camera=camera)
     counts = PipelineCounts()
@@ -179,6 +180,7 @@ def estimate(
             counts=counts,
             workers=workers,
             reader_process=reader_process,
+            warnings=reading_warnings,
         )
         # What only the output and the end of the run need is imported while the reader reads.
         from aslam.app.metric_view import embed_run, metric_scene, preload

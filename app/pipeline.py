@@ -25,6 +25,7 @@ import os
 import signal
 import threading
 import time
+import weakref
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -339,6 +340,29 @@ def _widen(connection: Any) -> None:
         fcntl.fcntl(connection.fileno(), set_size, PIPE_BYTES)
 
 
+class ReaderWarnings:
+    """Where a reading's warnings go: ``on_warning``, called in this process. Handed to the source
+    (``open_input(on_warning=…)``) and to :func:`run_estimate`: a forked reader sends what the source
+    says back through its pipe, so ``on_warning`` runs here, not in the child, where a caller that
+    collects the lines (a notebook's list; a truncated recording's "the rest is lost") never saw them.
+    """
+
+    def __init__(self, on_warning: Callable[[str], None] | None) -> None:
+        self._on_warning = on_warning
+        self._send: Callable[[str], None] | None = None  # set in a reader child
+
+    def __call__(self, line: str) -> None:
+        if self._send is not None:
+            self._send(line)
+        else:
+            self.heard(line)
+
+    def heard(self, line: str) -> None:
+        """A line said here, or by the reader child."""
+        if self._on_warning is not None:
+            self._on_warning(line)
+
+
 class ReaderProcess:
     """A reader (``produce(counts)``: an iterator of picklable items, here keyframes or frames) run
     in a forked child, started at construction; iterating yields its items here, in order.
@@ -348,14 +372,22 @@ class ReaderProcess:
     must not have been started: the child opens and reads the recording. The child counts into its
     own copy of ``counts`` (the fork's), so what the samples set there (``images``, once they have
     opened the source) reaches ``counts`` here with the items. Errors raised in the child (a bad
-    recording) are raised here; ``close()``, or an interrupt, stops the child.
+    recording) are raised here; ``close()``, or an interrupt, stops the child. What the reading says
+    to ``warnings`` in the child is said to it here, in order with the items.
     """
 
-    def __init__(self, produce: Callable[[PipelineCounts], Iterator[Any]], *, counts: PipelineCounts) -> None:
+    def __init__(
+        self,
+        produce: Callable[[PipelineCounts], Iterator[Any]],
+        *,
+        counts: PipelineCounts,
+        warnings: ReaderWarnings | None = None,
+    ) -> None:
         context = multiprocessing.get_context("fork")
         self._receiver, sender = context.Pipe(duplex=False)
         _widen(sender)
         self._counts = counts
+        self._warnings = warnings
 
         def child() -> None:
             signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops us
@@ -373,9 +405,18 @@ class ReaderProcess:
             # as a traceback on stderr and went on (close() kills a child that does not stop).
             stop = threading.Event()
             signal.signal(signal.SIGTERM, lambda _signum, _frame: stop.set())
+            batch: list[Any] = []
+
+            def said(line: str) -> None:  # after the items read before it
+                nonlocal batch
+                sender.send(("items", batch, counted()))
+                batch = []
+                sender.send(("warning", line, counted()))
+
+            if warnings is not None:
+                warnings._send = said  # this process's copy
             items = produce(child_counts)
             try:
-                batch: list[Any] = []
                 for item in items:
                     if stop.is_set():
                         break
@@ -416,6 +457,9 @@ class ReaderProcess:
             self._counts.samples, self._counts.images = counted
             if kind == "items":
                 yield from payload
+            elif kind == "warning":
+                if self._warnings is not None:
+                    self._warnings.heard(payload)
             elif kind == "error":
                 raise payload
             else:
@@ -470,6 +514,8 @@ class EstimateSteps:
         self._estimator = estimator
         self._counts = counts
         self._window_m = estimator.config.keyframe_window_m
+        # Steps dropped unread stop their reader too (it was left a zombie until the next fork).
+        self._stop_reader = weakref.finalize(self, _close_reader, reader)
 
     def __iter__(self) -> Iterator[StepResult]:
         estimator, counts = self._estimator, self._counts
@@ -498,9 +544,13 @@ class EstimateSteps:
             self.close()
 
     def close(self) -> None:
-        close = getattr(self._reader, "close", None)
-        if close is not None:
-            close()
+        self._stop_reader()
+
+
+def _close_reader(reader: ReaderProcess | Iterator[Keyframe] | Iterator[Frame]) -> None:
+    close = getattr(reader, "close", None)
+    if close is not None:
+        close()
 
 
 def run_estimate(
@@ -511,6 +561,7 @@ def run_estimate(
     workers: int = DEFAULT_WORKERS,
     depth: int = DEFAULT_DEPTH,
     reader_process: bool = True,
+    warnings: ReaderWarnings | None = None,
 ) -> EstimateSteps:
     """Feed ``samples`` through ``estimator``: iterate the result for one ``StepResult`` per keyframe.
 
@@ -519,6 +570,8 @@ def run_estimate(
     started on the first step: right where one core per run is wanted (a sweep running one task
     per core). Where this process may not have children (:func:`can_fork`: a daemonic process,
     such as a Dask worker) the reader is in this process either way; the steps are the same.
+    ``warnings``: the one the samples' source warns to (:class:`ReaderWarnings`), so that a reader
+    process's warnings reach its ``on_warning`` in this process.
     """
     counts = counts if counts is not None else PipelineCounts()
     describe = estimator.observation_model
@@ -558,5 +611,5 @@ def run_estimate(
                 close()
 
     if reader_process and can_fork():
-        return EstimateSteps(ReaderProcess(produce, counts=counts), estimator, counts)
+        return EstimateSteps(ReaderProcess(produce, counts=counts, warnings=warnings), estimator, counts)
     return EstimateSteps(produce(counts), estimator, counts)

@@ -796,7 +796,9 @@ def open_client(*, workers: int | None, scheduler: str | None) -> Any:
             n_workers=count,
             threads_per_worker=1,
             processes=True,
-            dashboard_address=None,
+            # Its HTTP server (metrics; no dashboard without bokeh) starts either way: on a free port,
+            # since None meant 8787, and where a notebook's own cluster held that, Dask warned on stderr.
+            dashboard_address=":0",
             silence_logs=logging.CRITICAL,  # a failing task is a row; shutdown chatter is noise
         )
     return Client(cluster)

@@ -15,7 +15,7 @@ import contextlib
 import io
 import json
 import math
-from collections.abc import Callable, Generator, Iterator, Mapping
+from collections.abc import Callable, Generator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -300,7 +300,7 @@ class Recording:
 
     def samples(
         self, topics: RecordingTopics = RecordingTopics(), *, ground_truth: bool = True
-    ) -> Iterator[Sample]:
+    ) -> Generator[Sample, None, None]:
         """One ``Sample`` per camera image, in time order, with poses interpolated to its stamp;
         with ``ground_truth=False`` the truth topic is not read and every sample's truth is None.
 
