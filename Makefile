@@ -118,6 +118,7 @@ lint: $(VENV)/.dev-installed
 # Measures (~7 min, both cores), writes bench/results/benchmarks.json, then renders the document.
 bench: sysdeps $(VENV)/.bench-installed
 	@$(PIN_PYOPENGL)
+	@$(BYTECODE)  # modules edited since the install: else each estimate measured compiles them again
 	$(BIN)/python bench/run_all.py
 
 # Only docs/benchmarks.md and its plot again from bench/results/benchmarks.json (seconds): for wording.
