@@ -468,9 +468,8 @@ def test_describe_bag_reads_every_sample(bags):
     assert info.odometry_distance_m == pytest.approx(float(np.hypot(*span)))
 
 
-def test_describe_bag_counts_the_topics_it_reads_rather_than_a_stale_index(bags, tmp_path):
-    """A rosbag2 folder's metadata.yaml is the index rosbags gives counts from; one left stale (a
-    bag trimmed or rewritten by a tool) made ``aslam info`` show counts the bag does not hold."""
+def _with_a_stale_index(bags, tmp_path: Path) -> Path:
+    """A copy of the rosbag2 mcap bag whose metadata.yaml says three times its images."""
     from ruamel.yaml import YAML
 
     bag = tmp_path / "bag"
@@ -482,6 +481,13 @@ def test_describe_bag_counts_the_topics_it_reads_rather_than_a_stale_index(bags,
             topic["message_count"] = 3 * N_IMAGES
     with (bag / "metadata.yaml").open("w") as f:
         yaml.dump(meta, f)
+    return bag
+
+
+def test_describe_bag_counts_the_topics_it_reads_rather_than_a_stale_index(bags, tmp_path):
+    """A rosbag2 folder's metadata.yaml is the index rosbags gives counts from; one left stale (a
+    bag trimmed or rewritten by a tool) made ``aslam info`` show counts the bag does not hold."""
+    bag = _with_a_stale_index(bags, tmp_path)
     warnings: list[str] = []
     info = describe_bag(bag, WITH_TRUTH, on_warning=warnings.append)
     counts = {t.topic: t.messages for t in info.topics}
@@ -496,21 +502,10 @@ def test_an_estimate_of_a_bag_holding_fewer_messages_than_its_index_says_warns(b
     """rosbags skips an MCAP chunk it cannot read (and a sqlite row deleted) without an error: only
     ``info`` compared the counts read with the index's, so ``estimate`` of a damaged bag wrote an
     estimate of part of it, exit 0 and not a word, which ``report`` then scored as complete (found
-    by a fuzz of damaged bags: 15 of 40 images). A stale index stands in for the damage here. (The
-    reader process says it: descriptor 2.)"""
-    from ruamel.yaml import YAML
-
+    by a fuzz of damaged bags: 15 of 40 images). A stale index stands in for the damage here."""
     from aslam.cli.app import main
 
-    bag = tmp_path / "bag"
-    shutil.copytree(bags["rosbag2-mcap"], bag)
-    yaml = YAML(typ="safe")
-    meta = yaml.load((bag / "metadata.yaml").read_text())
-    for topic in meta["rosbag2_bagfile_information"]["topics_with_message_count"]:
-        if topic["topic_metadata"]["name"] == IMAGE_TOPIC:
-            topic["message_count"] = 3 * N_IMAGES
-    with (bag / "metadata.yaml").open("w") as f:
-        yaml.dump(meta, f)
+    bag = _with_a_stale_index(bags, tmp_path)
     said = f"{bag}: the bag's index says {3 * N_IMAGES} messages on '{IMAGE_TOPIC}'; it holds {N_IMAGES}"
     assert main(["estimate", str(bag), "-o", str(tmp_path / "e.mcap")]) == 0
     assert [line for line in capfd.readouterr().err.splitlines() if "warning" in line] == [
