@@ -407,6 +407,21 @@ def error_text(err: BaseException) -> str:
     return one_line(str(err) if isinstance(err, AslamError) else f"{type(err).__name__}: {err}")
 
 
+_OPTION_KEYS = {
+    "--ground-truth-topic of estimate or report": "ground_truth_topic in the sweep file's [recordings]",
+    **{"--" + key.replace("_", "-"): key for key in TOPIC_KEYS},
+}
+
+
+def in_sweep_words(line: str) -> str:
+    """A task's error or warning with the topic options it names as the sweep file's keys: the
+    reading says what to give ``aslam estimate`` (``--odom-frame``), and a sweep's user writes
+    ``odom_frame`` in ``[recordings]``."""
+    for option, key in _OPTION_KEYS.items():
+        line = line.replace(option, key)
+    return line
+
+
 def worker_name() -> str:
     """The Dask worker's address, or host:pid outside a worker."""
     try:
@@ -477,6 +492,7 @@ def run_task(task: Task, rendered: Rendered | None = None) -> TaskResult:
     cpu_start = time.process_time()
 
     def failed(error: str) -> TaskResult:
+        error = in_sweep_words(error)
         return TaskResult(task.index, task.key, None, error, tuple(warnings), None, None, worker)
 
     if rendered is not None and rendered.error is not None:
@@ -496,7 +512,7 @@ def run_task(task: Task, rendered: Rendered | None = None) -> TaskResult:
             topics=task.source.topics,
             workers=0,
             reader_process=False,
-            on_warning=warnings.append,
+            on_warning=lambda line: warnings.append(in_sweep_words(line)),
             on_progress=_progress_publisher(task),
         )
         if task.source.render is None and summary.recording_sha256 != task.source.identity:
@@ -507,7 +523,7 @@ def run_task(task: Task, rendered: Rendered | None = None) -> TaskResult:
             radius_m=task.score.radius_m,
             heading_deg=task.score.heading_deg,
             ground_truth_topic=task.source.topics.ground_truth,
-            on_warning=warnings.append,
+            on_warning=lambda line: warnings.append(in_sweep_words(line)),
         )
         # Replaced after the estimate read it, the truth was read from the new file (or, of another
         # size, not at all: a row without precision saved as done).

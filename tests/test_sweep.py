@@ -1941,6 +1941,20 @@ def test_renders_that_differ_in_a_knob_read_apart():
     }
 
 
+def test_a_rows_error_names_the_topic_keys_as_the_sweep_file_spells_them():
+    """A bag read with /tf odometry whose frames are not there failed its row saying to give
+    ``--odom-frame`` (``aslam estimate``'s option); in a sweep file it is ``odom_frame``."""
+    from aslam.app.sweep import in_sweep_words
+
+    said = "name the frames (--odom-frame, --base-frame) or an odometry topic (--odometry-topic)"
+    assert in_sweep_words(said) == (
+        "name the frames (odom_frame, base_frame) or an odometry topic (odometry_topic)"
+    )
+    assert in_sweep_words("no image topic; name one with --image-topic") == (
+        "no image topic; name one with image_topic"
+    )
+
+
 def test_a_bag_swept_with_its_topics_named_is_scored(tmp_path, capsys):
     """``[recordings]`` takes ``aslam estimate``'s topic options (with underscores) for the bags it
     lists: a bag's ground truth is read only from a named topic, so a sweep over real bags could not
@@ -1976,6 +1990,11 @@ def test_a_bag_swept_with_its_topics_named_is_scored(tmp_path, capsys):
     unscored = run_task(task)
     assert unscored.ok and unscored.summary is not None
     assert unscored.summary["loop_closure.precision"] is None
+    # ... and says which key would score it, as the sweep file spells it (it named report's option)
+    assert [w for w in unscored.warnings if "ground-truth topic" in w] == [
+        f"{tmp_path / 'bag.mcap'}: no ground-truth topic named for this bag"
+        " (ground_truth_topic in the sweep file's [recordings]); reporting without ground truth"
+    ]
     # A topic the bag does not have is told when the sweep is planned (the dry run), from the bag's
     # index: it failed every row of its bags after the others ran.
     wrong = tmp_path / "wrong.toml"
