@@ -28,7 +28,7 @@ from aslam.core.config import REVISIT_HEADING_DEG, REVISIT_RADIUS_M, check_repor
 from aslam.core.errors import InputError
 from aslam.core.mapgraph import GrowableArray
 from aslam.core.metrics import AssignmentScore, Evaluation, evaluate, score_assignment
-from aslam.data_formats.errors import CutWhileReadError, EstimateError, RecordingError
+from aslam.data_formats.errors import CutWhileReadError, EstimateError, RecordingError, UnopenableBag
 from aslam.data_formats.estimate import EstimateFile, iter_keyframes, map_digest, open_estimate, read_estimate
 from aslam.data_formats.files import file_name_from_utf8, full_path, real_path, source_size_bytes
 from aslam.data_formats.graph_json import build_graph_json
@@ -488,7 +488,7 @@ def _session_truth(
     try:
         poses = _ground_truth(path, topics, stamps, warn, strict=strict, without=without)
     except RecordingError as err:
-        if named:
+        if named or isinstance(err, UnopenableBag):
             raise
         raise RecordingError(
             f"no ground-truth topic '{ground_truth_topic}'; on its own topic: {err.problem}", path=path
@@ -755,7 +755,7 @@ def _ground_truth(
         with closing(open_input(path, topics, on_warning=warn).ground_truth()) as truth:
             poses = truth_at_stamps(stamps, truth)
     except RecordingError as err:
-        if strict:
+        if strict or isinstance(err, UnopenableBag):  # a damaged file, not a topic it lacks
             raise
         warn(f"{err}; {without}")
         return None

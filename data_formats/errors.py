@@ -28,6 +28,11 @@ class BagError(RecordingError):
     """A ROS bag (rosbag2 folder or file, ROS 1 bag) that cannot be read (exit 2)."""
 
 
+class UnopenableBag(BagError):
+    """A bag that cannot even be opened (its index or header damaged, not a bag at all): no topic of
+    it can be read, so ``report`` does not go on without its ground truth as for a missing topic."""
+
+
 class SceneError(InputError):
     """A Foxglove scene file that cannot be written; the message is ``PATH: problem`` (exit 2)."""
 

@@ -27,7 +27,7 @@ import numpy as np
 from aslam.core.errors import InputError
 from aslam.data_formats import ros_msgs
 from aslam.data_formats.camera import CameraIntrinsics
-from aslam.data_formats.errors import BagError
+from aslam.data_formats.errors import BagError, UnopenableBag
 from aslam.data_formats.files import (
     ROSBAG2_METADATA_MAX_BYTES,
     check_input_file,
@@ -306,12 +306,13 @@ def _open_reader(path: Path) -> Iterator[Any]:
             reader = AnyReader([path], default_typestore=get_typestore(Stores.LATEST))
             reader.open()
     except BagError as err:
-        if not any(sign in str(err) for sign in _NO_INDEX_SIGNS):
-            raise
-        hint = _REINDEX_HINT
-        if path.is_file() and path.suffix.lower() == ".mcap":  # ours and a rosbag2 file look alike cut
-            hint += "; an aslam recording cut short that early holds nothing to read: record it again"
-        raise BagError(f"{err.problem}; {hint}", path=path) from err
+        problem = err.problem
+        if any(sign in str(err) for sign in _NO_INDEX_SIGNS):
+            hint = _REINDEX_HINT
+            if path.is_file() and path.suffix.lower() == ".mcap":  # ours and a rosbag2 file look alike cut
+                hint += "; an aslam recording cut short that early holds nothing to read: record it again"
+            problem = f"{problem}; {hint}"
+        raise UnopenableBag(problem, path=path) from err
     try:
         with _metadata_errors(path, "cannot read the bag's index"):
             # rosbags derives these from a rosbag2 folder's metadata.yaml only when first asked, and

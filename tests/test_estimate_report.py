@@ -823,6 +823,22 @@ def test_report_refuses_a_recording_given_that_is_none(
     assert one_error_line(capsys.readouterr().err).startswith(f"aslam: error: {given}: ")
 
 
+def test_report_refuses_a_recording_given_that_cannot_be_opened(estimate_file: Path, tmp_path: Path, capsys):
+    """A file with MCAP's magic and garbage after it passes for a bag until it is opened; that failure
+    was a warning and a report without ground truth, exit 0, as for a topic the file lacks (found by
+    an API user's audit). No topic of a file that cannot be opened can be read: exit 2."""
+    from aslam.app.score import score
+    from aslam.data_formats.errors import BagError
+    from aslam.data_formats.files import MCAP_MAGIC
+
+    given = tmp_path / "damaged.mcap"
+    given.write_bytes(MCAP_MAGIC + bytes(range(256)) * 12)
+    assert main(["report", str(estimate_file), "--recording", str(given), "--json", "-", "-q"]) == 2
+    assert one_error_line(capsys.readouterr().err).startswith(f"aslam: error: {given}: cannot open the bag: ")
+    with pytest.raises(BagError, match="cannot open the bag"):
+        score(estimate_file, recording=given)
+
+
 def test_report_against_another_recording_says_so(estimate_file: Path, tmp_path: Path, capsys):
     """A ground truth from another file is allowed (a bag with the truth beside an imported
     folder), but not silently: a different file is named in a warning."""
