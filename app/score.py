@@ -486,9 +486,9 @@ def _session_truth(
         return None, _Session(len(stamps), path, None)
     strict = ground_truth_topic is not None and not of_the_map
     try:
-        poses = _ground_truth(path, topics, stamps, warn, strict=strict, without=without)
+        poses = _ground_truth(path, topics, stamps, warn, strict=strict, without=without, own=not of_the_map)
     except RecordingError as err:
-        if named or isinstance(err, UnopenableBag):
+        if named or (not of_the_map and isinstance(err, UnopenableBag)):
             raise
         raise RecordingError(
             f"no ground-truth topic '{ground_truth_topic}'; on its own topic: {err.problem}", path=path
@@ -748,14 +748,16 @@ def _ground_truth(
     *,
     strict: bool = False,
     without: str = "reporting without ground truth",
+    own: bool = True,
 ) -> np.ndarray | None:
     """The truth at ``stamps``; None with a warning ending in ``without`` when there is none
-    (``strict``: an error)."""
+    (``strict``: an error). The run's ``own`` recording that cannot be opened at all is an error
+    too; a prior map's session then goes unscored, with a warning, as the run is still scored."""
     try:
         with closing(open_input(path, topics, on_warning=warn).ground_truth()) as truth:
             poses = truth_at_stamps(stamps, truth)
     except RecordingError as err:
-        if strict or isinstance(err, UnopenableBag):  # a damaged file, not a topic it lacks
+        if strict or (own and isinstance(err, UnopenableBag)):  # a damaged file, not a topic it lacks
             raise
         warn(f"{err}; {without}")
         return None
