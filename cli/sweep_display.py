@@ -58,7 +58,7 @@ def plan_text(plan: SweepPlan) -> str:
     shared = f", {plan.shared} shared with an identical recording" if plan.shared else ""
     renders = plan.renders_due
     rendering = f" (first rendering {counted(renders, 'recording')})" if renders else ""
-    counts = f"{len(plan.tasks)} tasks, {plan.reused} already done, {len(plan.to_run)} to run"
+    counts = f"{counted(len(plan.tasks), 'task')}, {plan.reused} already done, {len(plan.to_run)} to run"
     return counts + shared + rendering
 
 
