@@ -515,7 +515,7 @@ class EstimateSteps:
         self._counts = counts
         self._window_m = estimator.config.keyframe_window_m
         # Steps dropped unread stop their reader too (it was left a zombie until the next fork).
-        self._stop_reader = weakref.finalize(self, _close_reader, reader)
+        self._stop_reader = weakref.finalize(self, _close_reader, reader, os.getpid())
 
     def __iter__(self) -> Iterator[StepResult]:
         estimator, counts = self._estimator, self._counts
@@ -547,7 +547,13 @@ class EstimateSteps:
         self._stop_reader()
 
 
-def _close_reader(reader: ReaderProcess | Iterator[Keyframe] | Iterator[Frame]) -> None:
+def _close_reader(reader: ReaderProcess | Iterator[Keyframe] | Iterator[Frame], owner_pid: int) -> None:
+    """Close ``reader``, in the process that made it only: a finalizer is copied into every fork (a
+    later reader's child, whose collection or exit would run it), where the reader is another
+    process's child, or a copy of a source whose clean-up (a decompressed bag's removal) is the
+    parent's."""
+    if os.getpid() != owner_pid:
+        return
     close = getattr(reader, "close", None)
     if close is not None:
         close()

@@ -476,7 +476,13 @@ def _session_truth(
         return None, _Session(len(stamps), None, None)
     topics = TopicChoice.from_record(info.metadata.topics)
     alone = not of_the_map and info.metadata.prior_map is None
-    named = ground_truth_topic is not None and (alone or _has_topic(path, ground_truth_topic))
+    try:
+        named = ground_truth_topic is not None and (alone or _has_topic(path, ground_truth_topic))
+    except UnopenableBag as err:
+        if not of_the_map:
+            raise
+        warn(f"{err}; {without}")  # as a session whose recording is gone: the run is still scored
+        return None, _Session(len(stamps), None, None)
     if named:
         topics = replace(topics, ground_truth=ground_truth_topic)
     elif of_the_map and ground_truth_topic is not None and topics.ground_truth is None:
@@ -498,10 +504,12 @@ def _session_truth(
 
 
 def _has_topic(path: Path, topic: str) -> bool:
-    """Whether the recording or bag at ``path`` has ``topic``; False where it cannot be opened (the
-    read of its own topic then says why)."""
+    """Whether the recording or bag at ``path`` has ``topic``; False where it cannot be read (the
+    read of its own topic then says why). A bag that cannot be opened at all is ``UnopenableBag``."""
     try:
         return open_input(path).has_topic(topic)
+    except UnopenableBag:
+        raise
     except InputError:
         return False
 

@@ -28,6 +28,7 @@ import hashlib
 import json
 import logging
 import os
+import re
 import shutil
 import socket
 import time
@@ -407,19 +408,25 @@ def error_text(err: BaseException) -> str:
     return one_line(str(err) if isinstance(err, AslamError) else f"{type(err).__name__}: {err}")
 
 
-_OPTION_KEYS = {
-    "--ground-truth-topic of estimate or report": "ground_truth_topic in the sweep file's [recordings]",
-    **{"--" + key.replace("_", "-"): key for key in TOPIC_KEYS},
-}
+_OPTION_WORDS = re.compile(
+    r"(?<![\w/'-])--("
+    + "|".join(key.replace("_", "-") for key in TOPIC_KEYS)
+    + r")(?![\w/'-])"
+    + r"( of estimate or report)?"
+)
 
 
 def in_sweep_words(line: str) -> str:
     """A task's error or warning with the topic options it names as the sweep file's keys: the
     reading says what to give ``aslam estimate`` (``--odom-frame``), and a sweep's user writes
-    ``odom_frame`` in ``[recordings]``."""
-    for option, key in _OPTION_KEYS.items():
-        line = line.replace(option, key)
-    return line
+    ``odom_frame`` in ``[recordings]``. Only options standing alone: a path or topic with
+    ``--image-topic`` in its name keeps it."""
+
+    def key(match: re.Match[str]) -> str:
+        name = match.group(1).replace("-", "_")
+        return f"{name} in the sweep file's [recordings]" if match.group(2) else name
+
+    return _OPTION_WORDS.sub(key, line)
 
 
 def worker_name() -> str:
@@ -1066,18 +1073,22 @@ def _progress_heard(
         yield
         return
     by_key = {task.key: task for task in tasks}
+    hearing = [on_progress]  # emptied at the end: the client keeps the handler (distributed 2026.8)
 
     def heard(event: tuple[float, Any]) -> None:
         _time, message = event
         with contextlib.suppress(Exception):  # (in Dask's event loop: nothing may escape)
             task = by_key.get(message["key"])
-            if task is not None:
-                on_progress(task, float(message["done"]))
+            for tell in hearing:
+                if task is not None:
+                    tell(task, float(message["done"]))
 
     client.subscribe_topic(PROGRESS_TOPIC, heard)
     try:
         yield
     finally:
+        hearing.clear()
+        by_key.clear()
         with contextlib.suppress(Exception):  # the scheduler may be gone
             client.unsubscribe_topic(PROGRESS_TOPIC)
 

@@ -314,13 +314,16 @@ def _open_reader(path: Path) -> Iterator[Any]:
             problem = f"{problem}; {hint}"
         raise UnopenableBag(problem, path=path) from err
     try:
-        with _metadata_errors(path, "cannot read the bag's index"):
-            # rosbags derives these from a rosbag2 folder's metadata.yaml only when first asked, and
-            # keeps its names as written: a field of the wrong type (a count that is a word, a type
-            # that is a number) surfaced as a bare TypeError in the middle of a run. Asked here, it
-            # is one line at the open, naming the file.
-            _ = (reader.topics, reader.message_count, reader.start_time, reader.end_time)
-            _check_names(reader, path)
+        try:
+            with _metadata_errors(path, "cannot read the bag's index"):
+                # rosbags derives these from a rosbag2 folder's metadata.yaml only when first asked,
+                # and keeps its names as written: a field of the wrong type (a count that is a word, a
+                # type that is a number) surfaced as a bare TypeError in the middle of a run. Asked
+                # here, it is one line at the open, naming the file.
+                _ = (reader.topics, reader.message_count, reader.start_time, reader.end_time)
+                _check_names(reader, path)
+        except BagError as err:  # its index damaged: no topic of it can be read either
+            raise UnopenableBag(err.problem, path=path) from err
         yield reader
     finally:
         with _rosbags_errors(path, "cannot close the bag"):

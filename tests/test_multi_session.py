@@ -986,3 +986,32 @@ def test_a_recording_made_again_in_its_place_is_no_truth(tmp_path):
     warnings.clear()
     assert score(second_estimate, on_warning=warnings.append).summary["loop_closure"] == before
     assert not any("s1.mcap" in w for w in warnings)
+
+
+@pytest.mark.parametrize("topic", [[], ["--ground-truth-topic", "/ground_truth"]])
+def test_a_map_session_that_cannot_be_opened_leaves_the_map_unscored_and_the_run_scored(
+    tmp_path: Path, capsys, topic: list[str]
+):
+    """A map's session whose bag was damaged since (MCAP's magic, garbage, the same size, so found
+    as that recording): the run is scored and the map's keyframes not, with a warning naming the
+    problem, as when the bag is gone. With a truth topic named it was exit 2, "no ground-truth topic
+    … in any session of its map" (a code review's finding)."""
+    from aslam.data_formats.files import MCAP_MAGIC
+
+    bag, run = tmp_path / "first_bag.mcap", tmp_path / "second.mcap"
+    write_square_bag(bag, square_route(), 7, ground_truth_topic="/ground_truth")
+    write_square_recording(run, second_session_route(5), seed=11)
+    the_map, estimate = tmp_path / "bag.est.mcap", tmp_path / "run.est.mcap"
+    assert main(["estimate", str(bag), "-o", str(the_map), "-q"]) == 0
+    assert main(["estimate", str(run), "--map", str(the_map), "-o", str(estimate), "-q"]) == 0
+    size = bag.stat().st_size
+    bag.write_bytes((MCAP_MAGIC + bytes(range(256)) * (size // 256 + 1))[:size])
+    capsys.readouterr()
+    assert main(["report", str(estimate), "--json", "-", *topic]) == 0
+    out, err = capsys.readouterr()
+    (said,) = [line for line in err.splitlines() if "first_bag" in line]
+    assert said.startswith(f"aslam: warning: {bag}: ")
+    assert said.endswith("; the map's keyframes from it are not scored")
+    if topic:  # (without one, the session's bag has no truth topic named: the warning says so first)
+        assert "cannot open the bag" in said
+    assert json.loads(out)["ground_truth"] is True  # the run itself is scored

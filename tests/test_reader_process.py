@@ -6,6 +6,7 @@ from __future__ import annotations
 import array
 import fcntl
 import multiprocessing
+import os
 import termios
 import threading
 import time
@@ -209,3 +210,43 @@ def test_steps_dropped_unread_stop_and_reap_their_reader(long):
     del steps
     gc.collect()
     assert not os.path.exists(f"/proc/{pid}")  # stopped and reaped, not a zombie
+
+
+def test_a_dropped_steps_finalizer_copied_into_a_later_readers_child_does_nothing_there(square):
+    """``weakref.finalize`` is copied into every fork: steps left in a reference cycle when the next
+    reader forked were collected in that child, whose finalizer then asked about a process that is
+    not its child (``AssertionError: can only test a child process``, printed on stderr; a code
+    review's finding). It closes its reader in the process that made it only. (A process of its
+    own: the child's words reach its descriptor 2 unbuffered, as in a terminal.)"""
+    import subprocess
+    import sys
+
+    script = f"""
+import gc
+from pathlib import Path
+from aslam.app.pipeline import run_estimate
+from aslam.core.config import EstimatorConfig
+from aslam.core.estimator import Estimator
+from aslam.data_formats.recording import Recording
+
+path = Path({str(square)!r})
+gc.disable()
+dropped = run_estimate(Recording(path).samples(), Estimator(EstimatorConfig()))
+dropped.cycle = dropped
+del dropped
+
+def collected_in_the_child():
+    gc.collect()
+    yield from Recording(path).samples()
+
+steps = run_estimate(collected_in_the_child(), Estimator(EstimatorConfig()))
+gc.enable()
+print(sum(1 for _ in steps))
+"""
+    unbuffered = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    done = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=120, env=unbuffered
+    )
+    assert done.returncode == 0, done.stderr
+    assert int(done.stdout) > 10
+    assert done.stderr == ""

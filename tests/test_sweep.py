@@ -1953,6 +1953,12 @@ def test_a_rows_error_names_the_topic_keys_as_the_sweep_file_spells_them():
     assert in_sweep_words("no image topic; name one with --image-topic") == (
         "no image topic; name one with image_topic"
     )
+    # an option standing alone only: a path or a topic may hold one in its name
+    named = "/data/run--image-topic-test/bag.mcap: no transform on '/robot--base-frame/tf'"
+    assert in_sweep_words(named) == named
+    assert in_sweep_words("(--ground-truth-topic of estimate or report)") == (
+        "(ground_truth_topic in the sweep file's [recordings])"
+    )
 
 
 def test_a_bag_swept_with_its_topics_named_is_scored(tmp_path, capsys):
