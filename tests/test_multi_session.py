@@ -379,21 +379,28 @@ def test_a_map_bag_without_the_topic_named_says_so(mixed, capsys):
     assert "no ground-truth topic named" not in err
 
 
-def test_a_truth_topic_only_a_missing_map_session_had_is_no_error(tmp_path, capsys):
-    """The map's bag, the one session with /ground_truth, deleted: the report said no session has
-    the topic (exit 2, as for a typo) though it cannot know. The run is now scored on its own topic,
-    the map's keyframes unscored, as the warning about the missing bag says."""
+def _a_run_in_a_bags_map(tmp_path: Path) -> tuple[Path, Path]:
+    """A bag with /ground_truth made a map, and a recording's run in it: (the bag, the run's estimate)."""
     bag, run = tmp_path / "first_bag.mcap", tmp_path / "second.mcap"
     write_square_bag(bag, square_route(), 7, ground_truth_topic="/ground_truth")
     write_square_recording(run, second_session_route(5), seed=11)
     the_map, estimate = tmp_path / "bag.est.mcap", tmp_path / "run.est.mcap"
     assert main(["estimate", str(bag), "-o", str(the_map), "-q"]) == 0
     assert main(["estimate", str(run), "--map", str(the_map), "-o", str(estimate), "-q"]) == 0
+    return bag, estimate
+
+
+def test_a_truth_topic_only_a_missing_map_session_had_is_no_error(tmp_path, capsys):
+    """The map's bag, the one session with /ground_truth, deleted: the report said no session has
+    the topic (exit 2, as for a typo) though it cannot know. The run is now scored on its own topic,
+    the map's keyframes unscored, as the warning about the missing bag says."""
+    bag, estimate = _a_run_in_a_bags_map(tmp_path)
     bag.unlink()
     capsys.readouterr()
     assert main(["report", str(estimate), "--json", "-", "--ground-truth-topic", "/ground_truth"]) == 0
     captured = capsys.readouterr()
     warnings = [line for line in captured.err.splitlines() if line.startswith("aslam:")]
+    the_map = bag.with_name("bag.est.mcap")
     assert warnings == [
         f"aslam: warning: recording {bag} (named in {the_map}) not found; the map's keyframes from it"
         " are not scored"
@@ -998,12 +1005,7 @@ def test_a_map_session_that_cannot_be_opened_leaves_the_map_unscored_and_the_run
     … in any session of its map" (a code review's finding)."""
     from aslam.data_formats.files import MCAP_MAGIC
 
-    bag, run = tmp_path / "first_bag.mcap", tmp_path / "second.mcap"
-    write_square_bag(bag, square_route(), 7, ground_truth_topic="/ground_truth")
-    write_square_recording(run, second_session_route(5), seed=11)
-    the_map, estimate = tmp_path / "bag.est.mcap", tmp_path / "run.est.mcap"
-    assert main(["estimate", str(bag), "-o", str(the_map), "-q"]) == 0
-    assert main(["estimate", str(run), "--map", str(the_map), "-o", str(estimate), "-q"]) == 0
+    bag, estimate = _a_run_in_a_bags_map(tmp_path)
     size = bag.stat().st_size
     bag.write_bytes((MCAP_MAGIC + bytes(range(256)) * (size // 256 + 1))[:size])
     capsys.readouterr()
