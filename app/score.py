@@ -476,13 +476,19 @@ def _session_truth(
         return None, _Session(len(stamps), None, None)
     topics = TopicChoice.from_record(info.metadata.topics)
     alone = not of_the_map and info.metadata.prior_map is None
+
+    def unopened(err: UnopenableBag) -> tuple[None, _Session]:
+        """The run's own recording that cannot be opened is an error; a prior map's session goes
+        unscored, with a warning, as one whose recording is gone: the run is still scored."""
+        if not of_the_map:
+            raise err
+        warn(f"{err}; {without}")
+        return None, _Session(len(stamps), None, None)
+
     try:
         named = ground_truth_topic is not None and (alone or _has_topic(path, ground_truth_topic))
     except UnopenableBag as err:
-        if not of_the_map:
-            raise
-        warn(f"{err}; {without}")  # as a session whose recording is gone: the run is still scored
-        return None, _Session(len(stamps), None, None)
+        return unopened(err)
     if named:
         topics = replace(topics, ground_truth=ground_truth_topic)
     elif of_the_map and ground_truth_topic is not None and topics.ground_truth is None:
@@ -492,9 +498,11 @@ def _session_truth(
         return None, _Session(len(stamps), path, None)
     strict = ground_truth_topic is not None and not of_the_map
     try:
-        poses = _ground_truth(path, topics, stamps, warn, strict=strict, without=without, own=not of_the_map)
+        poses = _ground_truth(path, topics, stamps, warn, strict=strict, without=without)
+    except UnopenableBag as err:
+        return unopened(err)
     except RecordingError as err:
-        if named or (not of_the_map and isinstance(err, UnopenableBag)):
+        if named:
             raise
         raise RecordingError(
             f"no ground-truth topic '{ground_truth_topic}'; on its own topic: {err.problem}", path=path
@@ -756,16 +764,14 @@ def _ground_truth(
     *,
     strict: bool = False,
     without: str = "reporting without ground truth",
-    own: bool = True,
 ) -> np.ndarray | None:
     """The truth at ``stamps``; None with a warning ending in ``without`` when there is none
-    (``strict``: an error). The run's ``own`` recording that cannot be opened at all is an error
-    too; a prior map's session then goes unscored, with a warning, as the run is still scored."""
+    (``strict``: an error). A file that cannot be opened at all is ``UnopenableBag`` either way."""
     try:
         with closing(open_input(path, topics, on_warning=warn).ground_truth()) as truth:
             poses = truth_at_stamps(stamps, truth)
     except RecordingError as err:
-        if strict or (own and isinstance(err, UnopenableBag)):  # a damaged file, not a topic it lacks
+        if strict or isinstance(err, UnopenableBag):  # a damaged file, not a topic it lacks
             raise
         warn(f"{err}; {without}")
         return None

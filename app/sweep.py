@@ -1079,9 +1079,8 @@ def _progress_heard(
         _time, message = event
         with contextlib.suppress(Exception):  # (in Dask's event loop: nothing may escape)
             task = by_key.get(message["key"])
-            for tell in hearing:
-                if task is not None:
-                    tell(task, float(message["done"]))
+            if task is not None and hearing:
+                hearing[0](task, float(message["done"]))
 
     client.subscribe_topic(PROGRESS_TOPIC, heard)
     try:
