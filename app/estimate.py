@@ -113,8 +113,8 @@ class FileHasher:
 
 
 def estimate(
-    recording: Path,
-    output: Path,
+    recording: Path | str,
+    output: Path | str,
     config: EstimatorConfig,
     *,
     topics: TopicChoice = TopicChoice(),
@@ -122,7 +122,7 @@ def estimate(
     timing: bool = True,
     workers: int = DEFAULT_WORKERS,
     reader_process: bool = True,
-    prior: Path | None = None,
+    prior: Path | str | None = None,
     on_progress: Callable[[EstimateProgress], None] | None = None,
     on_warning: Callable[[str], None] | None = None,
 ) -> EstimateSummary:

@@ -50,11 +50,11 @@ class ImportResult:
 
 
 def import_image_folder(
-    folder: Path,
-    output: Path,
+    folder: Path | str,
+    output: Path | str,
     *,
-    ground_truth: Path | None = None,
-    odometry: Path | None = None,
+    ground_truth: Path | str | None = None,
+    odometry: Path | str | None = None,
     fmt: PoseFormat | str | None = None,
     rate_hz: float | None = None,
     stamp_unit: StampUnit | str | None = None,
@@ -75,7 +75,9 @@ def import_image_folder(
     if fov_deg is not None and (problem := fov_option_problem(fov_deg)) is not None:
         raise InputError(problem)
     started = time.perf_counter()
-    output = Path(output)
+    folder, output = Path(folder), Path(output)
+    ground_truth = None if ground_truth is None else Path(ground_truth)
+    odometry = None if odometry is None else Path(odometry)
     check_output_path(output, force=force)
     source = open_image_folder(
         folder, ground_truth=ground_truth, odometry=odometry, fmt=fmt, rate_hz=rate_hz, stamp_unit=stamp_unit

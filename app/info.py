@@ -17,7 +17,7 @@ Progress = Callable[[int, int | None], None]
 
 
 def describe(
-    recording: Path,
+    recording: Path | str,
     topics: TopicChoice = TopicChoice(),
     *,
     on_progress: Progress | None = None,
@@ -25,7 +25,7 @@ def describe(
 ) -> RecordingInfo:
     """Topics, counts, duration, image sizes, camera and metadata of ``recording`` (one of our MCAP
     recordings or a ROS bag); RecordingError/BagError naming the file when it does not read."""
-    source = open_input(recording, topics, on_warning=on_warning)
+    source = open_input(Path(recording), topics, on_warning=on_warning)
     if on_progress is None:
         return source.describe()
     total: int | None = None

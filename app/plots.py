@@ -46,7 +46,11 @@ def _save(fig: Any, path: Path) -> None:
 
 
 def write_plots(
-    folder: Path, report: Report, *, force: bool = False, on_warning: Callable[[str], None] | None = None
+    folder: Path | str,
+    report: Report,
+    *,
+    force: bool = False,
+    on_warning: Callable[[str], None] | None = None,
 ) -> list[Path]:
     """Write the figures into ``folder`` (created if missing); returns their paths. Every figure's
     path is checked before any is drawn: one that exists is refused unless ``force``, as
@@ -58,6 +62,7 @@ def write_plots(
     """
     import matplotlib.style
 
+    folder = Path(folder)
     check_output_folder(folder, what="plots folder")
     if folder.is_dir():
         for name in PLOT_NAMES:

@@ -303,9 +303,9 @@ class Report:
 
 
 def score(
-    estimate: Path,
+    estimate: Path | str,
     *,
-    recording: Path | None = None,
+    recording: Path | str | None = None,
     radius_m: float = REVISIT_RADIUS_M,
     heading_deg: float = REVISIT_HEADING_DEG,
     truth_by_index: bool = False,
@@ -330,6 +330,7 @@ def score(
     warn = on_warning or (lambda _line: None)
     stage = on_stage or (lambda _text: None)
     estimate = Path(estimate)
+    recording = None if recording is None else Path(recording)
     stage("reading the estimate")
     # Opened once: every pass below reads this file, even if another process replaces it meanwhile
     # (read by name each time, a rewrite between passes mixed two estimates in one report).

@@ -683,7 +683,7 @@ def plan_sweep(
 
 def dry_run(
     sweep: Sweep,
-    results_dir: Path,
+    results_dir: Path | str,
     *,
     workers: int | None = None,
     scheduler: str | None = None,
@@ -897,7 +897,7 @@ def _library_difference(client: Any, worker: str) -> str | None:
 
 def run_sweep(
     sweep: Sweep,
-    results_dir: Path,
+    results_dir: Path | str,
     *,
     workers: int | None = None,
     scheduler: str | None = None,

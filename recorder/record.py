@@ -228,7 +228,7 @@ def metadata(config: RecordConfig, p: Plan) -> dict[str, str]:
 
 
 def record(
-    config: RecordConfig, output: Path, *, force: bool = False, progress: Progress | None = None
+    config: RecordConfig, output: Path | str, *, force: bool = False, progress: Progress | None = None
 ) -> RecordResult:
     """Render the recording described by ``config`` into ``output`` (an MCAP file).
 

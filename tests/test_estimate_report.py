@@ -861,3 +861,24 @@ def test_truth_by_index_refuses_a_recording_from_python_too(estimate_file: Path,
         score(estimate_file, truth_by_index=True, ground_truth_topic="/ground_truth")
     assert main(["report", str(estimate_file), "--truth-by-index", "--recording", str(recording)]) == 2
     assert "reads no recording" in one_error_line(capsys.readouterr().err)
+
+
+def test_the_python_functions_take_paths_as_strings(recording: Path, tmp_path: Path):
+    """A notebook passes ``"run.mcap"``, not ``Path("run.mcap")``: every public function of
+    ``aslam.app`` takes either (``write_plots`` took only a ``Path``: ``str / name`` raised)."""
+    from aslam.app.estimate import estimate
+    from aslam.app.info import describe
+    from aslam.app.metric_view import export_trajectories
+    from aslam.app.plots import write_plots
+    from aslam.app.score import score
+    from aslam.core.config import EstimatorConfig
+
+    assert describe(str(recording)).samples > 0
+    run = estimate(str(recording), str(tmp_path / "e.mcap"), EstimatorConfig(), timing=False)
+    report = score(str(run.output), recording=str(recording))
+    assert report.summary["loop_closure"]["precision"] is not None
+    written = write_plots(str(tmp_path / "plots"), report)
+    assert [path.name for path in written] == list(PLOT_NAMES)
+    trajectory = str(tmp_path / "t.tum")
+    files = export_trajectories(trajectory, report.embedding, report.stamps_ns, report.true_poses)
+    assert sorted(path.name for path in files.values()) == ["t.odometry.tum", "t.truth.tum", "t.tum"]
