@@ -31,7 +31,9 @@ import os
 import re
 import shutil
 import socket
+import tempfile
 import time
+import weakref
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
@@ -814,7 +816,10 @@ def open_client(*, workers: int | None, scheduler: str | None) -> Any:
     from dask.system import CPU_COUNT  # the cores this process may use: affinity and cgroup quotas
 
     count = workers if workers is not None else CPU_COUNT
-    with dask.config.set(LOCAL_CLUSTER_SETTINGS):
+    # The workers' folders and Dask's lock files, which it leaves in $TMPDIR/dask-scratch-space: in a
+    # folder of this cluster's own, removed when it is closed (or collected, or at exit).
+    scratch = tempfile.mkdtemp(prefix="aslam-dask-")
+    with dask.config.set({**LOCAL_CLUSTER_SETTINGS, "temporary-directory": scratch}):
         cluster = LocalCluster(
             n_workers=count,
             threads_per_worker=1,
@@ -824,7 +829,12 @@ def open_client(*, workers: int | None, scheduler: str | None) -> Any:
             dashboard_address=":0",
             silence_logs=logging.CRITICAL,  # a failing task is a row; shutdown chatter is noise
         )
+    _SCRATCH[cluster] = weakref.finalize(cluster, shutil.rmtree, scratch, ignore_errors=True)
     return Client(cluster)
+
+
+#: The scratch folder of each local cluster :func:`open_client` started, removed by calling it.
+_SCRATCH: weakref.WeakKeyDictionary[Any, weakref.finalize] = weakref.WeakKeyDictionary()
 
 
 def _probe_scheduler(address: str) -> None:
@@ -1304,6 +1314,8 @@ def _close(client: Any, *, local: bool) -> None:
     client.close()
     if cluster is not None:
         cluster.close()
+        if (remove := _SCRATCH.pop(cluster, None)) is not None:
+            remove()
 
 
 # --- tables ----------------------------------------------------------------------------------------

@@ -15,6 +15,7 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Iterator
@@ -483,8 +484,10 @@ def test_a_bad_scheduler_file_is_one_line_before_any_work(recordings, tmp_path, 
     assert not results.exists()
 
 
-def test_a_rerun_skips_the_done_tasks_and_force_recomputes(local_run, recordings, monkeypatch):
+def test_a_rerun_skips_the_done_tasks_and_force_recomputes(local_run, recordings, monkeypatch, tmp_path):
     _code, results = local_run
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))  # $TMPDIR, as Python read it
+    (tmp_path / "tmp").mkdir()
     # A notebook's own setting, which Dask's nanny overwrote (with 1) for good when it spawned workers.
     monkeypatch.setenv("OMP_NUM_THREADS", "3")
     monkeypatch.delenv("MKL_NUM_THREADS", raising=False)
@@ -524,6 +527,7 @@ def test_a_rerun_skips_the_done_tasks_and_force_recomputes(local_run, recordings
     assert all(0 < done <= 1 and said == sorted(said) for said in heard.values() for done in said)
     assert all(p.stat().st_mtime_ns != mtime for p, mtime in estimates.items())
     assert _same_but_timing(forced.results, run.results)
+    assert list((tmp_path / "tmp").iterdir()) == []  # no dask-scratch-space left behind
 
 
 def _same_but_timing(a: tuple[TaskResult, ...], b: tuple[TaskResult, ...]) -> bool:
