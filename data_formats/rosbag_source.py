@@ -14,7 +14,9 @@ without reading its messages, :func:`describe_bag` reads it all for ``aslam info
 
 from __future__ import annotations
 
+import errno
 import math
+import tempfile
 from collections.abc import Callable, Generator, Iterator
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field, replace
@@ -290,6 +292,8 @@ def _metadata_errors(path: Path, doing: str) -> Iterator[None]:
 
 #: What rosbags says of a bag whose recorder stopped before writing its index (killed, power lost).
 _NO_INDEX_SIGNS = ("File end magic is invalid", "index looks damaged", "Header could not be read")
+#: A file that cannot grow: the disk full, over quota, or over the process's file size limit.
+_NO_ROOM = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 _REINDEX_HINT = (
     "a bag whose recorder was stopped before closing it has no index: rebuild it on a copy with "
     "'ros2 bag reindex' (ROS 2) or 'rosbag reindex' (ROS 1)"
@@ -312,6 +316,11 @@ def _open_reader(path: Path) -> Iterator[Any]:
             if path.is_file() and path.suffix.lower() == ".mcap":  # ours and a rosbag2 file look alike cut
                 hint += "; an aslam recording cut short that early holds nothing to read: record it again"
             problem = f"{problem}; {hint}"
+        elif isinstance(err.__cause__, OSError) and err.__cause__.errno in _NO_ROOM:
+            problem = (
+                f"{problem}; rosbags decompresses a bag compressed by file whole into the temporary folder"
+                f" ({tempfile.gettempdir()}): point TMPDIR at a disk with room for the uncompressed bag"
+            )
         raise UnopenableBag(problem, path=path) from err
     try:
         try:

@@ -11,6 +11,8 @@ from __future__ import annotations
 import math
 import os
 import shutil
+import subprocess
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -745,6 +747,40 @@ def test_a_failed_estimate_of_a_bag_compressed_by_file_leaves_no_copy_in_tmpdir(
     monkeypatch.setattr(tempfile, "tempdir", None)  # read TMPDIR again, in this process and its fork
     assert main(["estimate", str(path), "-o", str(tmp_path / "e.mcap"), "-q"]) == 2
     assert "image on" in one_error_line(capsys.readouterr().err)
+    assert list(temporary.rglob("*")) == []
+
+
+def test_no_room_to_decompress_a_bag_compressed_by_file_says_where_and_what_to_do(tmp_path):
+    """rosbags decompresses a rosbag2 bag compressed by file whole into TMPDIR; where that cannot
+    hold it (a small tmpfs /tmp, a quota; here the process's file size limit) the error was a bare
+    "No space left on device", with no word of which folder filled or how to point it elsewhere."""
+    import resource
+
+    from rosbags.typesys import Stores, get_typestore
+
+    rows = bag_messages(get_typestore(Stores.ROS2_HUMBLE), Options(compressed=True))
+    path = write_rosbag2(tmp_path / "bag", messages=rows, compression="file")
+    temporary = tmp_path / "tmp"
+    temporary.mkdir()
+
+    def small_files() -> None:  # in the child: no file may grow past 4 KiB (Python ignores SIGXFSZ)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
+
+    done = subprocess.run(
+        [sys.executable, "-m", "aslam", "info", str(path)],
+        env={**os.environ, "TMPDIR": str(temporary)},
+        preexec_fn=small_files,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 2
+    line = one_error_line(done.stderr)
+    assert line.startswith(f"aslam: error: {path}: cannot open the bag: OSError: [Errno 27] File too large")
+    assert line.endswith(
+        f"rosbags decompresses a bag compressed by file whole into the temporary folder ({temporary}):"
+        " point TMPDIR at a disk with room for the uncompressed bag"
+    )
     assert list(temporary.rglob("*")) == []
 
 
