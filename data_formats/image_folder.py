@@ -298,7 +298,8 @@ def _named_stamps(
     folder: Path, images: list[Path], unit: StampUnit | None, warnings: list[str]
 ) -> list[int] | None:
     """Stamps from file names that are all times (read as ``stamp_text_ns`` reads them, their spacing
-    judged as a pose file's), strictly increasing; else None (frame numbers, say)."""
+    judged as a pose file's); else None (frame numbers, say). Two names of one time are an error, as
+    two rows of one stamp in a pose file are: falling back to 1 Hz dropped every stamp unsaid."""
     if unit is None and _frame_numbers(images):
         return None
     stamps = []
@@ -310,8 +311,14 @@ def _named_stamps(
             stamps.append(stamp_text_ns(path.stem, unit))
         except ValueError as err:
             raise ImageFolderError(f"file name: {err}", path=path) from err
-    if any(b <= a for a, b in pairwise(stamps)):
-        return None
+    # In value order (``_ordered``), so a pair out of order is a pair of one time.
+    for (a, first), (b, second) in pairwise(zip(stamps, images, strict=True)):
+        if b <= a:
+            raise ImageFolderError(
+                f"file names {first.name} and {second.name} are the same time ({a} ns): rename one, or"
+                " give --rate HZ to stamp the images in name order",
+                path=folder,
+            )
     if unit is None:
         _judge_spacing(stamps, folder, ImageFolderError, warnings, "file names: ")
     return stamps

@@ -78,12 +78,21 @@ def _split(text: str) -> list[str]:
     return [part.strip() for part in text.split(",")] if "," in text else text.split()
 
 
+def _is_header(fields: list[str]) -> bool:
+    """A CSV file's first line may name its columns (``t,x,y,yaw``): no field of it is a number. A
+    line with numbers and something else (``1,a,b,c``, a trailing comma) is a bad pose line."""
+    return not any(is_decimal(f) for f in fields)
+
+
 def detect_format(path: Path) -> PoseFormat:
-    """The format of ``path`` from its first pose line (a header line of comma-separated names is skipped)."""
+    """The format of ``path`` from its first pose line (a first line of comma-separated names, a
+    header, is skipped)."""
     path = Path(path)
+    first = True
     for number, text in _lines(path):
         fields = _split(text)
-        if "," in text and not all(is_decimal(f) for f in fields):
+        if first and "," in text and _is_header(fields):
+            first = False
             continue  # a CSV header such as "t,x,y,yaw"
         for fmt, layout in LAYOUTS.items():
             if layout.comma_separated == ("," in text) and layout.fields == len(fields):
@@ -269,7 +278,7 @@ def _iter_poses(path: Path, fmt: PoseFormat, unit: StampUnit | None) -> Iterator
     first = True
     for number, text in _lines(path):
         fields = _split(text) if layout.comma_separated else text.split()
-        if first and layout.comma_separated and not all(is_decimal(f) for f in fields):
+        if first and layout.comma_separated and _is_header(fields):
             first = False
             continue  # the header line
         first = False

@@ -17,7 +17,12 @@ from hypothesis import strategies as st
 
 from aslam.app.importer import import_image_folder
 from aslam.core.errors import InputError
-from aslam.data_formats.image_folder import START_STAMP_NS, SYNTHETIC_STEP_M, open_image_folder
+from aslam.data_formats.image_folder import (
+    START_STAMP_NS,
+    SYNTHETIC_STEP_M,
+    ImageFolderError,
+    open_image_folder,
+)
 from aslam.data_formats.pose_files import (
     LAYOUTS,
     NANOSECOND_STAMP_MIN,
@@ -302,6 +307,12 @@ def test_a_name_past_any_time_in_a_unit_is_one_line(tmp_path, unit):
         ("t,x,y,yaw\n0,0,0,0\n1,0,0\n", None, "line 3: 3 fields, a CSV line has 4"),
         ("1 2 3\n", None, "line 1: cannot tell the format from 3 fields"),
         ("# only a comment\n", None, "has no pose lines"),
+        # a line of numbers and something else is a bad line, not a header (was "has no pose lines",
+        # or the line skipped as a header and the import made without it)
+        ("t,x,y,yaw\n1,a,b,c\n", None, "line 2: 'a' is not a number"),
+        ("1,a,b,c\n2,1,0,0\n", None, "line 1: 'a' is not a number"),
+        ("100.0,0,0,0,\n101.0,1,0,0,\n", None, "line 1: cannot tell the format from 5 fields"),
+        ('"100.0","0","0","0"\n"101.0","1","0","0"\n', None, "line 2: '\"101.0\"' is not a number"),
         ("1 0 0 0 0 0 0 1\n", "kitti", "line 1: 8 fields, a KITTI line has 12"),
     ],
 )
@@ -343,6 +354,20 @@ def test_natural_order_and_stamps_from_file_names(tmp_path):
     assert [p.name for p in folder.images] == ["2.5.png", "3.png", "10.25.png"]
     assert folder.stamps == "file names"
     assert [s.stamp_ns for s in folder.samples()] == [2_500_000_000, 3_000_000_000, 10_250_000_000]
+
+
+def test_two_file_names_of_one_time_are_refused_not_stamped_at_one_hertz(tmp_path):
+    """Names of one value (``1.0.png`` and ``1.00.png``) gave every frame the default 1 Hz stamps,
+    all the names' times dropped without a word."""
+    for name in ("1305031102.175304.png", "1305031102.1753040.png", "1305031102.275304.png"):
+        write_images(tmp_path / "imgs", 1, name=lambda _i, name=name: name)
+    with pytest.raises(ImageFolderError) as caught:
+        open_image_folder(tmp_path / "imgs")
+    assert str(caught.value) == (
+        f"{tmp_path / 'imgs'}: file names 1305031102.175304.png and 1305031102.1753040.png are the same"
+        " time (1305031102175304000 ns): rename one, or give --rate HZ to stamp the images in name order"
+    )
+    assert open_image_folder(tmp_path / "imgs", rate_hz=10.0).stamps == "rate 10 Hz"
 
 
 # File names as datasets and people write them, from pieces: numbers (zero-padded too, other
@@ -995,7 +1020,7 @@ def test_estimate_tells_an_image_folder_by_the_frames_import_takes(tmp_path, nam
     """Which entries of a folder are frames is one rule (``image_folder.is_frame``): the folder
     ``estimate`` and ``info`` tell to import (``holds_frames``) is one whose frames ``import`` lists
     (``list_images``), each odd name alone in its folder and all of them in one."""
-    from aslam.data_formats.image_folder import ImageFolderError, holds_frames, list_images
+    from aslam.data_formats.image_folder import holds_frames, list_images
 
     alone = tmp_path / "alone"
     alone.mkdir()
