@@ -8,7 +8,7 @@ one_core    the tasks one after another in a fresh process with no Dask in it, o
             (reader and histograms in the calling thread, as a sweep task runs): "one thing after
             another on one core", the baseline the target is set against;
 serial      the same loop with ``estimate``'s defaults, as ``aslam estimate`` runs: a forked reader
-            process and two histogram threads, so it already uses ~1.35 cores;
+            process and two threads decoding and describing images, so it already uses ~1.35 cores;
 sweep       ``run_sweep`` on a LocalCluster of N worker processes started beforehand, the task
             modules imported on each (the tasks' time: plan, submit, last result, tables);
 sweep_cold  ``run_sweep`` starting and stopping its own LocalCluster, once (the whole command).
