@@ -5,7 +5,7 @@ bench/.cache/sweep/) × 10 parameter sets (beta 2..4 × cells_x 1, 2). Each task
 a score.
 
 one_core    the tasks one after another in a fresh process with no Dask in it, one thread each
-            (reader and histograms in the calling thread, as a sweep task runs): "one thing after
+            (reader and descriptions in the calling thread, as a sweep task runs): "one thing after
             another on one core", the baseline the target is set against;
 serial      the same loop with ``estimate``'s defaults, as ``aslam estimate`` runs: a forked reader
             process and two threads decoding and describing images, so it already uses ~1.35 cores;
