@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from aslam.core import se2
 from aslam.core.config import EstimatorConfig
 from aslam.core.errors import ConfigError
-from aslam.core.estimator import Estimator, Keyframer
+from aslam.core.estimator import FEWEST_MOVES, Estimator, Keyframer
 from aslam.core.mapgraph import KeyframeViews
 from aslam.core.motion import compose_rel, inverse_rel, link_weight, rel_covariance, revisit_residuals, to_rel
 from aslam.core.tree import ALARM_EPISODE_GAP, AlarmCount, HypothesisTree, WindowMedian, _against_travel
@@ -375,6 +375,41 @@ def test_adaptive_keyframing_changes_nothing_at_one_pose_per_step(moves):
         pose = se2.compose(pose, np.array([distance, 0.0, 0.0]) if turn == 0 else np.array([0.0, 0.0, turn]))
         a, b = adaptive.action_if_keyframe(pose), plain.action_if_keyframe(pose)
         assert (a is None) == (b is None)
+
+
+@settings(max_examples=200)
+@given(
+    st.floats(0.8, 2.0),
+    st.lists(st.floats(0.85, 1.15), min_size=6, max_size=40),
+    st.lists(st.floats(0.85, 1.15), min_size=6, max_size=40),
+)
+def test_on_a_sparse_stream_every_moving_frame_is_a_keyframe_whatever_the_noise(spacing, first, second):
+    """Frames about a step apart (0.8–2 steps), each measured with up to 15 % error: after the first
+    ``FEWEST_MOVES`` every frame is a keyframe, so two passes with other errors keyframe the same
+    frames (a threshold of two-thirds of the step took a 0.75 m frame on one lap and not the next)."""
+    for errors in (first, second):
+        keyframer = Keyframer(step_m=1.0, turn_deg=90.0, slack=0.3, adaptive=True)
+        pose, fired = np.zeros(3), []
+        for error in [0.0, *errors]:
+            pose = se2.compose(pose, np.array([spacing * error, 0.0, 0.0]))
+            fired.append(keyframer.action_if_keyframe(pose) is not None)
+        assert all(fired[FEWEST_MOVES:])
+
+
+def test_short_steps_measured_short_are_keyframes_and_two_frames_a_step_stay_dense():
+    """0.75 m steps, one measured 0.62 m (under two-thirds of the 1 m step, which the rule before
+    skipped); and two frames a 1 m step with a stretch of 0.7 m frames (a 1.41 m diagonal): a
+    keyframe at least 0.7 m on from the last, as before (no single 0.5 m frame taken)."""
+    short = Keyframer(step_m=1.0, turn_deg=90.0, slack=0.3, adaptive=True)
+    moves = [0.0, 0.75, 0.78, 0.72, 0.75, 0.77, 0.73, 0.62, 0.75, 0.76]
+    xs = np.cumsum(moves)
+    assert all(short.action_if_keyframe(np.array([x, 0.0, 0.0])) is not None for x in xs)
+    dense = Keyframer(step_m=1.0, turn_deg=90.0, slack=0.3, adaptive=True)
+    moves = [0.0] + [0.5] * 12 + [0.7] * 4 + [0.5] * 12
+    xs = np.cumsum(moves)
+    actions = [dense.action_if_keyframe(np.array([x, 0.0, 0.0])) for x in xs]
+    taken = [a[0] for a in actions[1:] if a is not None]
+    assert len(taken) >= 13 and min(taken) >= 0.7
 
 
 def _kidnap_run(config: EstimatorConfig, noise_after: float = 0.05, keyframes_after: int = 8):
