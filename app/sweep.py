@@ -819,16 +819,20 @@ def open_client(*, workers: int | None, scheduler: str | None) -> Any:
     # The workers' folders and Dask's lock files, which it leaves in $TMPDIR/dask-scratch-space: in a
     # folder of this cluster's own, removed when it is closed (or collected, or at exit).
     scratch = tempfile.mkdtemp(prefix="aslam-dask-")
-    with dask.config.set({**LOCAL_CLUSTER_SETTINGS, "temporary-directory": scratch}):
-        cluster = LocalCluster(
-            n_workers=count,
-            threads_per_worker=1,
-            processes=True,
-            # Its HTTP server (metrics; no dashboard without bokeh) starts either way: on a free port,
-            # since None meant 8787, and where a notebook's own cluster held that, Dask warned on stderr.
-            dashboard_address=":0",
-            silence_logs=logging.CRITICAL,  # a failing task is a row; shutdown chatter is noise
-        )
+    try:
+        with dask.config.set({**LOCAL_CLUSTER_SETTINGS, "temporary-directory": scratch}):
+            cluster = LocalCluster(
+                n_workers=count,
+                threads_per_worker=1,
+                processes=True,
+                # Its HTTP server (metrics; no dashboard without bokeh) starts either way: on a free
+                # port, since None meant 8787, and where a notebook's own cluster held that, Dask warned.
+                dashboard_address=":0",
+                silence_logs=logging.CRITICAL,  # a failing task is a row; shutdown chatter is noise
+            )
+    except BaseException:  # a worker that cannot start, a timeout, Ctrl-C: no folder left behind
+        shutil.rmtree(scratch, ignore_errors=True)
+        raise
     _SCRATCH[cluster] = weakref.finalize(cluster, shutil.rmtree, scratch, ignore_errors=True)
     return Client(cluster)
 

@@ -311,12 +311,19 @@ def _named_stamps(
             stamps.append(stamp_text_ns(path.stem, unit))
         except ValueError as err:
             raise ImageFolderError(f"file name: {err}", path=path) from err
-    # In value order (``_ordered``), so a pair out of order is a pair of one time.
+    # In value order (``_ordered``): a pair out of order is a pair of one time, or names read in two
+    # units (whole numbers of 10^17 or more are nanoseconds, smaller ones seconds).
     for (a, first), (b, second) in pairwise(zip(stamps, images, strict=True)):
-        if b <= a:
+        if b == a:
             raise ImageFolderError(
                 f"file names {first.name} and {second.name} are the same time ({a} ns): rename one, or"
                 " give --rate HZ to stamp the images in name order",
+                path=folder,
+            )
+        if b < a:
+            raise ImageFolderError(
+                f"file names {first.name} and {second.name} read as times in two units ({a} and {b} ns):"
+                " give --stamp-unit, or --rate HZ to stamp the images in name order",
                 path=folder,
             )
     if unit is None:

@@ -412,6 +412,23 @@ def test_short_steps_measured_short_are_keyframes_and_two_frames_a_step_stay_den
     assert len(taken) >= 13 and min(taken) >= 0.7
 
 
+def test_a_sparse_stream_that_slows_or_strides_keyframes_as_the_step_says():
+    """Frames 0.75 m apart, then a crawl of 0.075 m frames: the crawl keyframes about a step apart
+    (the sparse rule kept half the fast median and took one every 0.4 m). Frames 3 m apart, then
+    1.2 m: every frame a step or more from the last is a keyframe (half a 3 m median skipped every
+    other 1.2 m frame)."""
+    crawl = Keyframer(step_m=1.0, turn_deg=90.0, slack=0.3, adaptive=True)
+    moves = [0.0] + [0.75] * 20 + [0.075] * 200
+    xs = np.cumsum(moves)
+    taken = [x for x in xs if crawl.action_if_keyframe(np.array([x, 0.0, 0.0])) is not None]
+    slow = np.diff([x for x in taken if x > xs[20]])
+    assert len(slow) >= 10 and slow.min() >= 0.9
+    stride = Keyframer(step_m=1.0, turn_deg=90.0, slack=0.3, adaptive=True)
+    moves = [0.0] + [3.0] * 20 + [1.2] * 20
+    xs = np.cumsum(moves)
+    assert all(stride.action_if_keyframe(np.array([x, 0.0, 0.0])) is not None for x in xs)
+
+
 def _kidnap_run(config: EstimatorConfig, noise_after: float = 0.05, keyframes_after: int = 8):
     """Carried from the middle of lap 2 to another side of the rectangle, odometry unaware; from
     then on the views are copies of their places with ``noise_after`` (another light). Returns

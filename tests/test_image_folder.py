@@ -370,6 +370,16 @@ def test_two_file_names_of_one_time_are_refused_not_stamped_at_one_hertz(tmp_pat
     assert open_image_folder(tmp_path / "imgs", rate_hz=10.0).stamps == "rate 10 Hz"
 
 
+def test_file_names_read_in_two_units_are_said_to_be_so_not_one_time(tmp_path):
+    """Whole numbers of 10^17 or more are nanoseconds, smaller ones seconds: names of both kinds are
+    in value order but not in time order, which is not "the same time"."""
+    for name in ("1600000000.png", "1600000001.png", "1600000000500000000.png"):
+        write_images(tmp_path / "imgs", 1, name=lambda _i, name=name: name)
+    two_units = r"1600000001\.png and 1600000000500000000\.png read as times in two units"
+    with pytest.raises(ImageFolderError, match=two_units):
+        open_image_folder(tmp_path / "imgs")
+
+
 # File names as datasets and people write them, from pieces: numbers (zero-padded too, other
 # scripts' digits, a superscript ², which str.isdigit takes for a digit and int refuses),
 # separators, letters, and any other characters.

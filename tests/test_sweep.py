@@ -1053,6 +1053,20 @@ def test_a_bad_scheduler_address_is_exit_2(recordings, tmp_path, capsys):
     assert code == 2 and "--workers sizes a local cluster" in capsys.readouterr().err
 
 
+def test_a_local_cluster_that_cannot_start_leaves_no_scratch_folder(tmp_path, monkeypatch):
+    """The cluster's own scratch folder was made before the cluster and removed only with it: a
+    worker that could not start (here a preload that raises) left one behind at every attempt."""
+    import dask
+
+    preload = tmp_path / "bad_preload.py"
+    preload.write_text("raise RuntimeError('this worker cannot start')\n")
+    (tmp_path / "tmp").mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
+    with dask.config.set({"distributed.worker.preload": [str(preload)]}), pytest.raises(RuntimeError):
+        open_client(workers=1, scheduler=None)
+    assert list((tmp_path / "tmp").iterdir()) == []
+
+
 def test_a_client_that_could_not_connect_is_gone_at_once(tmp_path):
     """Left to the garbage collector, it would be closed at a random later moment, which inside
     another Client's start deadlocks distributed (it hung the suite once)."""
