@@ -50,9 +50,10 @@ def type_problem(where: str, value: Any, kind: type) -> str | None:
     return None if ok else f"{where} must be {want}, got {value!r}"
 
 
-def read_config_file(path: Path) -> tuple[dict[str, Any], list[str]]:
+def read_config_file(path: Path | str) -> tuple[dict[str, Any], list[str]]:
     """The well-typed values of a TOML file's ``[estimator]`` table, and every unknown key and wrong
     type in it; the values' ranges are checked with the rest of the configuration (:func:`build_config`)."""
+    path = Path(path)
     document = read_toml(path, what="a TOML file")
     unknown = [key for key in document if key != CONFIG_TABLE]
     table = document.get(CONFIG_TABLE, {})

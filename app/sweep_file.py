@@ -133,7 +133,7 @@ def example_sweep_file() -> str:
     return Path(__file__).with_name("sweep_example.toml").read_text(encoding="utf-8")
 
 
-def read_sweep_file(path: Path) -> Sweep:
+def read_sweep_file(path: Path | str) -> Sweep:
     """Read and check ``path``; :class:`ConfigError` (exit 2) listing every problem at once."""
     path = Path(path)
     document = read_toml(path, what="a sweep file")

@@ -866,6 +866,7 @@ def test_truth_by_index_refuses_a_recording_from_python_too(estimate_file: Path,
 def test_the_python_functions_take_paths_as_strings(recording: Path, tmp_path: Path):
     """A notebook passes ``"run.mcap"``, not ``Path("run.mcap")``: every public function of
     ``aslam.app`` takes either (``write_plots`` took only a ``Path``: ``str / name`` raised)."""
+    from aslam.app.config_file import read_config_file
     from aslam.app.estimate import estimate
     from aslam.app.info import describe
     from aslam.app.metric_view import export_trajectories
@@ -879,6 +880,8 @@ def test_the_python_functions_take_paths_as_strings(recording: Path, tmp_path: P
     assert report.summary["loop_closure"]["precision"] is not None
     written = write_plots(str(tmp_path / "plots"), report)
     assert [path.name for path in written] == list(PLOT_NAMES)
+    (tmp_path / "c.toml").write_text("[estimator]\nbeta = 3.0\n")
+    assert read_config_file(str(tmp_path / "c.toml")) == ({"beta": 3.0}, [])
     trajectory = str(tmp_path / "t.tum")
     files = export_trajectories(trajectory, report.embedding, report.stamps_ns, report.true_poses)
     assert sorted(path.name for path in files.values()) == ["t.odometry.tum", "t.truth.tum", "t.tum"]
