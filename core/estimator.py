@@ -28,13 +28,13 @@ MIN_TURN_RAD = math.radians(0.5)
 SPARSE_STREAM_STEPS = 0.6
 """A stream is sparse when even its shorter moves (the lower quartile of the last ``TYPICAL_MOVES``,
 once there are ``FEWEST_MOVES``) are at least this many steps: about a frame a step. Then every
-frame that moved at least half its median move is a keyframe, whatever the step's slack says (a frame
-that moved less, a robot slowing to a crawl, keeps the rule before, and so does one whose half
-median is above it: frames three steps apart, then one): where
+frame that moved at least half its median move is a keyframe, whatever the step's slack says: where
 frames come 0.75 m apart and odometry is noisy, a threshold of two-thirds of a 1 m step took a frame
 on one lap and skipped it on the next, so a second lap's keyframes stood where the first had none
-(the held-out short steps at 10 % noise, seeds 123 and 127). Two frames a step (0.5) stays dense,
-and so does a route of two frames a step with a stretch of longer steps."""
+(the held-out short steps at 10 % noise, seeds 123 and 127). A frame that moved less (a robot
+slowing to a crawl) keeps the rule before, and the threshold is never above that rule's (frames
+three steps apart, then one). Two frames a step (0.5) stays dense, and so does a route of two
+frames a step with a stretch of longer steps."""
 TYPICAL_MOVES = 31
 """Moving frames whose spacing makes a stream's typical spacing (quantiles: one odd frame, a stop or a
 frame dropped, does not move them)."""
@@ -116,8 +116,6 @@ class Keyframer:
             if len(self._moves) >= FEWEST_MOVES:
                 moves = sorted(self._moves)
                 half_median = 0.5 * moves[len(moves) // 2]
-                # A frame that moved less (a robot slowing to a crawl) keeps the rule above, and the
-                # threshold never rises past it (frames three steps apart, then one).
                 sparse = moves[len(moves) // 4] >= SPARSE_STREAM_STEPS * self._full_step_m
                 if sparse and advance >= half_median:
                     step_m = min(step_m, half_median)
