@@ -1217,9 +1217,11 @@ def _compute(
                 stopped = _stop_overdue(client, running, task_timeout)
             except Exception as err:  # the scheduler itself is gone
                 raise lost(f"its scheduler does not answer: {error_text(err)}") from err
-            for key, (worker, error) in stopped.items():
+            for key, (worker, error, process_gone) in stopped.items():
                 pending.discard(running[key])
                 task = futures[running[key]]
+                if process_gone:  # it may have finished while its worker closed: a failed row has no file
+                    task.estimate_path.unlink(missing_ok=True)
                 finished += 1
                 yield task, TaskResult(task.index, task.key, None, error, (), None, None, worker)
 
@@ -1237,9 +1239,9 @@ def executing_seconds(dask_worker: Any) -> dict[str, float]:
     }
 
 
-def _stop_overdue(client: Any, running: Mapping[str, Any], limit: float) -> dict[str, tuple[str, str]]:
+def _stop_overdue(client: Any, running: Mapping[str, Any], limit: float) -> dict[str, tuple[str, str, bool]]:
     """Stop the futures of ``running`` (by key) that have computed for more than ``limit`` seconds;
-    for each, its worker and the row's error.
+    for each, its worker, the row's error and whether the process computing it is gone (restarted).
 
     Python code running in a worker's thread cannot be interrupted: the future is cancelled (so
     the scheduler gives it to no other worker) and its worker restarted by its nanny, a new
@@ -1274,7 +1276,7 @@ def _stop_overdue(client: Any, running: Mapping[str, Any], limit: float) -> dict
             how = "stopped by restarting its worker"
         else:
             how = f"its worker could not be restarted ({status}) and computes on until the task ends"
-        stopped[key] = (worker, f"{head}; {how}")
+        stopped[key] = (worker, f"{head}; {how}", worker in known and status == "OK")
     return stopped
 
 

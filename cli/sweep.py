@@ -80,7 +80,8 @@ def sweep(
         str | None,
         typer.Option(
             help="Print the Pareto set over these figures, e.g. precision,recall,keyframes_per_second"
-            " (summary keys or their unique tails; errors and delays are minimised, the rest maximised;"
+            " (summary keys or their tails, as report --fail-on reads them; errors and delays are minimised,"
+            " the rest maximised;"
             " +NAME/-NAME to choose)."
         ),
     ] = None,
@@ -174,14 +175,14 @@ def sweep(
             on_warning=terminal.warning,
             on_progress=display.task_progress,
         )
+    if objectives:  # first: a stdout that cannot be written fails the command before its `wrote` line
+        _print_pareto(run, objectives)
     shared = f", {run.shared} shared with an identical recording" if run.shared else ""
     tables = f"{'wrote' if run.tables_written else 'kept'} {run.parquet} and {run.csv.name}"
     terminal.info(
         f"{tables} ({counted(len(run.tasks), 'task')}: {len(run.tasks) - run.failed} ok,"
         f" {run.failed} failed; {run.computed} run, {run.reused} already done{shared})"
     )
-    if objectives:
-        _print_pareto(run, objectives)
     run.check()
 
 

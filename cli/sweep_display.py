@@ -49,7 +49,12 @@ def short_names(keys: tuple[str, ...]) -> tuple[str, ...]:
 
 
 def parameters_text(task: Task) -> str:
-    return " ".join(f"{name}={value}" for name, value in task.parameters) or "defaults"
+    """``name=value`` pairs as the sweep file spells them (``true``, not Python's ``True``)."""
+    return " ".join(f"{name}={_value_text(value)}" for name, value in task.parameters) or "defaults"
+
+
+def _value_text(value: object) -> str:
+    return ("true" if value else "false") if isinstance(value, bool) else str(value)
 
 
 def plan_text(plan: SweepPlan) -> str:

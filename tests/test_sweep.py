@@ -182,6 +182,22 @@ def read_only_results(local_run, tmp_path):
         subprocess.run(["umount", str(mounted)], check=False)
 
 
+def test_a_pareto_set_that_cannot_be_printed_fails_before_the_wrote_line(local_run, recordings, tmp_path):
+    """stdout on a full disk: the command fails (exit 2) and says only that; the line saying what
+    it wrote came before the Pareto set and stood over the failure."""
+    folder = tmp_path / "copy"
+    shutil.copytree(local_run[1], folder)
+    aslam = Path(sys.executable).with_name("aslam")
+    command = [str(aslam), "sweep", str(_finished_sweep(recordings)), "-o", str(folder)]
+    with open("/dev/full", "w") as full:
+        done = subprocess.run(
+            [*command, "--pareto", "precision"], stdout=full, stderr=subprocess.PIPE, text=True
+        )
+    assert done.returncode == 2
+    assert "wrote " not in done.stderr and "kept " not in done.stderr
+    assert done.stderr.endswith("aslam: error: stdout: No space left on device\n")
+
+
 def test_a_finished_sweep_in_a_read_only_folder_shows_its_results(read_only_results, recordings, capsys):
     """Nothing to do: the Pareto set and the rows are read and printed, nothing written (tables out
     of date are left, with a warning). Work to do: one line and exit 2 before any task runs."""
@@ -331,7 +347,9 @@ gate_sigma = 100.0
 
 def test_a_task_over_the_timeout_is_stopped_and_its_worker_replaced(recordings, tmp_path, capsys):
     """--task-timeout: the slow task's row fails saying so, its worker process is gone (restarted by
-    its nanny, not left computing), and the next task runs on the new worker; exit 3."""
+    its nanny, not left computing), and the next task runs on the new worker; exit 3. A failed row
+    has no estimate file: a task that finished while its worker closed (the nanny waits 4 s) had
+    written one; planted here where the slow task writes, it is removed."""
     sweep = tmp_path / "s.toml"
     sweep.write_text(
         f'figures = ["keyframes"]\n[recordings]\npaths = ["{recordings / "good.mcap"}"]\n'
@@ -341,6 +359,9 @@ def test_a_task_over_the_timeout_is_stopped_and_its_worker_replaced(recordings, 
     results = tmp_path / "results"
     assert main(["sweep", str(sweep), "-o", str(results), "--task-timeout", "0", "--dry-run"]) == 2
     assert "--task-timeout must be a number of seconds above 0, got 0" in capsys.readouterr().err
+    slow_task, _ = plan_tasks(read_sweep_file(sweep), results)
+    slow_task.estimate_path.parent.mkdir(parents=True)
+    slow_task.estimate_path.write_bytes(b"finished while its worker closed")
     client = open_client(workers=1, scheduler=None)  # one worker: the next task needs it freed
     try:
         (before,) = client.run(os.getpid).values()
@@ -362,6 +383,7 @@ def test_a_task_over_the_timeout_is_stopped_and_its_worker_replaced(recordings, 
     assert fast["status"] == "ok" and fast["keyframes"] > 20
     assert fast["worker"] != slow["worker"] and after != before
     assert slow_worker_state in ("gone", psutil.STATUS_ZOMBIE)
+    assert not slow_task.estimate_path.exists()
     assert elapsed < 60  # the slow task alone computes for a minute
     assert main(["sweep", str(sweep), "-o", str(results), "--dry-run"]) == 0  # a failed task: tried again
     assert capsys.readouterr().out.splitlines()[0] == "2 tasks, 1 already done, 1 to run"
@@ -456,6 +478,7 @@ def test_overdue_tasks_on_a_worker_with_a_nanny_and_one_without_each_get_their_o
                 else "its worker has no nanny to restart it (dask worker --no-nanny) and computes on "
                 "until the task ends"
             ),
+            has_nanny,  # the process computing it is gone
         )
         for worker, has_nanny in nanny.items()
     )
@@ -2041,3 +2064,16 @@ def test_a_bag_swept_with_its_topics_named_is_scored(tmp_path, capsys):
         f"aslam: error: {forgot}: recordings #2: paths: none (a table's topic keys apply to the files"
         " its paths name)"
     )
+
+
+def test_the_terminal_spells_a_tasks_parameters_as_the_sweep_file_does(recordings, tmp_path):
+    """`paper_faithful=True` (Python's spelling) on the terminal, where the sweep file wrote `true`."""
+    from aslam.cli.sweep_display import parameters_text
+
+    sweep = tmp_path / "s.toml"
+    sweep.write_text(
+        f'figures = ["keyframes"]\n[recordings]\npaths = ["{recordings / "good.mcap"}"]\n'
+        "[[grid]]\npaper_faithful = [true, false]\nthumbnail_beta = 8.0\n"
+    )
+    texts = [parameters_text(task) for task in plan_tasks(read_sweep_file(sweep), tmp_path / "out")]
+    assert texts == ["paper_faithful=true thumbnail_beta=8.0", "paper_faithful=false thumbnail_beta=8.0"]
