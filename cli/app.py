@@ -377,7 +377,7 @@ def _dispatch(argv: list[str] | None, files: CommandFiles | None) -> int:
         interrupt = _interrupt_behind(err)
         if interrupt is not None:
             raise interrupt from err
-        _failure(err)
+        _failure(err, _command_name(argv))
     if code == EXIT_INTERRUPTED:
         raise Interrupted("SIGINT")
     return code if isinstance(code, int) else EXIT_OK
@@ -395,8 +395,9 @@ def _interrupt_behind(err: Exception) -> Interrupted | None:
     return Interrupted(signal.Signals(signals.received).name)
 
 
-def _failure(err: Exception) -> NoReturn:
-    """Raise ``_Failed`` with the exit code an error that escaped a command stands for."""
+def _failure(err: Exception, command_name: str | None = None) -> NoReturn:
+    """Raise ``_Failed`` with the exit code an error that escaped a command stands for
+    (``command_name``: the command the line named)."""
     if isinstance(err, OSError):
         if _is_closed_pipe(err):
             raise _Failed(EXIT_CLOSED_PIPE) from err
@@ -405,7 +406,7 @@ def _failure(err: Exception) -> NoReturn:
             error_line(f"{where}{err.strerror or err}")
             raise _Failed(EXIT_BAD_INPUT) from err
         _internal_error(err)
-    usage = _usage_error_line(err)
+    usage = _usage_error_line(err, command_name)
     if usage is not None:  # click's usage and parameter errors, made one line
         if usage:  # empty when the help was shown instead (no arguments)
             error_line(usage)
@@ -427,12 +428,16 @@ def _internal_error(err: Exception) -> NoReturn:
     raise _Failed(EXIT_INTERNAL) from err
 
 
-def _usage_error_line(err: Exception) -> str | None:
-    """The one-line text of a command-line usage error, or None if ``err`` is not one."""
+def _usage_error_line(err: Exception, command_name: str | None = None) -> str | None:
+    """The one-line text of a command-line usage error, or None if ``err`` is not one.
+    ``command_name``: the command the line named, whose help the text points to where click's
+    error carries the top level's context (an option given no value: ``aslam record --route``)."""
     format_message = getattr(err, "format_message", None)
     if format_message is None or not hasattr(err, "exit_code"):
         return None
     ctx = getattr(err, "ctx", None)
     command = ctx.command_path if ctx is not None else "aslam"
+    if (ctx is None or ctx.parent is None) and command_name in COMMAND_MODULES:
+        command = f"aslam {command_name}"
     message = format_message()
     return f"{message} (see '{command} --help')" if message else ""

@@ -50,7 +50,7 @@ def record(
         typer.Option(
             parser=whole_number,
             metavar="INTEGER",
-            help="Times to drive a closed route. [default: 2 for presets, 1 for files]",
+            help="Times to drive a closed route. \\[default: 2 for presets, 1 for files]",
         ),
     ] = None,
     seed: Annotated[
@@ -168,7 +168,7 @@ def record(
         typer.Option(
             parser=decimal_number,
             metavar="FLOAT",
-            help="Render round(FPS) frames per action (1 s each). [default: one per action]",
+            help="Render round(FPS) frames per action (1 s each). \\[default: one per action]",
         ),
     ] = None,
     jpeg_quality: Annotated[

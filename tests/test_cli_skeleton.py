@@ -146,3 +146,40 @@ def test_the_workers_default_is_the_pipelines():
     from aslam.cli.estimate import _FIXED
 
     assert _FIXED["workers"][1] == DEFAULT_WORKERS
+
+
+def test_every_commands_help_shows_the_defaults_its_options_spell_out(capsys, monkeypatch):
+    """An option's help that ends "[default: …]" in words must show it: rich reads an unescaped
+    "[default: …]" as a markup tag and drops it (record's --laps and --fps did)."""
+    import re
+
+    import typer.main
+
+    from aslam.cli.app import _register_commands, app
+
+    monkeypatch.setenv("COLUMNS", "400")  # one help line an option
+    _register_commands()
+    commands = typer.main.get_command(app).commands.values()  # type: ignore[attr-defined]
+    assert len(commands) >= 6
+    for command in commands:
+        spelled = [
+            re.search(r"\[default: [^\]]*\]", param.help).group(0)  # type: ignore[union-attr]
+            for param in command.params
+            if getattr(param, "help", None) and "[default: " in param.help
+        ]
+        assert main([command.name, "--help"]) == 0
+        out = " ".join(capsys.readouterr().out.split())
+        for text in spelled:
+            assert " ".join(text.split()) in out, (command.name, text)
+
+
+def test_an_option_given_no_value_points_to_its_commands_help(capsys):
+    """Click raises this one with the top level's context: the line said `see 'aslam --help'`."""
+    assert main(["record", "--route"]) == 2
+    assert capsys.readouterr().err == (
+        "aslam: error: Option '--route' requires an argument. (see 'aslam record --help')\n"
+    )
+    assert main(["estimate", "in.mcap", "-o"]) == 2
+    assert capsys.readouterr().err.endswith("(see 'aslam estimate --help')\n")
+    assert main(["--no-such-option"]) == 2
+    assert capsys.readouterr().err.endswith("(see 'aslam --help')\n")
