@@ -358,15 +358,18 @@ class Recording:
             if topics.odometry not in channels:
                 raise _missing_topic(path, "odometry", topics.odometry, channels, source)
         yield from assembler.finish()
-        if source.truncation is not None:
-            cut = source.truncation
+        cut = source.truncation
+        problem = assembler.unpaired(f"'{topics.image}'", f"'{topics.odometry}'")
+        if problem is not None:  # a file cut short says so: its odometry may be in the part lost
+            note = "" if cut is None else f"; the file is truncated at byte {cut.at_byte} of {cut.size}"
+            raise RecordingError(problem + note, path=path)
+        if cut is not None:
+            read, paired = assembler.images, assembler.yielded
+            pairs = "" if paired == read else f" ({paired} paired with odometry)"
             warn(
-                f"{path}: truncated at byte {cut.at_byte} of {cut.size}; read {assembler.yielded} images, "
+                f"{path}: truncated at byte {cut.at_byte} of {cut.size}; read {read} images{pairs}, "
                 "the rest is lost"
             )
-        problem = assembler.unpaired(f"'{topics.image}'", f"'{topics.odometry}'")
-        if problem is not None:
-            raise RecordingError(problem, path=path)
         for line in assembler.warnings():
             warn(line)
 

@@ -224,10 +224,10 @@ def resolve_topics(path: Path, types: dict[str, str], topics: BagTopics) -> Reso
         odometry = only("odometry", (ros_msgs.ODOMETRY,), "--odometry-topic")
         if odometry is None:
             if types.get(topics.tf) not in TF_TYPES:
-                poses = sorted(
+                poses = [
                     t for t, kind in types.items() if kind in ros_msgs.POSE_TYPES and t != topics.ground_truth
-                )
-                hint = f"; name a pose topic with --odometry-topic, e.g. {poses[0]}" if poses else ""
+                ]
+                hint = _odometry_hint(poses)
                 raise BagError(
                     f"no odometry: neither a nav_msgs/msg/Odometry topic nor transforms on '{topics.tf}' "
                     f"(topics in the bag: {_topic_list(types)}){hint}",
@@ -386,6 +386,30 @@ def _frame(name: str) -> str:
 BASE_FRAMES = ("base_footprint", "base_link")
 
 
+TRUTH_NAMES = ("truth", "groundtruth", "gt", "mocap", "vicon", "optitrack")
+"""Words in a topic's name that say it holds the true path, not odometry."""
+
+
+def _odometry_hint(poses: list[str]) -> str:
+    """The error's suggestion of a pose topic for ``--odometry-topic``: one whose name says odometry
+    first; a ground-truth topic last and said to be one (estimated on it, a run is scored against
+    its own odometry, and the figures look perfect and mean nothing)."""
+    if not poses:
+        return ""
+
+    def looks_like_truth(topic: str) -> bool:
+        words = topic.lower().replace("-", "_").replace("/", "_").split("_")
+        return any(word in TRUTH_NAMES for word in words) or "truth" in topic.lower()
+
+    topic = min(poses, key=lambda t: ("odom" not in t.lower(), looks_like_truth(t), t))
+    caveat = (
+        " (its name says ground truth: estimated on it, the scores would compare it with itself)"
+        if looks_like_truth(topic)
+        else ""
+    )
+    return f"; name a pose topic with --odometry-topic, e.g. {topic}{caveat}"
+
+
 class _TfOdometry:
     """Planar poses of ``base`` in ``odom`` from TFMessages. Unnamed, ``base`` is the first message's
     child of ``odom`` that REP 105 names a body frame, else its first child: a marker or sensor frame
@@ -408,6 +432,8 @@ class _TfOdometry:
         named = [child for child in BASE_FRAMES if child in children]
         self.base_frame = named[0] if named else children[0]
         others = sorted(set(children) - {self.base_frame})
+        if named and not others:  # REP 105's body frame, the only child: nothing was guessed
+            return
         also = f" (its other children: {', '.join(others)}; --base-frame chooses)" if others else ""
         self._warn(f"{self._path}: odometry from /tf: {self.odom_frame} → {self.base_frame}{also}")
 

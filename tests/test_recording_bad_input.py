@@ -235,6 +235,50 @@ def test_truncated_file_is_read_up_to_the_damage(tmp_path, capfd):
     assert "truncated at byte" in err and "Traceback" not in err
 
 
+def test_a_cut_file_says_it_is_cut_when_its_images_lost_their_odometry(tmp_path):
+    """Cut after a frame's image and before its odometry: the error (no odometry to pair the image
+    with) says that the file is truncated, in one line, not only a warning (-q hides it). Cut after
+    an image whose odometry is lost: the warning counts the images read and those paired, which
+    differ."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    frames = random_frames(4)
+    written = write_recording(tmp_path / "r.mcap", frames)
+    path = tmp_path / "channels_first.mcap"  # every channel declared before the first message
+    with written.open("rb") as source, path.open("wb") as out:
+        reader = make_reader(source)
+        summary = reader.get_summary()
+        assert summary is not None
+        writer = Writer(out, use_chunking=False)
+        writer.start("ros2", "test")
+        schemas = {i: writer.register_schema(s.name, s.encoding, s.data) for i, s in summary.schemas.items()}
+        channels = {
+            i: writer.register_channel(c.topic, c.message_encoding, schemas[c.schema_id], c.metadata)
+            for i, c in summary.channels.items()
+        }
+        for _, channel, message in reader.iter_messages(log_time_order=False):
+            writer.add_message(channels[channel.id], message.log_time, message.data, message.publish_time)
+        writer.finish()
+    data = path.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    errors, counts = set(), set()
+    for at in range(200, len(data), 53):
+        cut.write_bytes(data[:at])
+        warnings: list[str] = []
+        try:
+            samples = list(Recording(cut, on_warning=warnings.append).samples())
+        except RecordingError as err:
+            if "no odometry message" in str(err):
+                errors.add(str(err))
+            continue
+        counts.update(
+            line.split("; read ")[1] for line in warnings if "paired with odometry" in line and samples
+        )
+    assert errors and all("; the file is truncated at byte " in e and "\n" not in e for e in errors)
+    assert any(c.startswith(f"{n + 1} images ({n} paired with odometry)") for c in counts for n in (1, 2, 3))
+
+
 # --- truncation at any byte ---------------------------------------------------------------------
 
 
