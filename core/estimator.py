@@ -333,9 +333,12 @@ class Estimator:
 
         ``sparse``: the alternatives are a sparse stream's neighbours of the keyframe, a good part of a
         step from it (two frames per metre, a frame every 0.75 m). A wrong choice there puts the
-        keyframe half a step from every place, so a neighbour is taken only while the best hypothesis
-        tracks a mapped place and only when ``SPARSE_CHOICE_ODDS`` times as likely as the odometry's
-        keyframe (docs/estimator.md, "A sparse stream's neighbours").
+        keyframe half a step from every place, so a neighbour is taken only when ``SPARSE_CHOICE_ODDS``
+        times as likely as the odometry's keyframe (docs/estimator.md, "A sparse stream's
+        neighbours"): at a place the tracking hypotheses predict, or, while the best hypothesis calls
+        the robot somewhere new, at the mapped place most like it by the relocalisation index (a
+        lap's first revisit, which nothing tracks yet, fell half a step between two places:
+        docs/estimator.md, "A sparse stream's first revisit looks for the map too").
 
         While the robot is lost and the best hypothesis calls it somewhere new (after a kidnap or a
         reset), the hypotheses predict from the track it lost: a dense window then takes the frame
@@ -347,9 +350,12 @@ class Estimator:
         tree = self._tree
         if len(observations) < 2:
             return 0
-        if tree.lost_off_the_map():
-            # Lost, the hypotheses' predictions are the old track's: take the frame that looks most
-            # like somewhere mapped, so the index can single the place out.
+        best_leaf = tree.leaves[0] if tree.leaves else None
+        exploring = best_leaf is not None and best_leaf.is_new and best_leaf.state != SESSION_START
+        if tree.lost_off_the_map() or (sparse and exploring):
+            # Lost, the hypotheses' predictions are the old track's; on new ground no track phases a
+            # sparse stream's first revisit: take the frame that looks most like somewhere mapped, so
+            # the index can single the place out.
             distances = np.array([tree.nearest_mapped_distance(o) for o in observations])
             if np.isfinite(distances).any():
                 best = int(np.argmin(distances))
@@ -359,7 +365,7 @@ class Estimator:
                 return (
                     best if log_likelihoods[best] - log_likelihoods[0] >= math.log(SPARSE_CHOICE_ODDS) else 0
                 )
-        if sparse and (not tree.leaves or tree.leaves[0].is_new):
+        if sparse and (best_leaf is None or best_leaf.is_new):
             return 0
         weighed = []  # log (belief × P(frame at the leaf's predicted place)) per frame, one row a leaf
         looks: dict[int, np.ndarray] = {}  # log P(frame | place) per predicted place: leaves often share one

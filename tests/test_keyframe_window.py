@@ -233,10 +233,11 @@ def _first_revisit_still_new(world: SyntheticWorld) -> tuple[Estimator, np.ndarr
     return estimator, strangers[1]
 
 
-def test_a_sparse_neighbour_is_taken_only_while_tracking_and_only_when_far_more_likely():
+def test_a_sparse_neighbour_is_taken_only_when_far_more_likely_at_a_place():
     """A sparse stream's neighbour is half a step from the keyframe: taken when it shows the
     predicted place and the keyframe does not, kept out when the two are near alike (under
-    ``SPARSE_CHOICE_ODDS``) or when the best hypothesis is a new place."""
+    ``SPARSE_CHOICE_ODDS``). While the best hypothesis is a new place (a lap's first revisit, which
+    nothing tracks yet) the place is the mapped one most like the frame, by the index."""
     world = SyntheticWorld(5)
     estimator, results = run(rectangle_actions()[:37], world, synthetic_config())
     assert not results[-1].best.is_new_state  # tracking lap 1 on lap 2
@@ -247,11 +248,14 @@ def test_a_sparse_neighbour_is_taken_only_while_tracking_and_only_when_far_more_
     assert estimator.choose_keyframe([keyframe, neighbour], [place, place], sparse=False) == 1
     assert estimator.choose_keyframe([keyframe, neighbour], [place, place], sparse=True) == 0
     # The best hypothesis a new place, a revisit with a fifth of the belief: a dense window follows
-    # the revisit, a sparse neighbour waits for the track.
+    # the revisit; a sparse neighbour is taken for looking far more like a mapped place.
     estimator, stranger = _first_revisit_still_new(world)
-    frames = [stranger, world.observe(np.array([1.0, 0.0, 0.0]))]  # the neighbour shows place 1
+    at_place_1 = world.observe(np.array([1.0, 0.0, 0.0]))
+    frames = [stranger, at_place_1]  # the neighbour shows place 1
     assert estimator.choose_keyframe([keyframe, neighbour], frames) == 1
-    assert estimator.choose_keyframe([keyframe, neighbour], frames, sparse=True) == 0
+    assert estimator.choose_keyframe([keyframe, neighbour], frames, sparse=True) == 1
+    assert estimator.choose_keyframe([keyframe, neighbour], [at_place_1, at_place_1], sparse=True) == 0
+    assert estimator.choose_keyframe([keyframe, neighbour], [stranger, stranger], sparse=True) == 0
 
 
 class _SecondLap:
