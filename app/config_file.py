@@ -47,7 +47,26 @@ def type_problem(where: str, value: Any, kind: type) -> str | None:
     else:
         ok = isinstance(value, kind)
         want = "true or false" if kind is bool else "a string"
-    return None if ok else f"{where} must be {want}, got {value!r}"
+    return None if ok else f"{where} must be {want}, got {_toml_text(value)}"
+
+
+def _toml_text(value: Any) -> str:
+    """A TOML value as the file spells it: ``true``, ``"8"``, ``1979-05-27T07:32:00+00:00`` (a
+    date, not Python's ``datetime.datetime(1979, …)``), an array, a table."""
+    import datetime
+    import json
+
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, datetime.date | datetime.time):
+        return f"{value.isoformat()} (a date or time)"
+    if isinstance(value, list):
+        return "an array"
+    if isinstance(value, dict):
+        return "a table"
+    if isinstance(value, str):
+        return json.dumps(value, ensure_ascii=False)
+    return repr(value)
 
 
 def read_config_file(path: Path | str) -> tuple[dict[str, Any], list[str]]:

@@ -275,7 +275,7 @@ def test_a_config_files_problems_are_reported_together(recording: Path, tmp_path
     assert err.startswith(f"aslam: error: {config}: bad estimator configuration: ")
     for needle in [
         "unknown key estimator.bogus",
-        "beta must be a number, got 'x'",
+        'beta must be a number, got "x"',
         "max_hypotheses must be a whole number in [1, 10000], got 0",
         "thumbnail_beta must be a number in [0.001, 50], got -2.0",
     ]:

@@ -105,7 +105,7 @@ def test_a_config_files_boolean_is_no_number(recording, tmp_path, capsys):
     config = tmp_path / "c.toml"
     config.write_text("[estimator]\nbeta = true\n")
     assert main(["estimate", str(recording), "-o", str(tmp_path / "e.mcap"), "--config", str(config)]) == 2
-    assert "beta must be a number, got True" in one_error_line(capsys.readouterr().err)
+    assert "beta must be a number, got true" in one_error_line(capsys.readouterr().err)
 
 
 def test_a_prior_map_with_two_places_of_one_id_is_refused():

@@ -741,7 +741,7 @@ def test_sweep_file_problems_are_one_line_exit_2_naming_the_file(tmp_path, capsy
         "unknown key 'bogus'",
         "unknown summary key 'loop_closure.nope'",
         "'*.nothing' matches nothing",
-        "grid: beta must be a number, got 'x'",
+        'grid: beta must be a number, got "x"',
         "grid: max_hypotheses must be a whole number, got 2.5",
         "unknown key 'grid.what'",
         "seed must be ≥ 0, got -1",
@@ -749,7 +749,7 @@ def test_sweep_file_problems_are_one_line_exit_2_naming_the_file(tmp_path, capsy
         # a mistyped key does not hide the others' values out of range
         "grid: cells_x must be a whole number in [1, 32], got 0",
         "grid: thumbnail_beta must be a number in [0.001, 50], got -2.0",
-        "render #1: laps must be a whole number, got 'two'",
+        'render #1: laps must be a whole number, got "two"',
     ]:
         assert needle in err
     assert not (tmp_path / "out").exists()
@@ -773,7 +773,12 @@ def test_sweep_file_problems_are_one_line_exit_2_naming_the_file(tmp_path, capsy
         ("[[render]\n", "not valid TOML"),
         ("[grid]\nbeta = []\n[[render]]\nseeds = 1\n", "grid: beta is an empty list"),
         ("[[render]]\nseeds = []\n", "render #1: seeds is an empty list"),
-        ("[[render]]\nlaps = [2, 'two']\n", "render #1: laps must be a whole number, got 'two'"),
+        ("[[render]]\nlaps = [2, 'two']\n", 'render #1: laps must be a whole number, got "two"'),
+        (  # as TOML spells it, not datetime.datetime(1979, …)
+            "[grid]\nbeta = 1979-05-27T07:32:00Z\n[[render]]\nseeds = 1\n",
+            "grid: beta must be a number, got 1979-05-27T07:32:00+00:00 (a date or time)",
+        ),
+        ("[grid]\nbeta = [[1.0]]\n[[render]]\nseeds = 1\n", "grid: beta must be a number, got an array"),
     ],
 )
 def test_sweep_file_values_are_checked_by_building_the_configs(tmp_path, text, needle):
