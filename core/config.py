@@ -116,7 +116,8 @@ class EstimatorConfig:
         " appearance and odometry), the next due a step from it, so a second lap's keyframes land on the"
         " first lap's places, not between them (0: odometry's choice, only keyframes decoded). On a sparse"
         " stream (frames farther apart) the frame either side of the odometry's choice, within 0.8 of a"
-        " step, is taken instead at ten times the odds, while the best hypothesis tracks a mapped place.",
+        " step, is taken instead at ten times the odds of being at a place: one the tracking hypotheses"
+        " predict, or, while the best one calls the robot somewhere new, the mapped place most like it.",
     )
 
     # --- observations -------------------------------------------------------------------------
