@@ -408,8 +408,8 @@ def export_trajectories(
     The format is ``fmt``, else the one the name says (``data_formats.trajectory.export_plan``).
     The truth is written where known: in TUM the keyframes without truth are left out (evo pairs
     poses by stamp); KITTI has no stamps, so its truth file is written only when every keyframe has
-    truth (``on_warning`` hears why it is missing). Every path is checked before anything is
-    written. Returns ``{"optimised": …, …}``.
+    truth (``on_warning`` hears why it is missing; with ``force`` an earlier run's truth file there
+    is removed). Every path is checked before anything is written. Returns ``{"optimised": …, …}``.
     """
     from aslam.data_formats import files
     from aslam.data_formats.trajectory import TrajectoryError, TrajectoryFormat, export_plan, write_trajectory
@@ -432,6 +432,8 @@ def export_trajectories(
     write_trajectory(paths.odometry, embedding.odometry, stamps, fmt)
     if with_truth and truth is not None:
         write_trajectory(paths.truth, truth[known], stamps[known], fmt)
+    else:  # an earlier run's truth file beside this run's trajectory would pair with it in evo
+        files.remove_superseded(paths.truth, force=force)
     return targets
 
 

@@ -28,6 +28,7 @@ from aslam.data_formats.files import (
     check_output_folder,
     check_output_path,
     make_output_folder,
+    remove_superseded,
     write_atomically,
 )
 from aslam.data_formats.graph_json import is_loop_closure_link
@@ -81,8 +82,10 @@ def write_plots(
         if report.embedding is not None:
             paths.append(folder / PLOT_NAMES[4])
             _save(_trajectory_figure(report, title), paths[-1])
-        elif on_warning is not None:
-            on_warning(f"{folder / PLOT_NAMES[4]}: not drawn: the estimate has no keyframes")
+        else:
+            remove_superseded(folder / PLOT_NAMES[4], force=force)  # an earlier run's, with force
+            if on_warning is not None:
+                on_warning(f"{folder / PLOT_NAMES[4]}: not drawn: the estimate has no keyframes")
     return paths
 
 

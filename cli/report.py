@@ -221,7 +221,12 @@ def _write_trajectories(
     from aslam.app.metric_view import export_trajectories
 
     if result.embedding is None:  # as a run without ground truth writes no truth file
+        from aslam.data_formats.files import remove_superseded
+        from aslam.data_formats.trajectory import export_plan
+
         warn(f"{path}: not written (nor its .odometry and .truth files): the estimate has no keyframes")
+        for stale in export_plan(path, fmt)[0]:  # an earlier run's, with --force
+            remove_superseded(stale, force=force)
         return []
     paths = export_trajectories(
         path, result.embedding, result.stamps_ns, result.true_poses, fmt, force=force, on_warning=warn

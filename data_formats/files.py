@@ -223,6 +223,9 @@ class CommandFiles:
     first, so that one failing leaves stdout empty too (the tables had been printed, then the error)."""
     after_commit: list[Callable[[], None]] = field(default_factory=list)
     """Run once the outputs are in place (the command's "wrote …" lines); dropped on a rollback."""
+    superseded: list[Path] = field(default_factory=list)
+    """Files of an output set this command does not write this time (:func:`remove_superseded`),
+    removed once its outputs are in place; kept on a rollback."""
     owner_pid: int = field(default_factory=os.getpid)
 
     def warn(self, line: str) -> None:
@@ -270,6 +273,9 @@ class CommandFiles:
             self.rollback()
             raise
         self._remove_temporaries()
+        superseded, self.superseded = self.superseded, []
+        for path in superseded:
+            _remove_regular_file(path)
         self.folders = []
         after, self.after_commit = self.after_commit, []
         for announce in after:
@@ -294,6 +300,28 @@ class CommandFiles:
         temporaries, self.temporaries = self.temporaries, []
         for path in temporaries:
             _discard(path)
+
+
+def remove_superseded(path: Path, *, force: bool | None) -> None:
+    """``path`` belongs to an output set this run writes but is not written this time (a
+    trajectory's truth file without ground truth, a plot with nothing to draw): with ``force``
+    (None: the running command's ``--force``) a file an earlier run left there goes, once this
+    run's outputs are in place, so that every file of the set comes from one run (evo paired a new
+    trajectory with an old truth file). Without it the existing file refused the run before any work."""
+    files = current()
+    if not (force or (force is None and files is not None and files.force)):
+        return
+    if files is None:
+        _remove_regular_file(Path(path))
+    else:
+        files.superseded.append(real_path(Path(path)))
+
+
+def _remove_regular_file(path: Path) -> None:
+    """Remove ``path`` if it is a regular file (never a folder, a device or a FIFO named there)."""
+    with contextlib.suppress(OSError):
+        if stat.S_ISREG(os.lstat(path).st_mode):
+            path.unlink()
 
 
 def _discard(path: Path) -> None:

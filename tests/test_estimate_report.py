@@ -790,6 +790,43 @@ def test_report_of_no_keyframes_writes_the_rest_and_says_what_it_left_out(tmp_pa
     assert json.loads((tmp_path / "s.json").read_text())["keyframes"] == 0
     assert (tmp_path / "g.json").exists()
     assert sorted(p.name for p in plots.iterdir()) == ["errors.png", "hypotheses.png", "map.png", "pr.png"]
+    # An earlier run's files under those names go with --force: a set is one run's (and kept without).
+    for stale in (
+        *(tmp_path / f"run{name}.tum" for name in ("", ".odometry", ".truth")),
+        plots / "trajectory.png",
+    ):
+        stale.write_bytes(b"an earlier run's")
+    assert main(["report", str(estimate), "--trajectory", str(run), *outputs, "-q"]) == 2
+    assert (plots / "trajectory.png").exists()
+    assert main(["report", str(estimate), "--trajectory", str(run), *outputs, "-q", "--force"]) == 0
+    assert not list(tmp_path.glob("run*")) and not (plots / "trajectory.png").exists()
+
+
+def test_a_forced_report_without_ground_truth_leaves_no_earlier_truth_file(estimate_file, tmp_path, capsys):
+    """`--trajectory run.tum --force` over a run that had ground truth: its `run.truth.tum` stayed
+    beside the new trajectory, and evo scored the new trajectory against the old truth."""
+    from conftest import random_frames, write_recording
+
+    run = tmp_path / "run.tum"
+    assert main(["report", str(estimate_file), "--trajectory", str(run), "-q"]) == 0
+    assert (tmp_path / "run.truth.tum").exists()
+    recording = write_recording(tmp_path / "notes.mcap", random_frames(4), with_ground_truth=False)
+    estimate = tmp_path / "notes.est.mcap"
+    assert main(["estimate", str(recording), "-o", str(estimate), "-q"]) == 0
+    assert main(["report", str(estimate), "--trajectory", str(run), "-q", "--force"]) == 0
+    assert sorted(p.name for p in tmp_path.glob("run*")) == ["run.odometry.tum", "run.tum"]
+    assert len(run.read_text().splitlines()) == 4  # the new run's keyframes
+    from aslam.app.metric_view import export_trajectories  # from Python, as from the command line
+    from aslam.app.score import score
+
+    (tmp_path / "api.truth.tum").write_bytes(b"an earlier run's")
+    report = score(estimate)
+    export_trajectories(tmp_path / "api.tum", report.embedding, report.stamps_ns, report.true_poses)
+    assert (tmp_path / "api.truth.tum").exists()  # not forced: only the files it writes are its own
+    export_trajectories(
+        tmp_path / "api.tum", report.embedding, report.stamps_ns, report.true_poses, force=True
+    )
+    assert not (tmp_path / "api.truth.tum").exists()
 
 
 def test_report_refuses_a_trajectory_format_with_no_trajectory_and_a_stream_before_any_work(
