@@ -562,8 +562,18 @@ def utf8_metadata(metadata: Mapping[str, str]) -> dict[str, str]:
 def full_path(path: Path | str) -> Path:
     """``path`` absolute, with ``.`` and ``..`` folded away (symlinks kept: the name given, made
     canonical). What files record of the paths they name (an estimate's recording, a report's
-    estimate), so the same file spelled ``../rec.mcap`` from another folder gives the same bytes."""
-    return Path(os.path.abspath(path))
+    estimate), so the same file spelled ``../rec.mcap`` from another folder gives the same bytes.
+
+    A ``..`` is the parent of the folder it follows as the file system has it: ``link/..`` is the
+    parent of the folder ``link`` points to, not the folder holding ``link`` (folded as text, a
+    recording named through a symlink was not found, and ``-o link/../out.mcap`` wrote elsewhere).
+    So the part up to the last ``..`` is resolved, symlinks and all; the rest keeps its names."""
+    absolute = Path(os.getcwd(), path)
+    parts = absolute.parts
+    if ".." not in parts:
+        return Path(os.path.abspath(absolute))
+    last = len(parts) - 1 - parts[::-1].index("..")
+    return Path(os.path.abspath(os.path.join(os.path.realpath(Path(*parts[: last + 1])), *parts[last + 1 :])))
 
 
 def check_output_folder(path: Path, *, what: str = "folder", outputs: Iterable[Path] = ()) -> None:

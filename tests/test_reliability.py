@@ -245,6 +245,29 @@ def test_a_symlink_output_is_followed_and_its_target_replaced(estimate_file: Pat
     assert json.loads(target.read_text())["keyframes"] > 0
 
 
+def test_a_dot_dot_after_a_symlinked_folder_is_the_file_systems_parent(recording: Path, tmp_path: Path):
+    """`link/../x` is the parent of the folder `link` points to, as `ls` has it. Folded as text
+    (`os.path.abspath`) the recording was not found, `--recording` fell back to no ground truth,
+    and `-o link/../out.mcap` wrote a file in another folder than the one named."""
+    from aslam.data_formats.files import full_path
+
+    deep = tmp_path / "deep"
+    (deep / "sub").mkdir(parents=True)
+    (tmp_path / "link").symlink_to(deep / "sub")
+    shutil.copy(recording, deep / "rec.mcap")
+    through = tmp_path / "link" / ".." / "rec.mcap"
+    real = Path(os.path.realpath(tmp_path))
+    assert full_path(through) == real / "deep" / "rec.mcap"
+    assert full_path(tmp_path / "a" / ".." / "b") == real / "b"
+    out = tmp_path / "link" / ".." / "out.mcap"
+    assert main(["estimate", str(through), "-o", str(out), "-q"]) == 0
+    assert (deep / "out.mcap").exists() and not (tmp_path / "out.mcap").exists()
+    assert (
+        main(["report", str(out), "--recording", str(through), "--json", str(tmp_path / "s.json"), "-q"]) == 0
+    )
+    assert json.loads((tmp_path / "s.json").read_text())["ground_truth"] is True
+
+
 def test_a_symlink_into_a_missing_folder_names_that_folder(estimate_file: Path, tmp_path: Path, capsys):
     """The error named the symlink's own folder, which is there, as the one that does not exist."""
     link = tmp_path / "g.json"
