@@ -104,10 +104,10 @@ def build_summary(
         "states": int(states),
         "links": int(links),
         "ground_truth": bool(has_truth),
-        "hypotheses": {
-            "max": int(counts.max()) if counts.size else 0,
-            "mean": float(counts.mean()) if counts.size else 0.0,
-            "final": int(counts[-1]) if counts.size else 0,
+        "hypotheses": {  # null without keyframes: not measurable, as every figure of an empty run
+            "max": int(counts.max()) if counts.size else None,
+            "mean": float(counts.mean()) if counts.size else None,
+            "final": int(counts[-1]) if counts.size else None,
         },
         "relocalisation": {
             "episodes": len(evaluation.episodes) if has_truth else None,  # runs of true revisits

@@ -45,6 +45,13 @@ def _truth_source(known: bool, recording: Path | None, first_keyframe: int) -> s
     return f"{source} (and the map's sessions)" if first_keyframe else source
 
 
+def _hypotheses_text(hypotheses: dict[str, Any]) -> str:
+    """``max / mean / final``, or ``—`` for a run of no keyframes (its figures are null)."""
+    if hypotheses["max"] is None:
+        return "—"
+    return "{max} / {mean:.1f} / {final}".format(**hypotheses)
+
+
 def print_report(console: Console, report: Report) -> None:
     """The report's tables and the hypothesis sparkline."""
     from rich.table import Table
@@ -77,7 +84,7 @@ def print_report(console: Console, report: Report) -> None:
         ("relocalisation episodes", reloc["episodes"]),
         ("  first delay (keyframes)", reloc["first_delay_keyframes"]),
         ("  mean delay (keyframes)", reloc["mean_delay_keyframes"]),
-        ("hypotheses max / mean / final", "{max} / {mean:.1f} / {final}".format(**s["hypotheses"])),
+        ("hypotheses max / mean / final", _hypotheses_text(s["hypotheses"])),
         ("trajectory APE RMSE, embedded (m)", s["trajectory"]["ape_m"]["rmse"]),
         ("  odometry alone (m)", s["trajectory"]["odometry_ape_m"]["rmse"]),
         ("  loop closures outvoted by the pose graph", s["trajectory"]["closures_outvoted"]),
@@ -112,5 +119,7 @@ def print_report(console: Console, report: Report) -> None:
         print_table(console, errors)
 
     counts = report.evaluation.hypothesis_counts
+    if not counts.size:  # no keyframes: nothing to draw
+        return
     console.print(f"hypotheses over the run (max {s['hypotheses']['max']}):", highlight=False)
     console.print(f"  {sparkline(counts)}", highlight=False)

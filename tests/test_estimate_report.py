@@ -787,7 +787,9 @@ def test_report_of_no_keyframes_writes_the_rest_and_says_what_it_left_out(tmp_pa
     assert f"aslam: warning: {run}: not written (nor its .odometry and .truth files): the estimate has" in err
     assert f"aslam: warning: {plots / 'trajectory.png'}: not drawn: the estimate has no keyframes" in err
     assert not list(tmp_path.glob("run*"))
-    assert json.loads((tmp_path / "s.json").read_text())["keyframes"] == 0
+    summary = json.loads((tmp_path / "s.json").read_text())
+    assert summary["keyframes"] == 0
+    assert summary["hypotheses"] == {"max": None, "mean": None, "final": None}  # not 0: not measurable
     assert (tmp_path / "g.json").exists()
     assert sorted(p.name for p in plots.iterdir()) == ["errors.png", "hypotheses.png", "map.png", "pr.png"]
     # An earlier run's files under those names go with --force: a set is one run's (and kept without).
