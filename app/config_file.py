@@ -47,12 +47,13 @@ def type_problem(where: str, value: Any, kind: type) -> str | None:
     else:
         ok = isinstance(value, kind)
         want = "true or false" if kind is bool else "a string"
-    return None if ok else f"{where} must be {want}, got {_toml_text(value)}"
+    return None if ok else f"{where} must be {want}, got {toml_text(value)}"
 
 
-def _toml_text(value: Any) -> str:
-    """A TOML value as the file spells it: ``true``, ``"8"``, ``1979-05-27T07:32:00+00:00`` (a
-    date, not Python's ``datetime.datetime(1979, …)``), an array, a table."""
+def toml_text(value: Any) -> str:
+    """A TOML value as the file spells it (an error's value, a sweep task's parameters): ``true``,
+    ``"8"``, ``1979-05-27T07:32:00+00:00`` (a date, not Python's ``datetime.datetime(1979, …)``),
+    an array, a table."""
     import datetime
     import json
 

@@ -50,11 +50,9 @@ def short_names(keys: tuple[str, ...]) -> tuple[str, ...]:
 
 def parameters_text(task: Task) -> str:
     """``name=value`` pairs as the sweep file spells them (``true``, not Python's ``True``)."""
-    return " ".join(f"{name}={_value_text(value)}" for name, value in task.parameters) or "defaults"
+    from aslam.app.config_file import toml_text
 
-
-def _value_text(value: object) -> str:
-    return ("true" if value else "false") if isinstance(value, bool) else str(value)
+    return " ".join(f"{name}={toml_text(value)}" for name, value in task.parameters) or "defaults"
 
 
 def plan_text(plan: SweepPlan) -> str:

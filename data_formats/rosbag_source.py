@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import errno
 import math
+import re
 import tempfile
 from collections.abc import Callable, Generator, Iterator
 from contextlib import contextmanager, suppress
@@ -386,8 +387,8 @@ def _frame(name: str) -> str:
 BASE_FRAMES = ("base_footprint", "base_link")
 
 
-TRUTH_NAMES = ("truth", "groundtruth", "gt", "mocap", "vicon", "optitrack")
-"""Words in a topic's name that say it holds the true path, not odometry."""
+TRUTH_NAMES = ("gt", "mocap", "vicon", "optitrack")
+"""Words in a topic's name that say it holds the true path, not odometry (besides "truth" anywhere)."""
 
 
 def _odometry_hint(poses: list[str]) -> str:
@@ -398,8 +399,8 @@ def _odometry_hint(poses: list[str]) -> str:
         return ""
 
     def looks_like_truth(topic: str) -> bool:
-        words = topic.lower().replace("-", "_").replace("/", "_").split("_")
-        return any(word in TRUTH_NAMES for word in words) or "truth" in topic.lower()
+        name = topic.lower()
+        return "truth" in name or any(word in TRUTH_NAMES for word in re.split(r"[-_/]", name))
 
     topic = min(poses, key=lambda t: ("odom" not in t.lower(), looks_like_truth(t), t))
     caveat = (
