@@ -138,12 +138,14 @@ def estimate(
     """
     if workers < 0:
         raise InputError(f"--workers must be at least 0, got {workers}")
-    recording = full_path(recording)
-    output = full_path(output)
-    inputs = [recording, *source_files(recording)] + ([] if prior is None else [full_path(prior)])
+    # Messages name the files as the caller spelled them (as record, info and report do); the
+    # estimate file records the recording's full path, for a report run from another folder.
+    recording, output = Path(recording), Path(output)
+    prior = None if prior is None else Path(prior)
+    inputs = [recording, *source_files(recording)] + ([] if prior is None else [prior])
     check_output_path(output, force=force, error=EstimateError, inputs=inputs)
     warn = on_warning or (lambda _line: None)
-    start_map, map_identity = (None, None) if prior is None else load_prior_map(full_path(prior), config)
+    start_map, map_identity = (None, None) if prior is None else load_prior_map(prior, config)
     if prior is not None and config.candidate_search == "path":
         warn(
             "--candidate-search path (--paper-faithful) follows this run's own path only: in a map it"
@@ -215,7 +217,7 @@ def estimate(
             metadata = EstimateMetadata(
                 tool_version=tool_version(),
                 config=asdict(config),
-                recording=RecordingIdentity(str(recording), source.size_bytes(), hasher.result()),
+                recording=RecordingIdentity(str(full_path(recording)), source.size_bytes(), hasher.result()),
                 topics=source.stored_topics(),
                 prior_map=map_identity,
             )
@@ -251,7 +253,7 @@ def estimate(
         across = across if config.map_reference_scale == 0 else ""
         warn(f"{recording}: no keyframe was placed in the map of {prior}: all new ground{across}")
     return EstimateSummary(
-        output=output,
+        output=full_path(output),
         samples=counts.samples,
         keyframes=len(result.keyframe_stamps_ns),
         states=len(result.states),
@@ -330,5 +332,6 @@ def load_prior_map(path: Path, config: EstimatorConfig) -> tuple[PriorMap, MapId
         raise EstimateError(f"not a usable map: {err}", path=path) from err
     if not np.array_equal(start.states, views.states):
         raise EstimateError("the stored views are not those of the map's places", path=path)
-    identity = MapIdentity(str(path), source.sha256(), info.graph.keyframes, map_digest(info.graph))
+    digest = map_digest(info.graph)
+    identity = MapIdentity(str(full_path(path)), source.sha256(), info.graph.keyframes, digest)
     return start, identity

@@ -378,3 +378,25 @@ def test_a_changed_byte_in_a_chunk_is_caught_by_its_crc(tmp_path: Path, indexed:
     path.write_bytes(data if indexed else data[: start + len(payload)])
     with pytest.raises(RecordingError, match=r"a chunk fails its CRC check \(damaged bytes\)"):
         list(McapFile(path).messages(None))
+
+
+def test_every_command_names_a_bad_file_as_it_was_given(tmp_path, capfd, monkeypatch):
+    """A relative name stays relative in the error line: `estimate` said the absolute path where
+    `info` and `report` said the name typed (and its output and --map were absolute too)."""
+    monkeypatch.chdir(tmp_path)
+    not_mcap(tmp_path / "bad.mcap")
+    (tmp_path / "exists.mcap").write_bytes(b"")
+    cases = {
+        ("info", "bad.mcap"): "bad.mcap: not a recording or a bag",
+        ("estimate", "bad.mcap", "-o", "out.mcap"): "bad.mcap: not a recording or a bag",
+        ("estimate", "nowhere.mcap", "-o", "out.mcap"): "nowhere.mcap: no such file",
+        ("estimate", "bad.mcap", "-o", "nodir/out.mcap"): "nodir/out.mcap: folder nodir does not exist",
+        ("estimate", "bad.mcap", "-o", "exists.mcap"): "exists.mcap: already exists",
+        ("estimate", "bad.mcap", "-o", "out.mcap", "--map", "nomap.mcap"): "nomap.mcap: no such map",
+        ("report", "bad.mcap"): "bad.mcap: not an MCAP file",
+    }
+    for args, start in cases.items():
+        code = main(list(args))
+        lines = capfd.readouterr().err.splitlines()
+        assert code == 2 and len(lines) == 1, (args, lines)
+        assert lines[0].startswith(f"aslam: error: {start}"), (args, lines)
