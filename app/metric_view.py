@@ -119,8 +119,6 @@ class Embedding:
     """(m,) each closure's Mahalanobis distance at the solution (in σ of the revisit tolerance):
     a closure far beyond the kernel's width was outvoted, i.e. probably wrong."""
     iterations: int
-    initial_error: float
-    final_error: float
 
     @property
     def keyframes(self) -> int:
@@ -237,7 +235,6 @@ def embed(
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(options.max_iterations)
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
-    initial_error = graph.error(initial) if n else 0.0
     result = optimizer.optimize() if n else initial
     poses = np.array([[p.x(), p.y(), p.theta()] for p in (result.atPose2(k) for k in range(n))]).reshape(
         -1, 3
@@ -256,8 +253,6 @@ def embed(
         closures=_frozen(closures.astype(np.int64)),
         closure_sigmas=_frozen(closure_sigmas),
         iterations=int(optimizer.iterations()) if n else 0,
-        initial_error=float(initial_error),
-        final_error=float(graph.error(result)) if n else 0.0,
     )
 
 

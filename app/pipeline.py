@@ -43,7 +43,8 @@ from aslam.data_formats.images import LazyImage
 from aslam.data_formats.pose_sync import Sample
 
 DEFAULT_WORKERS = 2
-DEFAULT_DEPTH = 8
+DESCRIBE_DEPTH = 8
+"""Images described ahead of the one the SLAM step waits for: the FIFO that bounds memory."""
 
 
 class Frame(NamedTuple):
@@ -234,11 +235,10 @@ def _described(
     items: Iterable[tuple[Sample, Any]],
     model: ObservationModel,
     workers: int,
-    depth: int,
     camera: PinholeCamera | None = None,
 ) -> Iterator[tuple[Sample, Any, Described]]:
     """``(sample, tag, (view, features))`` for each ``(sample, tag)``, in order, computed ``workers``
-    at a time with at most ``depth`` waiting. Stopping early (an exception, KeyboardInterrupt, the
+    at a time with at most ``DESCRIBE_DEPTH`` waiting. Stopping early (an exception, KeyboardInterrupt, the
     consumer closing the generator) cancels the queued work and joins the pool. ``workers=0``
     describes each image in the calling thread: a sweep runs one task per core, and a second
     thread per task there only adds hand-offs."""
@@ -251,7 +251,7 @@ def _described(
             else:
                 future = _computed(_describe, sample.image, model, camera)
             pending.append((sample, tag, future))
-            while pending and (len(pending) >= depth or pending[0][2].done()):
+            while pending and (len(pending) >= DESCRIBE_DEPTH or pending[0][2].done()):
                 first, first_tag, done = pending.popleft()
                 yield first, first_tag, done.result()
         while pending:
@@ -271,7 +271,6 @@ def keyframe_views(
     *,
     counts: PipelineCounts | None = None,
     workers: int = DEFAULT_WORKERS,
-    depth: int = DEFAULT_DEPTH,
     camera: PinholeCamera | None = None,
 ) -> Iterator[Keyframe]:
     """The keyframes of ``samples`` with their views, in order (only keyframes are decoded).
@@ -284,7 +283,7 @@ def keyframe_views(
         still_clocked(samples, counts), lambda clocked: clocked.sample.odometry_pose
     )
     items = ((clocked.sample, (action, clocked)) for clocked, action in keyframes)
-    for sample, (action, clocked), (vector, features) in _described(items, model, workers, depth, camera):
+    for sample, (action, clocked), (vector, features) in _described(items, model, workers, camera):
         yield Keyframe(sample.stamp_ns, action, vector, clocked.still_ns, sample.odometry_restarts, features)
 
 
@@ -295,14 +294,13 @@ def frame_views(
     *,
     counts: PipelineCounts | None = None,
     workers: int = DEFAULT_WORKERS,
-    depth: int = DEFAULT_DEPTH,
     camera: PinholeCamera | None = None,
 ) -> Iterator[Frame]:
     """Every frame of a dense stream worth describing (:func:`dense_samples`), with its view (and
     features, with ``camera``)."""
     counts = counts if counts is not None else PipelineCounts()
     items = ((clocked.sample, clocked) for clocked in dense_samples(samples, window_m, counts))
-    for sample, clocked, (vector, features) in _described(items, model, workers, depth, camera):
+    for sample, clocked, (vector, features) in _described(items, model, workers, camera):
         pose = np.asarray(sample.odometry_pose, dtype=float)
         yield Frame(sample.stamp_ns, pose, vector, clocked.still_ns, sample.odometry_restarts, features)
 
@@ -565,7 +563,6 @@ def run_estimate(
     *,
     counts: PipelineCounts | None = None,
     workers: int = DEFAULT_WORKERS,
-    depth: int = DEFAULT_DEPTH,
     reader_process: bool = True,
     warnings: ReaderWarnings | None = None,
 ) -> EstimateSteps:
@@ -593,7 +590,6 @@ def run_estimate(
                 window_m,
                 counts=reader_counts,
                 workers=workers,
-                depth=depth,
                 camera=camera,
             )
         else:
@@ -603,7 +599,6 @@ def run_estimate(
                 describe,
                 counts=reader_counts,
                 workers=workers,
-                depth=depth,
                 camera=camera,
             )
         try:

@@ -40,13 +40,11 @@ from aslam.data_formats.sources import RecordingInput, TopicChoice, open_input
 # --- ground truth ----------------------------------------------------------------------------------
 
 
-def truth_at_stamps(
-    stamps_ns: Sequence[int], truth: Iterable[tuple[int, np.ndarray]], *, max_gap_ns: int = TRUTH_MAX_GAP_NS
-) -> np.ndarray:
+def truth_at_stamps(stamps_ns: Sequence[int], truth: Iterable[tuple[int, np.ndarray]]) -> np.ndarray:
     """(n, 3) true poses at ``stamps_ns`` (ascending), NaN where unknown.
 
     ``truth`` is a time-ordered stream of ``(stamp_ns, (x_m, y_m, yaw_rad))``, read once. A stamp
-    matching a message exactly takes its pose; between two messages at most ``max_gap_ns`` apart
+    matching a message exactly takes its pose; between two messages at most ``TRUTH_MAX_GAP_NS`` apart
     the pose is interpolated (heading along the shorter arc); outside the messages it is unknown.
     """
     n = len(stamps_ns)
@@ -59,7 +57,7 @@ def truth_at_stamps(
             target = stamps_ns[i]
             if target == stamp:
                 poses[i] = pose
-            elif previous is not None and stamp - previous[0] <= max_gap_ns:
+            elif previous is not None and stamp - previous[0] <= TRUTH_MAX_GAP_NS:
                 t0, p0 = previous
                 poses[i] = se2.interpolate(p0, pose, (target - t0) / (stamp - t0))
             i += 1

@@ -25,7 +25,7 @@ from aslam.core.errors import AslamError, ConfigError
 from aslam.data_formats.files import file_name_from_utf8, full_path
 from aslam.data_formats.sources import TopicChoice
 from aslam.data_formats.toml_files import read_toml
-from aslam.recorder.config import CameraSpec, NoiseModel, NoiseParams, RecordConfig, parse_size
+from aslam.recorder.config import CameraSpec, RecordConfig, parse_size
 from aslam.recorder.routes import default_laps
 
 DEFAULT_FIGURES = (
@@ -76,6 +76,9 @@ RENDER_KEYS: dict[str, type] = {
     "fps": float,
     "jpeg_quality": int,
 }
+_RESOLVED_HERE = ("route", "seeds", "laps", "world", "size")
+"""The render keys :func:`_record_config` turns into values itself; the rest are
+:meth:`RecordConfig.from_options`'s options, by the same names."""
 
 
 @dataclass(frozen=True)
@@ -300,34 +303,16 @@ def _record_config(knobs: dict[str, Any], base: Path, where: str, problems: list
             width, height = parse_size(knobs["size"])
         except ConfigError as err:
             size_problem = f"{where}: {_option_to_key(err.problem)}"
-    noise = NoiseParams()
-    config = RecordConfig(
-        route=route,
+    rest = {key: value for key, value in knobs.items() if key not in _RESOLVED_HERE}
+    config = RecordConfig.from_options(
+        route,
         # the default given is no other render (its label and its file were another's)
         laps=None if knobs.get("laps") == default_laps(route) else knobs.get("laps"),
         seed=knobs["seeds"],
-        noise=NoiseParams.of_model(
-            knobs.get("noise_model", NoiseModel.DEFAULT),
-            noise=float(knobs.get("noise", noise.noise)),
-            drift_deg_per_m=float(knobs.get("drift_deg_per_m", noise.drift_deg_per_m)),
-            jitter_m=None if knobs.get("jitter_m") is None else float(knobs["jitter_m"]),
-            jitter_deg=None if knobs.get("jitter_deg") is None else float(knobs["jitter_deg"]),
-            wander_m=float(knobs.get("wander_m", noise.wander_m)),
-            wander_deg=float(knobs.get("wander_deg", noise.wander_deg)),
-            wander_length_m=float(knobs.get("wander_length_m", noise.wander_length_m)),
-        ),
-        aliasing=float(knobs.get("aliasing", 0.0)),
-        lighting_change=float(knobs.get("lighting_change", 0.0)),
-        odometry_reset_at=knobs.get("odometry_reset_at"),
         world=world,
-        camera=CameraSpec(
-            width_px=width,
-            height_px=height,
-            fov_deg=float(knobs.get("fov_deg", CameraSpec().fov_deg)),
-            height_m=float(knobs.get("camera_height_m", CameraSpec().height_m)),
-        ),
-        fps=None if knobs.get("fps") is None else float(knobs["fps"]),
-        jpeg_quality=knobs.get("jpeg_quality"),
+        width_px=width,
+        height_px=height,
+        **rest,
     )
     found = [f"{where}: {_option_to_key(p)}" for p in config.problems()]
     if size_problem is not None:

@@ -20,7 +20,6 @@ keyframe, so the floor decodes exactly the images the estimate decodes.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import os
 import statistics
@@ -42,6 +41,7 @@ from aslam.core.geometry import ViewFeatures, view_features
 from aslam.core.observation import observation_model
 from aslam.data_formats.camera import CameraIntrinsics
 from aslam.data_formats.estimate import EstimateWriter
+from aslam.data_formats.files import source_sha256
 from aslam.data_formats.foxglove import write_scene
 from aslam.data_formats.images import encode_image
 from aslam.data_formats.recording import Recording
@@ -154,10 +154,7 @@ def stages(recording: Path, config: EstimatorConfig, output: Path) -> dict[str, 
     timings["write_s"] = time.perf_counter() - start
     del result
     start = time.perf_counter()
-    digest = hashlib.sha256()
-    with recording.open("rb") as f:
-        while block := f.read(4 * 1024 * 1024):
-            digest.update(block)
+    source_sha256(recording)  # what estimate() hashes, on its thread, while it runs
     timings["sha256_s"] = time.perf_counter() - start
     timings["keyframes"] = len(keyframes)
     return timings

@@ -27,7 +27,6 @@ from aslam.cli.output import (
 from aslam.data_formats.camera import DEFAULT_FOV_DEG
 from aslam.recorder.config import (
     DEFAULT_CAMERA_HEIGHT_M,
-    CameraSpec,
     NoiseModel,
     NoiseParams,
     RecordConfig,
@@ -187,25 +186,26 @@ def record(
 ) -> None:
     """Render an indoor walkthrough along a route into an MCAP recording (images, odometry, truth)."""
     width, height = parse_size(size)
-    config = RecordConfig(
-        route=route,
+    config = RecordConfig.from_options(
+        route,
         laps=laps,
         seed=seed,
-        noise=NoiseParams.of_model(
-            noise_model,
-            noise=noise,
-            drift_deg_per_m=drift_deg_per_m,
-            jitter_m=jitter_m,
-            jitter_deg=jitter_deg,
-            wander_m=wander_m,
-            wander_deg=wander_deg,
-            wander_length_m=wander_length_m,
-        ),
+        noise_model=noise_model,
+        noise=noise,
+        drift_deg_per_m=drift_deg_per_m,
+        jitter_m=jitter_m,
+        jitter_deg=jitter_deg,
+        wander_m=wander_m,
+        wander_deg=wander_deg,
+        wander_length_m=wander_length_m,
         aliasing=aliasing,
         lighting_change=lighting_change,
         odometry_reset_at=odometry_reset_at,
         world=world,
-        camera=CameraSpec(width_px=width, height_px=height, fov_deg=fov_deg, height_m=camera_height_m),
+        width_px=width,
+        height_px=height,
+        fov_deg=fov_deg,
+        camera_height_m=camera_height_m,
         fps=fps,
         jpeg_quality=jpeg_quality,
         contact_sheet=contact_sheet,

@@ -191,7 +191,7 @@ class _CountedStream(io.BufferedIOBase):
 # --- one command's files ----------------------------------------------------------------------
 
 
-@dataclass
+@dataclass(frozen=True)
 class _Staged:
     partial: Path
     target: Path
@@ -864,14 +864,9 @@ def write_atomically(
         raise
 
 
-def write_text_output(
-    target: str | Path,
-    text: str,
-    *,
-    force: bool | None = None,
-    error: type[InputError] = InputError,
-) -> Path | None:
-    """Write ``text`` to ``target``, ``-`` meaning stdout; the path written (None for stdout).
+def write_text_output(target: str | Path, text: str) -> Path | None:
+    """Write ``text`` to ``target``, ``-`` meaning stdout; the path written (None for stdout). The
+    running command's ``--force`` decides whether a file there may be replaced.
 
     Inside :func:`command_files` a document for stdout or another stream (``/dev/stdout``, a pipe)
     waits in :attr:`CommandFiles.results` until every file output is in place.
@@ -879,13 +874,13 @@ def write_text_output(
     path = None if str(target) == "-" else Path(target)
     if is_stdout(target) or is_stderr(target):
         if path is not None:
-            check_output_path(path, force=force, error=error)
+            check_output_path(path, force=None)
         stream = "stderr" if is_stderr(target) else "stdout"
         write: Callable[[], None] = functools.partial(_write_standard_stream, text, stream)
     else:
         assert path is not None
         write = functools.partial(
-            write_atomically, path, functools.partial(_write_text, text=text), error=error, force=force
+            write_atomically, path, functools.partial(_write_text, text=text), force=None
         )
     files = current()
     if files is not None and (path is None or is_stream_output(path)):

@@ -24,7 +24,7 @@ from pathlib import Path
 from aslam.data_formats import ros_msgs
 from aslam.data_formats.files import full_path, real_path
 from aslam.data_formats.format_names import StampUnit
-from aslam.data_formats.pose_files import MAX_LINE_CHARS, stamp_text_ns
+from aslam.data_formats.pose_files import stamp_text_ns, text_lines
 
 #: Name → what its lines are; looked for in the image folder's parent folder.
 SECONDS_FILE = "times.txt"
@@ -76,21 +76,10 @@ def read_kitti_stamps(path: Path, folder: Path, images: int) -> tuple[int, ...]:
 
 
 def _lines(path: Path) -> Iterator[tuple[int, str]]:
-    try:
-        with path.open(encoding="utf-8-sig") as f:
-            for number, raw in enumerate(iter(lambda: f.readline(MAX_LINE_CHARS + 1), ""), start=1):
-                if len(raw) > MAX_LINE_CHARS:
-                    raise KittiStampsUnusable(
-                        f"{path}: not used: line {number}: longer than {MAX_LINE_CHARS:,} characters"
-                    )
-                if text := raw.strip():
-                    yield number, text
-    except UnicodeDecodeError as err:
-        raise KittiStampsUnusable(
-            f"{path}: not used: not a text file (byte {err.start} is not UTF-8)"
-        ) from err
-    except OSError as err:
-        raise KittiStampsUnusable(f"{path}: not used: cannot read: {err.strerror or err}") from err
+    def unusable(problem: str) -> KittiStampsUnusable:
+        return KittiStampsUnusable(f"{path}: not used: {problem}")
+
+    return text_lines(path, unusable, comments=False)
 
 
 def _date_time_ns(text: str) -> int:

@@ -52,26 +52,30 @@ MAX_LINE_CHARS = 65_536
 whole into one line)."""
 
 
-def _lines(path: Path) -> Iterator[tuple[int, str]]:
-    """``(line number, stripped text)`` of every line that is not blank or a comment.
-
-    Only a regular file is read (a FIFO was waited on for ever, ``/dev/zero`` read until memory ran
-    out), a line at a time, each bounded."""
-    check_input_file(path, error=PoseFileError, what="a pose file")
+def text_lines(
+    path: Path, failure: Callable[[str], Exception], *, comments: bool
+) -> Iterator[tuple[int, str]]:
+    """``(line number, stripped text)`` of every line that is not blank (nor, with ``comments``, a
+    ``#`` comment), a line at a time, each bounded; a problem is raised as ``failure(problem)``."""
     try:
         with path.open(encoding="utf-8-sig") as f:  # a byte-order mark (Windows editors) is no text
             for number, raw in enumerate(iter(lambda: f.readline(MAX_LINE_CHARS + 1), ""), start=1):
                 if len(raw) > MAX_LINE_CHARS:
-                    raise PoseFileError(
-                        f"line {number}: longer than {MAX_LINE_CHARS:,} characters", path=path
-                    )
+                    raise failure(f"line {number}: longer than {MAX_LINE_CHARS:,} characters")
                 text = raw.strip()
-                if text and not text.startswith("#"):
+                if text and not (comments and text.startswith("#")):
                     yield number, text
     except UnicodeDecodeError as err:
-        raise PoseFileError(f"not a text file (byte {err.start} is not UTF-8)", path=path) from err
+        raise failure(f"not a text file (byte {err.start} is not UTF-8)") from err
     except OSError as err:
-        raise PoseFileError(f"cannot read: {err.strerror or err}", path=path) from err
+        raise failure(f"cannot read: {err.strerror or err}") from err
+
+
+def _lines(path: Path) -> Iterator[tuple[int, str]]:
+    """A pose file's lines (:func:`text_lines`, ``#`` comments skipped). Only a regular file is read
+    (a FIFO was waited on for ever, ``/dev/zero`` read until memory ran out)."""
+    check_input_file(path, error=PoseFileError, what="a pose file")
+    return text_lines(path, lambda problem: PoseFileError(problem, path=path), comments=True)
 
 
 def _split(text: str) -> list[str]:

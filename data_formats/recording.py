@@ -115,7 +115,8 @@ def negative_stamp(what: str, topic: str, stamp_ns: int) -> str:
     return f"{what} stamp on '{topic}' is {stamp_ns} ns, before 1970: not a time a recording can hold"
 
 
-def _topic_list(channels: Mapping[str, str]) -> str:
+def topic_list(channels: Mapping[str, str]) -> str:
+    """``topic (type), …`` in name order, for an error naming the choices (a recording's or a bag's)."""
     return ", ".join(f"{topic} ({kind})" for topic, kind in sorted(channels.items())) or "none"
 
 
@@ -127,7 +128,7 @@ def _missing_topic(
         cut = source.truncation
         note = f"; the file is truncated at byte {cut.at_byte} of {cut.size}"
     return RecordingError(
-        f"no {what} topic '{topic}' (topics in the file: {_topic_list(channels)}{note})", path=path
+        f"no {what} topic '{topic}' (topics in the file: {topic_list(channels)}{note})", path=path
     )
 
 

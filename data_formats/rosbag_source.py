@@ -20,7 +20,7 @@ import re
 import tempfile
 from collections.abc import Callable, Generator, Iterator
 from contextlib import contextmanager, suppress
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from enum import StrEnum
 from pathlib import Path
 from typing import Any
@@ -47,6 +47,7 @@ from aslam.data_formats.recording import (
     _set_header_stamp_ns,
     checked_pose,
     negative_stamp,
+    topic_list,
 )
 from aslam.data_formats.recording_info import TopicInfo
 
@@ -175,7 +176,6 @@ class ResolvedTopics:
     odometry: str | None  # None: poses from the odom → base transforms on ``tf``
     ground_truth: str | None
     tf: str | None
-    types: dict[str, str] = field(default_factory=dict)  # topic → message type, for the ones above
 
     def describe_odometry(self, base_frame: str | None, odom_frame: str) -> str:
         if self.odometry is not None:
@@ -183,16 +183,12 @@ class ResolvedTopics:
         return f"{self.tf} ({odom_frame} → {base_frame or 'first child frame'})"
 
 
-def _topic_list(types: dict[str, str]) -> str:
-    return ", ".join(f"{topic} ({datatype})" for topic, datatype in sorted(types.items())) or "none"
-
-
 def resolve_topics(path: Path, types: dict[str, str], topics: BagTopics) -> ResolvedTopics:
     """The topics to read, given the bag's ``topic → type``; BagError naming the choices if ambiguous."""
 
     def named(what: str, topic: str, accepted: tuple[str, ...]) -> str:
         if topic not in types:
-            raise BagError(f"no {what} topic '{topic}' (topics in the bag: {_topic_list(types)})", path=path)
+            raise BagError(f"no {what} topic '{topic}' (topics in the bag: {topic_list(types)})", path=path)
         if types[topic] not in accepted:
             raise BagError(
                 f"{what} topic '{topic}' has type '{types[topic]}'; expected {' or '.join(accepted)}",
@@ -213,8 +209,7 @@ def resolve_topics(path: Path, types: dict[str, str], topics: BagTopics) -> Reso
         found = only("image", ros_msgs.IMAGE_TYPES, "--image-topic")
         if found is None:
             raise BagError(
-                "no sensor_msgs/msg/Image or CompressedImage topic "
-                f"(topics in the bag: {_topic_list(types)})",
+                f"no sensor_msgs/msg/Image or CompressedImage topic (topics in the bag: {topic_list(types)})",
                 path=path,
             )
         image = found
@@ -231,15 +226,14 @@ def resolve_topics(path: Path, types: dict[str, str], topics: BagTopics) -> Reso
                 hint = _odometry_hint(poses)
                 raise BagError(
                     f"no odometry: neither a nav_msgs/msg/Odometry topic nor transforms on '{topics.tf}' "
-                    f"(topics in the bag: {_topic_list(types)}){hint}",
+                    f"(topics in the bag: {topic_list(types)}){hint}",
                     path=path,
                 )
             tf = topics.tf
     truth = None
     if topics.ground_truth is not None:
         truth = named("ground-truth", topics.ground_truth, ros_msgs.POSE_TYPES)
-    used = [t for t in (image, odometry, truth, tf) if t is not None]
-    return ResolvedTopics(image, odometry, truth, tf, {t: types[t] for t in used})
+    return ResolvedTopics(image, odometry, truth, tf)
 
 
 # --- reading ------------------------------------------------------------------------------------
@@ -617,7 +611,7 @@ def _iter_bag_ground_truth(
         types = _topic_types(reader)
         if topic not in types:
             raise BagError(
-                f"no ground-truth topic '{topic}' (topics in the bag: {_topic_list(types)})", path=path
+                f"no ground-truth topic '{topic}' (topics in the bag: {topic_list(types)})", path=path
             )
         if types[topic] not in ros_msgs.POSE_TYPES:
             raise BagError(

@@ -153,6 +153,65 @@ class RecordConfig:
     jpeg_quality: int | None = None
     contact_sheet: Path | None = None
 
+    @classmethod
+    def from_options(
+        cls,
+        route: str,
+        *,
+        laps: int | None = None,
+        seed: int = 0,
+        noise_model: NoiseModel | str = NoiseModel.DEFAULT,
+        noise: float = NoiseParams.noise,
+        drift_deg_per_m: float = NoiseParams.drift_deg_per_m,
+        jitter_m: float | None = None,
+        jitter_deg: float | None = None,
+        wander_m: float = NoiseParams.wander_m,
+        wander_deg: float = NoiseParams.wander_deg,
+        wander_length_m: float = NoiseParams.wander_length_m,
+        aliasing: float = 0.0,
+        lighting_change: float = 0.0,
+        odometry_reset_at: int | None = None,
+        world: Path | None = None,
+        width_px: int = CameraSpec.width_px,
+        height_px: int = CameraSpec.height_px,
+        fov_deg: float = CameraSpec.fov_deg,
+        camera_height_m: float = CameraSpec.height_m,
+        fps: float | None = None,
+        jpeg_quality: int | None = None,
+        contact_sheet: Path | None = None,
+    ) -> RecordConfig:
+        """The config of ``aslam record``'s options, named as they are (a sweep file's ``[[render]]``
+        keys too): one way from the flat options to the nested config. Numbers a TOML file may
+        spell as integers are taken as the floats they stand for; jitter left None is the noise
+        model's own (:meth:`NoiseParams.of_model`)."""
+
+        def real(value: float | None) -> float | None:
+            return None if value is None else float(value)
+
+        return cls(
+            route=route,
+            laps=laps,
+            seed=seed,
+            noise=NoiseParams.of_model(
+                noise_model,
+                noise=float(noise),
+                drift_deg_per_m=float(drift_deg_per_m),
+                jitter_m=real(jitter_m),
+                jitter_deg=real(jitter_deg),
+                wander_m=float(wander_m),
+                wander_deg=float(wander_deg),
+                wander_length_m=float(wander_length_m),
+            ),
+            aliasing=float(aliasing),
+            lighting_change=float(lighting_change),
+            odometry_reset_at=odometry_reset_at,
+            world=world,
+            camera=CameraSpec(width_px, height_px, fov_deg=float(fov_deg), height_m=float(camera_height_m)),
+            fps=real(fps),
+            jpeg_quality=jpeg_quality,
+            contact_sheet=contact_sheet,
+        )
+
     @property
     def frames_per_action(self) -> int:
         """``fps`` to the nearest whole number, halves up (``round`` took 2.5 to 2 and 3.5 to 4)."""

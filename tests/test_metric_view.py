@@ -71,7 +71,6 @@ def test_closures_pull_a_drifted_loop_back():
     drift, optimised = ape(embedding.odometry, truth), ape(embedding.poses, truth)
     assert drift > 0.5  # odometry alone has drifted
     assert optimised < 0.3 * drift
-    assert embedding.final_error < embedding.initial_error
     assert embedding.closure_sigmas.max() < 3.0  # every closure agrees with the solution
 
 

@@ -874,6 +874,20 @@ def test_a_sweep_renders_what_aslam_record_renders(tmp_path):
         read_sweep_file(path)
 
 
+def test_every_render_key_is_an_option_of_the_one_record_config_builder():
+    """A [[render]] key is either turned into a value by the sweep file's reader (a route file's
+    path, the seeds, the size) or passed by its name to ``RecordConfig.from_options``, the builder
+    ``aslam record`` calls too: a new knob cannot reach one and not the other."""
+    import inspect
+
+    from aslam.app.sweep_file import _RESOLVED_HERE, RENDER_KEYS
+    from aslam.recorder.config import RecordConfig
+
+    options = set(inspect.signature(RecordConfig.from_options).parameters)
+    assert set(RENDER_KEYS) - set(_RESOLVED_HERE) <= options
+    assert set(_RESOLVED_HERE) <= set(RENDER_KEYS)
+
+
 def test_a_combination_named_twice_runs_once(tmp_path):
     """A value listed twice, or two grids naming the same configuration (``step_m`` at its
     default is the defaults), plan one task each, in first-come order: no duplicate rows, and no
