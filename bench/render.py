@@ -95,6 +95,7 @@ ROBUST_TABLES = {
     "robust_seeds_132_133": "robust_matrix_seeds_132_133.md",
     "robust_seeds_134_135_sparse": "robust_matrix_seeds_134_135_sparse.md",
     "robust_seeds_136_137": "robust_matrix_seeds_136_137.md",
+    "robust_seeds_138_139": "robust_matrix_seeds_138_139.md",
     "robust_random_mixes_500": "robust_matrix_random_mixes_500.md",
     "robust_random_mixes_500_events": "robust_matrix_random_mixes_500_events.md",
     "robust_random_mixes_501": "robust_matrix_random_mixes_501.md",
