@@ -435,14 +435,22 @@ def score(
         # the recording read is no source of truth when it held none (a bag without it, not a recording)
         recording_path=recording_path if evaluation.has_ground_truth else None,
         stamps_ns=tuple(stamps),
-        actions=action_array,
-        true_poses=run_truth,
+        actions=_read_only(action_array),
+        true_poses=None if run_truth is None else _read_only(run_truth),
         evaluation=evaluation,
         embedding=embedding,
         metric=metric,
         summary=summary,
-        map_truth=true_poses,
+        map_truth=None if true_poses is None else _read_only(true_poses),
     )
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    """A report's arrays cannot be written, as its fields cannot be set (the run's truth is a view of
+    the map's: writing into one changed the other)."""
+    view = array.view()
+    view.setflags(write=False)
+    return view
 
 
 def index_truth(keyframes: int) -> np.ndarray:

@@ -8,6 +8,7 @@ starts elsewhere on the square, with its own image and odometry noise.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -221,7 +222,9 @@ def test_the_map_plot_draws_places_whose_first_visit_has_no_truth_at_a_later_vis
     report = score(sessions["second.est"])
     assert report.map_truth is not None
     first = report.estimate.graph.first_keyframe
-    report.map_truth[:first] = np.nan  # as when the first session's recording cannot be read
+    map_truth = report.map_truth.copy()
+    map_truth[:first] = np.nan  # as when the first session's recording cannot be read
+    report = dataclasses.replace(report, map_truth=map_truth)
     plots.write_plots(tmp_path, report)
     axes = drawn["map.png"].axes[0]
     states = report.estimate.graph.states
