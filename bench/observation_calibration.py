@@ -52,11 +52,8 @@ def keyframes(path: Path) -> list[tuple[np.ndarray, np.ndarray]]:
 
 
 def calibrate(path: Path, names: list[str]) -> None:
-    import math
-
     from aslam.core import se2
     from aslam.core.config import REVISIT_HEADING_DEG, REVISIT_RADIUS_M
-    from aslam.core.metrics import same_place
 
     frames = keyframes(path)
     truth = np.array([pose for _, pose in frames])
@@ -69,8 +66,7 @@ def calibrate(path: Path, names: list[str]) -> None:
             d = model.distances(z[t], np.array([model.view(v) for v in z[:t]]))
             metres = np.hypot(*(truth[:t, :2] - truth[t, :2]).T)
             degrees = np.degrees(np.abs(se2.wrap_angle(truth[:t, 2] - truth[t, 2])))
-            heading = math.radians(REVISIT_HEADING_DEG)
-            true = np.array([same_place(*(truth[t] - truth[k]), REVISIT_RADIUS_M, heading) for k in range(t)])
+            true = (metres <= REVISIT_RADIUS_M) & (degrees <= REVISIT_HEADING_DEG)  # the scoring's tolerance
             if true.any():
                 revisits += 1
                 same.append(d[true].min())
