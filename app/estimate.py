@@ -46,6 +46,9 @@ class EstimateProgress:
     finishing: bool = False
     """Every image is read; the map's pose graph and the file are being written (seconds at
     10,000 keyframes, in which a bar at its end would look stalled)."""
+    pose_graph_iterations: int = 0
+    """Levenberg–Marquardt iterations of the pose graph so far, while finishing (each one reported:
+    GTSAM holds the interpreter, so only these reports can move a display)."""
 
 
 @dataclass(frozen=True)
@@ -159,11 +162,13 @@ def estimate(
     counts = PipelineCounts()
     start = time.perf_counter()
 
-    def progress(keyframes: int, hypotheses: int, *, finishing: bool = False) -> None:
+    def progress(keyframes: int, hypotheses: int, *, finishing: bool = False, iterations: int = 0) -> None:
         if on_progress is not None:
             elapsed = time.perf_counter() - start
             on_progress(
-                EstimateProgress(counts.samples, counts.images, keyframes, hypotheses, elapsed, finishing)
+                EstimateProgress(
+                    counts.samples, counts.images, keyframes, hypotheses, elapsed, finishing, iterations
+                )
             )
 
     def images_counted(images: int | None) -> None:
@@ -231,7 +236,16 @@ def estimate(
                     keyframes=keyframes,
                 )
             embed_start = time.perf_counter()
-            embedding = embed_run(actions.view, result.states, result.links, config, result.first_keyframe)
+            embedding = embed_run(
+                actions.view,
+                result.states,
+                result.links,
+                config,
+                result.first_keyframe,
+                on_iteration=lambda iteration: progress(
+                    keyframes, len(result.hypotheses), finishing=True, iterations=iteration
+                ),
+            )
             scene = None if embedding is None else metric_scene(embedding, result.keyframe_stamps_ns)
             views = PlaceViews(
                 config.observation_model,

@@ -168,6 +168,8 @@ def embed(
     assignment: np.ndarray,
     options: EmbedOptions | None = None,
     jumps: np.ndarray | None = None,
+    *,
+    on_iteration: Callable[[int], None] | None = None,
 ) -> Embedding:
     """Optimise the best hypothesis's keyframes as a pose graph (Levenberg–Marquardt, GTSAM).
 
@@ -177,7 +179,9 @@ def embed(
     ``assignment[k]``. ``jumps`` (n,) marks the actions that are no constraint: the robot was
     carried, or odometry restarted, and the estimator relocalised (its link has a huge covariance);
     those factors get a σ of ``JUMP_SIGMA_M`` so the closures place what follows. The result is in
-    the frame of keyframe 0. ValueError on inconsistent input.
+    the frame of keyframe 0. ValueError on inconsistent input. ``on_iteration(i)`` is called after
+    each Levenberg–Marquardt iteration: GTSAM holds the interpreter while it optimises (seconds at
+    10,000 keyframes), so this is where a progress display can move and Ctrl-C can land.
     """
     import gtsam
 
@@ -234,6 +238,8 @@ def embed(
 
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(options.max_iterations)
+    if on_iteration is not None:
+        params.iterationHook = lambda iteration, _error_before, _error_after: on_iteration(int(iteration))
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
     result = optimizer.optimize() if n else initial
     poses = np.array([[p.x(), p.y(), p.theta()] for p in (result.atPose2(k) for k in range(n))]).reshape(
@@ -458,6 +464,8 @@ def embed_run(
     links: Sequence[MapLink],
     config: EstimatorConfig,
     first_keyframe: int = 0,
+    *,
+    on_iteration: Callable[[int], None] | None = None,
 ) -> Embedding | None:
     """The metric view of a run's best map (``states`` and ``links`` as ``Estimator.result()`` or the
     estimate file give them), with the run's own motion noise and place tolerance; None without
@@ -465,7 +473,7 @@ def embed_run(
     prior map (``first_keyframe`` > 0) only this run's keyframes are embedded: a revisit of a prior
     place has no first visit in this run to close on. An action whose map link
     the estimator marked as no constraint (a relocalisation after a kidnap or an odometry reset:
-    variance ≥ ``JUMP_VARIANCE``) is not trusted either.
+    variance ≥ ``JUMP_VARIANCE``) is not trusted either. ``on_iteration`` as :func:`embed`'s.
     """
     actions = np.asarray(actions, dtype=float).reshape(-1, 3)
     if not len(actions):
@@ -489,4 +497,4 @@ def embed_run(
     }
     pairs = [frozenset((int(a), int(b))) for a, b in itertools.pairwise(assignment)]
     jumps = np.array([False] + [pair in loose for pair in pairs])
-    return embed(actions, assignment, EmbedOptions.from_config(config), jumps)
+    return embed(actions, assignment, EmbedOptions.from_config(config), jumps, on_iteration=on_iteration)

@@ -391,11 +391,13 @@ def score(
             info.graph.links,
             estimator_config(info.metadata.config),
             first,
+            on_iteration=lambda iteration: stage(f"the metric view (GTSAM): iteration {iteration}"),
         )
     except ValueError as err:
         raise EstimateError(f"no metric view of the map ({err})", path=estimate) from err
     metric = None
     if embedding is not None and run_truth is not None and np.isfinite(run_truth).all(axis=1).sum() >= 2:
+        stage("the trajectories' errors (evo)")
         try:
             metric = score_trajectories(embedding, run_truth, stamps)
         except ValueError as err:

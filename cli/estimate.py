@@ -130,7 +130,7 @@ def progress_columns() -> tuple[Any, ...]:
     from rich.table import Column
 
     return (
-        TextColumn("{task.description}"),  # "estimate"; "writing" once every image is read
+        TextColumn("{task.description}"),  # "estimate"; "writing" once read; "pose graph 12" as it optimises
         BarColumn(bar_width=8),
         MofNCompleteColumn(table_column=Column(no_wrap=True)),
         TextColumn("images · {task.fields[keyframes]} kf · {task.fields[hypotheses]} hyp"),
@@ -152,14 +152,18 @@ def _progress_bar(terminal: Terminal) -> tuple[AbstractContextManager[Any], Call
     task = progress.add_task("estimate", total=None, keyframes=0, hypotheses=0, rate=0.0)
 
     def on_progress(p: EstimateProgress) -> None:
+        description = "estimate"
+        if p.finishing:
+            description = f"pose graph {p.pose_graph_iterations}" if p.pose_graph_iterations else "writing"
         progress.update(
             task,
-            description="writing" if p.finishing else "estimate",
+            description=description,
             completed=p.samples,
             total=p.samples_total,
             keyframes=p.keyframes,
             hypotheses=p.hypotheses,
             rate=p.keyframes / max(p.elapsed_s, 1e-9),
+            refresh=p.pose_graph_iterations > 0,  # GTSAM holds the interpreter: the bar's thread cannot
         )
 
     return progress, on_progress

@@ -236,12 +236,24 @@ def _write_trajectories(
 
 @contextlib.contextmanager
 def _status(terminal: Terminal) -> Iterator[Callable[[str], None] | None]:
-    """A spinner naming the stage the scoring is at (only on a terminal, never with --quiet)."""
+    """A spinner naming the stage the scoring is at (only on a terminal, never with --quiet).
+
+    Each update redraws it: GTSAM holds the interpreter while it optimises, so the spinner's own
+    refresh thread stood still through the metric view's seconds; its iterations update it."""
     if not terminal.shows_progress:
         yield None
         return
-    with terminal.console.status("report", spinner="dots") as status:
-        yield lambda text: status.update(f"report: {text}")
+    from rich.live import Live
+    from rich.spinner import Spinner
+
+    spinner = Spinner("dots", text="report", style="status.spinner")
+    with Live(spinner, console=terminal.console, refresh_per_second=12.5, transient=True) as live:
+
+        def update(text: str) -> None:
+            spinner.update(text=f"report: {text}")
+            live.refresh()
+
+        yield update
 
 
 def _check_output(path: Path, *, force: bool, others: list[Path], inputs: list[Path]) -> None:

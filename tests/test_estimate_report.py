@@ -499,12 +499,18 @@ def test_app_layer_gives_what_the_cli_prints(recording: Path, tmp_path: Path, ca
     )
     assert summary.output == (tmp_path / "api.mcap").absolute() and summary.keyframes > 0
     assert progress[-1].keyframes == summary.keyframes and warnings == []
-    # The last update says the images are all read and the map is being written (the bar sat at
-    # its end for seconds while the pose graph and the file were).
-    assert [p.finishing for p in progress] == [False] * (len(progress) - 1) + [True]
+    # Once the images are all read, the updates say the map is being written, and each iteration
+    # of its pose graph moves them (the bar sat at its end for seconds while GTSAM optimised).
+    reading = [p for p in progress if not p.finishing]
+    assert progress[: len(reading)] == reading and len(progress) > len(reading)
+    iterations = [p.pose_graph_iterations for p in progress[len(reading) :]]
+    assert iterations == list(range(len(iterations))) and len(iterations) >= 3
     assert main(["estimate", str(recording), "-o", str(tmp_path / "cli.mcap"), "--no-timing", "-q"]) == 0
     assert (tmp_path / "api.mcap").read_bytes() == (tmp_path / "cli.mcap").read_bytes()
-    report = score(tmp_path / "api.mcap")
+    stages: list[str] = []
+    report = score(tmp_path / "api.mcap", on_stage=stages.append)
+    pose_graph = [f"the metric view (GTSAM): iteration {i}" for i in iterations[1:]]
+    assert stages[-len(pose_graph) - 1 :] == [*pose_graph, "the trajectories' errors (evo)"]
     assert main(["report", str(tmp_path / "cli.mcap"), "--json", "-", "-q"]) == 0
     assert json.loads(capsys.readouterr().out) == report.summary
 

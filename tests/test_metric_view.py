@@ -81,6 +81,23 @@ def test_without_closures_the_embedding_is_dead_reckoning():
     np.testing.assert_allclose(embedding.poses, embedding.odometry, atol=1e-6)
 
 
+def test_each_iteration_is_reported_and_an_interrupt_lands_between_them():
+    """GTSAM holds the interpreter while it optimises: the reports are where a display moves and
+    Ctrl-C lands. Reporting changes no figure."""
+    _, actions, assignment, _ = loop(3, seed=5)
+    quiet = embed(actions, assignment, OPTIONS)
+    reported: list[int] = []
+    watched = embed(actions, assignment, OPTIONS, on_iteration=reported.append)
+    assert reported == list(range(1, quiet.iterations + 1)) and quiet.iterations >= 2
+    assert watched.poses.tobytes() == quiet.poses.tobytes()
+
+    def interrupt(iteration: int) -> None:
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        embed(actions, assignment, OPTIONS, on_iteration=interrupt)
+
+
 @pytest.mark.parametrize("seed", [3, 4])
 def test_one_wrong_closure_does_not_fold_the_map(seed: int):
     truth, actions, assignment, _ = loop(3, seed=seed)
