@@ -246,6 +246,8 @@ def estimate(
                     keyframes, len(result.hypotheses), finishing=True, iterations=iteration
                 ),
             )
+            if embedding is not None and embedding.iterations:  # the rest of the file, after the pose graph
+                progress(keyframes, len(result.hypotheses), finishing=True)
             scene = None if embedding is None else metric_scene(embedding, result.keyframe_stamps_ns)
             views = PlaceViews(
                 config.observation_model,

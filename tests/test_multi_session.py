@@ -86,18 +86,19 @@ def test_progress_counts_this_runs_keyframes_not_the_maps(sessions, tmp_path, mo
     import aslam.app.estimate as app_estimate
 
     monkeypatch.setattr(app_estimate, "PROGRESS_INTERVAL_S", -1.0)  # every keyframe
-    progress: list[int] = []
+    progress: list[tuple[int, bool]] = []
     summary = app_estimate.estimate(
         sessions["second"],
         tmp_path / "second.est.mcap",
         EstimatorConfig(),
         timing=False,
         prior=sessions["first.est"],
-        on_progress=lambda p: progress.append(p.keyframes),
+        on_progress=lambda p: progress.append((p.keyframes, p.finishing)),
     )
     run = len(second_session_route(5))
     assert summary.keyframes == run
-    assert progress[:-1] == list(range(1, run + 1)) and progress[-1] == run
+    assert [k for k, finishing in progress if not finishing] == list(range(1, run + 1))
+    assert {k for k, finishing in progress if finishing} == {run}
 
 
 @pytest.mark.parametrize("scale", [0.0, 0.95])
