@@ -31,6 +31,7 @@ from contextlib import closing
 from pathlib import Path
 
 import numpy as np
+from measure import spread
 
 from aslam.app.config_file import build_config
 from aslam.app.estimate import geometry_camera
@@ -98,10 +99,6 @@ def third_party_imports(command: list[str]) -> set[str]:
         if line.startswith("import time:") and line.count("|") == 2
     }
     return {name for name in names if name not in sys.stdlib_module_names and name not in ("aslam", "")}
-
-
-def spread(values: list[float]) -> dict[str, float]:
-    return {"median": statistics.median(values), "min": min(values), "max": max(values)}
 
 
 def stages(recording: Path, config: EstimatorConfig, output: Path) -> dict[str, float]:

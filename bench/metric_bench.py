@@ -31,6 +31,7 @@ from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
+from measure import log
 
 from aslam.app.metric_view import (
     EmbedOptions,
@@ -46,10 +47,6 @@ from aslam.data_formats.estimate import read_estimate
 
 CACHE = Path(__file__).resolve().parent / ".cache" / "metric"
 PAPER_LAP = 34
-
-
-def log(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
 
 
 def aslam(*args: str) -> None:

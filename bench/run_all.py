@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from measure import log
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -58,11 +59,6 @@ SEEDS = (1, 2, 3, 4, 5)
 NOISES = (0.01, 0.03, 0.05, 0.10)
 REPORT_PLOTS = {"paper-seed1": ("hypotheses", "errors", "map"), "aliasing-seed1": ("hypotheses",)}
 """``aslam report --plots`` figures of the first paper and aliasing runs kept for the document."""
-
-
-def log(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
-
 
 # --- one scenario ----------------------------------------------------------------------------------
 

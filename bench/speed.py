@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import baselines
+from measure import log
 from scenarios import ROOT
 
 BENCH = ROOT / "bench"
@@ -23,10 +24,6 @@ SCALING_BIG_TIMEOUT_S = 330
 SCALING_REPEATS = 3
 PROFILED = ("_search", "_search_path", "_prune", "_commit", "_propose")
 """The tree's methods whose share of the SLAM step is profiled."""
-
-
-def log(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
 
 
 def bench_json(script: str, *args: str, timeout: float | None = None) -> dict[str, Any]:

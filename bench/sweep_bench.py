@@ -28,12 +28,13 @@ from __future__ import annotations
 import argparse
 import json
 import resource
-import statistics
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from measure import spread
 
 from aslam.app.estimate import estimate
 from aslam.app.score import leaves, score
@@ -126,10 +127,6 @@ def run_parallel(sweep, folder: Path, workers: int) -> tuple[float, float, list[
 
 def _sweep_figures(result) -> dict:
     return {k: v for k, v in result.summary.items() if not k.startswith("timing.")}
-
-
-def spread(values: list[float]) -> dict[str, float]:
-    return {"median": statistics.median(values), "min": min(values), "max": max(values)}
 
 
 def main() -> None:
