@@ -601,7 +601,7 @@ class HypothesisTree:
         """Whether the best hypothesis has never named a mapped place, in a run with no prior map
         (``--map``, whose links another session measured): its map is then one odometry chain,
         wrong only by odometry's own noise (``NEVER_SETTLED``)."""
-        return self._tracked_at == -math.inf and not len(self._map_states)
+        return self._tracked_at == -math.inf and self._first_keyframe == 0
 
     def _ruled_out_by_odometry(self, state: int, action: np.ndarray, action_cov: np.ndarray) -> bool:
         """Whether the best leaf's map puts ``state`` so far from where odometry says the robot is
@@ -725,8 +725,9 @@ class HypothesisTree:
         returned too, untested (``map_relocalisation_prior``): the sequence that follows decides.
         After an odometry jump (``untested``) the robot may be anywhere: as at a session's start,
         the ``map_relocalisation_candidates`` most alike places are all returned, untested.
-        Where the best leaf's prediction already fits the view well (``WELL_EXPLAINED``), within a
-        run, the index is not searched and nothing is returned.
+        Where the best leaf's prediction already fits the view well (``WELL_EXPLAINED``), the index
+        is not searched and nothing is returned; not in a map judged across seasons
+        (``map_reference_scale``), whose distances the fit was not measured on.
         """
         none: tuple[np.ndarray, list[float], int | None, float] = (np.zeros(0, np.int64), [], None, math.inf)
         appearance_off = self._log_relocalise == -math.inf and self._log_map_relocalise == -math.inf
