@@ -54,15 +54,20 @@ def test_standing_still_for_half_the_median_interval_is_a_pause(still_share, pau
     assert born == pytest.approx(JUMP_CEILING_LOST if paused else JUMP_CEILING, rel=1e-6)
 
 
-def _view_at_distance(model, stored: np.ndarray, target: float, seed: int) -> np.ndarray:
-    """A view mixed from ``stored`` and a random one, at distance ``target`` from ``stored``."""
-    other = np.random.default_rng(seed).dirichlet(np.ones(BINS)).astype(np.float32)
+def _mixed_at_distance(model, stored: np.ndarray, other: np.ndarray, target: float) -> np.ndarray:
+    """A view mixed from ``stored`` and ``other``, at distance ``target`` from ``stored`` (bisected)."""
     low, high = 0.0, 1.0
     for _ in range(50):
         w = (low + high) / 2
         view = ((1 - w) * stored + w * other).astype(np.float32)
         low, high = (w, high) if float(model.distances(view, stored[None])[0]) < target else (low, w)
     return view
+
+
+def _view_at_distance(model, stored: np.ndarray, target: float, seed: int) -> np.ndarray:
+    """A view mixed from ``stored`` and a random one, at distance ``target`` from ``stored``."""
+    other = np.random.default_rng(seed).dirichlet(np.ones(BINS)).astype(np.float32)
+    return _mixed_at_distance(model, stored, other, target)
 
 
 def _tracked_then_unlike(ratio: float, at: int = 34 + 5, **overrides):
@@ -120,15 +125,9 @@ def _predicted_and_two_look_alikes(share: float) -> list:
         view = world.observe(truth)
         if i == 39:
             tree = estimator._tree
-            place, alike, ref = tree.views[5], tree.views[20], tree.reference.value
-            low, high = 0.0, 1.0
-            for _ in range(50):
-                w = (low + high) / 2
-                view = ((1 - w) * place + w * alike).astype(np.float32)
-                near = float(tree.model.distances(view, place[None])[0]) < share * ref
-                low, high = (w, high) if near else (low, w)
+            view = _mixed_at_distance(tree.model, tree.views[5], tree.views[20], share * tree.reference.value)
             others = tree.model.distances(view, tree.views[np.array([20, 26])])
-            assert (others < 0.3 * ref).all()  # clearly more alike, not singled out
+            assert (others < 0.3 * tree.reference.value).all()  # clearly more alike, not singled out
         result = estimator.add_keyframe(i, action * (1 + 0.03 * rng.standard_normal(3)), view)
     return result.hypotheses
 
@@ -200,13 +199,7 @@ def _carried_to_a_half_alike_place(share: float) -> str:
         view = world.observe(truths[-1])
         if i == 39:
             tree = estimator._tree
-            place, alike, ref = tree.views[5], tree.views[20], tree.reference.value
-            low, high = 0.0, 1.0
-            for _ in range(50):
-                w = (low + high) / 2
-                view = ((1 - w) * place + w * alike).astype(np.float32)
-                near = float(tree.model.distances(view, place[None])[0]) < share * ref
-                low, high = (w, high) if near else (low, w)
+            view = _mixed_at_distance(tree.model, tree.views[5], tree.views[20], share * tree.reference.value)
         stamp, still = carried(i, 39)
         best = estimator.add_keyframe(stamp, action * (1 + 0.03 * rng.standard_normal(3)), view, still).best
         if i >= 39:
@@ -305,12 +298,7 @@ def _reset_towards_a_look_alike(share: float) -> str:
     def view_at(i: int, truths: list[np.ndarray], view: np.ndarray) -> np.ndarray:
         if i != reset_at:
             return view
-        low, high = 0.0, 1.0
-        for _ in range(50):
-            w = (low + high) / 2
-            view = ((1 - w) * place + w * alike).astype(np.float32)
-            near = float(model.distances(view, place[None])[0]) < share * model.fixed_reference
-            low, high = (w, high) if near else (low, w)
+        view = _mixed_at_distance(model, place, alike, share * model.fixed_reference)
         assert float(model.distances(view, alike[None])[0]) < 0.3 * model.fixed_reference
         return view
 
