@@ -163,7 +163,7 @@ def _progress_bar(terminal: Terminal) -> tuple[AbstractContextManager[Any], Call
             keyframes=p.keyframes,
             hypotheses=p.hypotheses,
             rate=p.keyframes / max(p.elapsed_s, 1e-9),
-            refresh=p.pose_graph_iterations > 0,  # GTSAM holds the interpreter: the bar's thread cannot
+            refresh=p.pose_graph_iterations > 0,  # GTSAM holds the interpreter: its own thread cannot redraw
         )
 
     return progress, on_progress
