@@ -48,6 +48,7 @@ class Node:
     __slots__ = (
         "carried_at",
         "doubted",
+        "guessed",
         "id",
         "inverse_rel",
         "is_new",
@@ -87,6 +88,11 @@ class Node:
         # out. Its jump is confirmed whatever the other lines predict, and until it settles it is no
         # proof the robot was ever on the map.
         self.doubted: bool = parent is not None and parent.doubted
+        # A line that began with a jump to a place proposed untested at an odometry jump, and no view
+        # has singled out a place of it since (``_distinct``): a guess, under the ceiling however
+        # well its places fit (docs/estimator.md, "A guess is confirmed only by a view that singles
+        # it out").
+        self.guessed: bool = parent is not None and parent.guessed
         # A line that began with a jump soon after a pause: the keyframe the pause ended (a carry's
         # far end, if the jump is believed), else None.
         self.carried_at: int | None = None if parent is None else parent.carried_at
@@ -516,14 +522,19 @@ class HypothesisTree:
         # still explains the view otherwise (a settled line predicts another place that looks like a
         # revisit) or it was born while the robot explored without having lost track (``doubted``):
         # then it must be confirmed again (an aliased stretch can fit a look-alike track twice in a
-        # row). Where the settled lines predict the same place, they agree with it.
-        if any(leaf.settled_at > keyframe for leaf in self.leaves):
+        # row). Where the settled lines predict the same place, they agree with it. A guess's line (an
+        # untested place at an odometry jump) stays under the ceiling, new places too, until a view
+        # singles out the place it predicts; until then it explains nothing.
+        distinct: set[int] = set()
+        if any(leaf.guessed for leaf in self.leaves):
+            distinct = self._distinct(observation, candidate_ids, distances, features)
+        if any(leaf.settled_at > keyframe or leaf.guessed for leaf in self.leaves):
             alike = set(candidate_ids[distances < self.reference.value].tolist())  # look like a revisit
             explained = set().union(
                 *(
                     alike.intersection(states.tolist())
                     for leaf, (states, _) in zip(self.leaves, proposals, strict=True)
-                    if leaf.settled_at <= keyframe
+                    if leaf.settled_at <= keyframe and not leaf.guessed
                 )
             )
             # A line that never settles stays under the ceiling through its new places too: its
@@ -532,6 +543,7 @@ class HypothesisTree:
                 (min(log_belief, ceiling), parent, state, is_new)
                 if (not is_new and parent.settled_at > keyframe and (parent.doubted or explained - {state}))
                 or parent.settled_at == NEVER_SETTLED
+                or (parent.guessed and (is_new or state not in distinct))
                 else (log_belief, parent, state, is_new)
                 for log_belief, parent, state, is_new in children
             ]
@@ -552,6 +564,8 @@ class HypothesisTree:
             if jump:  # odometry does not link the places: the search never crosses it
                 rel = rel[:3] + _UNKNOWN_LINK
             node = self._new_node(keyframe, state, parent, log_belief, is_new, rel)
+            if parent.guessed and not is_new and state in distinct:
+                node.guessed = False  # the view singled the guess's place out: confirmed
             if jump:
                 # A place odometry rules out, with no pause in which the robot could have been
                 # carried, is a look-alike stretch until it outlasts one. Born while exploring, or
@@ -572,6 +586,9 @@ class HypothesisTree:
                     node.settled_at = keyframe + (DOUBTED_CONFIRMATIONS if ruled_out else JUMP_CONFIRMATIONS)
                 if not drove_on:
                     node.carried_at = int(self._paused_at)
+                # Proposed untested at an odometry jump: even a place the view singles out is a guess
+                # (held out: one 5.4 m off, singled out just under Lowe's ratio, was claimed 3 times).
+                node.guessed = jumped
             leaves.append(node)
         was_best = self.leaves[0]
         # The end of an unsettled doubted line is no loss of track: the robot was never shown to be there.
@@ -863,6 +880,28 @@ class HypothesisTree:
         if not distances[order[0]] < RELOCALISATION_RATIO * fit:  # clearly more alike than predicted
             return []
         return [best]
+
+    def _distinct(
+        self,
+        observation: np.ndarray,
+        states: np.ndarray,
+        distances: np.ndarray,
+        features: ViewFeatures | None,
+    ) -> set[int]:
+        """Those of ``states`` (at ``distances`` from ``observation``) the view singles out, as
+        ``_distinctive`` does: they look like a revisit, and no place elsewhere fits nearly as well
+        (among ``states`` and the index's shortlist, none but their neighbours within Lowe's ratio)."""
+        known = set(states.tolist())
+        extra = np.array([s for s in self._shortlist(observation).tolist() if s not in known], dtype=np.int64)
+        pool = np.concatenate([states, extra])
+        pool_distances = np.concatenate([distances, self._distances(observation, extra, features)])
+        distinct = set()
+        for state, distance in zip(states.tolist(), distances.tolist(), strict=True):
+            rivals = pool_distances[np.abs(pool - state) > RUNNER_UP_GAP]
+            alike = distance < self.reference.value
+            if alike and (not len(rivals) or distance < RELOCALISATION_RATIO * float(rivals.min())):
+                distinct.add(state)
+        return distinct
 
     def _distances(
         self, observation: np.ndarray, states: np.ndarray, features: ViewFeatures | None = None

@@ -842,8 +842,11 @@ def test_past_an_odometry_jump_a_look_alike_does_not_rule_out_what_the_jumps_pre
     view leans towards a look-alike on the far side (lap 1's places 8 and 20 share 70 % of their
     views): the index singles it out, and the next place looks far less alike. The contradiction veto
     rules out such a place when the old track predicts it (a kidnap's); past an odometry jump there
-    is no old track, and the line that jumped there keeps its prediction: relocalised at the first
-    keyframe after the reset, not the second, every claim right."""
+    is no old track, and the line that jumped there keeps its prediction. A jump at an odometry jump
+    is a guess, though (``Node.guessed``): with the look-alike as alike as its place, the line stays
+    under the ceiling there, and the next view, which singles its place out, confirms it. So every
+    claim is right and the robot relocalises at the second keyframe after the reset (at the first
+    before guesses were told apart)."""
     world = SyntheticWorld(5)
     first_lap = first_lap_poses()
     own, shared = world.rng.dirichlet(np.ones(BINS)), world.rng.dirichlet(np.ones(BINS))
@@ -857,7 +860,8 @@ def test_past_an_odometry_jump_a_look_alike_does_not_rule_out_what_the_jumps_pre
         return (0.7 * world.places[place_key(first_lap[20])] + 0.3 * shared).astype(np.float32)
 
     _, results, truths = _reset_run(world, reset_at, synthetic_config(), view_at)
-    assert results[reset_at + 1].best.state == 8
+    assert 8 in [h.state for h in results[reset_at + 1].hypotheses]
+    assert results[reset_at + 2].best.state == 9
     for t in range(reset_at, len(results)):
         if not results[t].best.is_new_state:
             assert math.hypot(*(truths[t][:2] - truths[results[t].best.state][:2])) < 0.5
