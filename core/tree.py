@@ -491,17 +491,19 @@ class HypothesisTree:
                 # predictions are the jumps' tests.
                 obs_of = unvetoed_of
             if coverage > 0 and len(log_transition):
-                # A mapped place where the robot is predicted to stand makes "a new place" unlikely.
-                # After a pause the robot may have been carried, and the prediction proves nothing:
-                # then only as far as the place also looks like a revisit (held out: carried into a
-                # lollipop's parallel corridor, facing back, tracks claimed places 4–6 m off whose
-                # views measured 1.0–1.2 × the reference, kept by this coverage).
-                covered = float(log_transition.max())
+                # A mapped place where the robot is predicted to stand makes "a new place" unlikely,
+                # unless a veto ruled it out: the view says the robot is not there (held out: a
+                # corner's predicted place ruled out, a place 4.1 m off reached round a whole lap
+                # was claimed). After a pause the robot may have been carried, and the prediction
+                # proves nothing: then only as far as the place also looks like a revisit (held out:
+                # carried into a lollipop's parallel corridor, facing back, tracks claimed places
+                # 4–6 m off whose views measured 1.0–1.2 × the reference, kept by this coverage).
+                pairs = zip(states.tolist(), log_transition.tolist(), strict=True)
                 if carried:
-                    covered = max(
-                        log_t + min(0.0, obs_of[state] - log_reference)
-                        for state, log_t in zip(states.tolist(), log_transition.tolist(), strict=True)
-                    )
+                    covered = max(log_t + min(0.0, obs_of[state] - log_reference) for state, log_t in pairs)
+                else:
+                    remaining = [log_t for state, log_t in pairs if obs_of[state] > -math.inf]
+                    covered = max(remaining, default=-math.inf)
                 leaf_log_new += math.log1p(-coverage * math.exp(min(0.0, covered)))
             children.append((leaf.log_belief + leaf_log_new, leaf, keyframe, True))
             for state, log_t in zip(states.tolist(), log_transition.tolist(), strict=True):

@@ -700,3 +700,38 @@ def test_a_guess_at_an_odometry_jump_is_confirmed_only_by_a_view_that_singles_it
         assert not hypotheses[0].is_new_state and hypotheses[0].state == 21
     else:
         assert hypotheses[0].is_new_state and hypotheses[1].state == 21  # under the ceiling, not gone
+
+
+def _ruled_out_then_the_next_place_alike(share_of_next: float) -> list:
+    """Lap 1 of the rectangle, then lap 2 tracked until place 5, where the view is as far from
+    place 5's as a look-alike could be (3.5 × the new-place reference: the appearance veto rules it
+    out) and ``share_of_next`` × the reference from place 6's, a metre ahead. The hypotheses there."""
+    world = SyntheticWorld(3, noise=0.02)
+    estimator = Estimator(synthetic_config())
+    rng = np.random.default_rng(0)
+    truth = np.zeros(3)
+    estimator.add_keyframe(0, np.zeros(3), world.observe(truth))
+    at = 34 + 5
+    for i, action in enumerate(rectangle_actions(2)[:at], start=1):
+        truth = se2.compose(truth, action)
+        view = world.observe(truth)
+        if i == at:
+            tree = estimator._tree
+            reference = tree.reference.value
+            view = _mixed_at_distance(tree.model, tree.views[6], tree.views[5], share_of_next * reference)
+            assert tree.model.distances(view, tree.views[5][None])[0] > 3 * reference
+        result = estimator.add_keyframe(i, action * (1 + 0.03 * rng.standard_normal(3)), view)
+    return result.hypotheses
+
+
+def test_a_predicted_place_the_view_rules_out_does_not_make_a_new_place_unlikely():
+    """new_state_coverage: "A mapped place where the robot is predicted to stand makes a new place
+    unlikely" — unless the view rules that place out (a veto): the robot is not there, and only the
+    places that remain count. Here the predicted place is vetoed and the next place, a metre
+    ahead and far less likely by odometry, looks like a revisit (0.6 × the reference): a new place,
+    not the wrong neighbour. Held out (a reversal route at 5–9 % odometry noise): a corner's
+    predicted place ruled out by the contradiction veto, and a place 4.1 m off that the track's map
+    reached round a whole lap claimed, because the vetoed place still made "a new place" unlikely."""
+    hypotheses = _ruled_out_then_the_next_place_alike(0.6)
+    assert hypotheses[0].is_new_state
+    assert [h.state for h in hypotheses if not h.is_new_state] == [6]  # under the new place, not gone
