@@ -688,8 +688,8 @@ def _guess_then_two_alike(ratio: float) -> list:
 
 @pytest.mark.parametrize("ratio, confirmed", [(0.78, True), (0.82, False)])
 def test_a_guess_at_an_odometry_jump_is_confirmed_only_by_a_view_that_singles_its_place_out(ratio, confirmed):
-    """After an odometry jump the places proposed untested that the view does not single out are
-    guesses: the view at the jump may fit none (ground the first lap saw from elsewhere). A later
+    """After an odometry jump the places proposed untested are guesses: the view at the jump may fit
+    none (ground the first lap saw from elsewhere), or fit a look-alike best. A later
     view confirms a guess's line only if it singles out the place the line predicts: no place
     elsewhere fits nearly as well (RELOCALISATION_RATIO, as ``_distinctive``). Until then the line
     stays under the ceiling (``Node.guessed``). Held out (eighth draw, aliasing 0.79): guesses 2–3 m
@@ -703,9 +703,9 @@ def test_a_guess_at_an_odometry_jump_is_confirmed_only_by_a_view_that_singles_it
 
 
 def _ruled_out_then_the_next_place_alike(share_of_next: float) -> list:
-    """Lap 1 of the rectangle, then lap 2 tracked until place 5, where the view is as far from
-    place 5's as a look-alike could be (3.5 × the new-place reference: the appearance veto rules it
-    out) and ``share_of_next`` × the reference from place 6's, a metre ahead. The hypotheses there."""
+    """Lap 1 of the rectangle, then lap 2 tracked until place 5, where the view is over 3 × the
+    new-place reference from place 5's (the appearance veto rules it out) and ``share_of_next`` ×
+    the reference from place 6's, a metre ahead. The hypotheses there."""
     world = SyntheticWorld(3, noise=0.02)
     estimator = Estimator(synthetic_config())
     rng = np.random.default_rng(0)
