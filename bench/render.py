@@ -106,6 +106,7 @@ ROBUST_TABLES = {
     "robust_random_mixes_506": "robust_matrix_random_mixes_506.md",
     "robust_random_mixes_507": "robust_matrix_random_mixes_507.md",
     "robust_random_mixes_508": "robust_matrix_random_mixes_508.md",
+    "robust_random_mixes_509": "robust_matrix_random_mixes_509.md",
     "robust_reset_shares": "robust_matrix_reset_shares.md",
     "robust_resets_102_103": "robust_matrix_resets_102_103.md",
     "robust_kidnap_windows_96_99": "robust_matrix_kidnap_windows_96_99.md",
